@@ -1,0 +1,416 @@
+"""Typed, validated valve parameters, loaded from `config/*.yaml`.
+
+One frozen dataclass per section of the YAML file. Each field carries its unit, its source and
+the check that makes it physical; `load_params` refuses unknown keys, wrong types and
+non-physical values with a message naming the key and what is accepted. The node's
+parameter callback reuses `validate_section_value` so a runtime change is held to the same rules.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import yaml
+
+from pcv_sim.errors import ParameterError
+
+__all__ = [
+    "ValveParams",
+    "SolenoidParams",
+    "SpoolParams",
+    "OrificeParams",
+    "FitParams",
+    "DampingParams",
+    "FluidParams",
+    "CircuitParams",
+    "CalibrationParams",
+    "CommandParams",
+    "SimulationParams",
+    "DEFAULT_CONFIG",
+    "load_params",
+    "params_from_mapping",
+    "params_to_mapping",
+    "default_params",
+    "replace_param",
+]
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
+
+
+def _installed_default() -> Path:
+    """The default YAML, from the source tree or an ament install (share/pcv_sim/config)."""
+    if DEFAULT_CONFIG.is_file():
+        return DEFAULT_CONFIG
+    try:
+        from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+
+        return Path(get_package_share_directory("pcv_sim")) / "config" / "valve.yaml"
+    except Exception:  # noqa: BLE001 - not installed through ament: report the source path
+        return DEFAULT_CONFIG
+
+
+# --- checks: each returns None when fine, else the text "what is accepted" -------------------
+
+Check = Callable[[Any], "str | None"]
+
+
+def _positive(v: float) -> str | None:
+    return None if v > 0 else "a finite number > 0"
+
+
+def _non_negative(v: float) -> str | None:
+    return None if v >= 0 else "a finite number >= 0"
+
+
+def _any_finite(_v: float) -> str | None:
+    return None
+
+
+def _fraction(v: float) -> str | None:
+    return None if 0.0 <= v <= 1.0 else "a fraction in 0..1"
+
+
+def _one_of(*choices: str) -> Check:
+    def check(v: str) -> str | None:
+        return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
+
+    return check
+
+
+def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float") -> Any:
+    return field(metadata={"unit": unit, "source": source, "check": check, "kind": kind})
+
+
+# --- sections ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SolenoidParams:
+    """Eqs. 1-13: the flux-linkage solenoid and its force map."""
+
+    restoring_f1: tuple[float, ...] = _param("A/Wb^3 per mm^k", "T1 p_f11..p_f16", kind="vector6")
+    restoring_f2: tuple[float, ...] = _param("A/Wb^2 per mm^k", "T1 p_f21..p_f26", kind="vector6")
+    restoring_f3: tuple[float, ...] = _param("A/Wb per mm^k", "T1 p_f31..p_f33", kind="vector3")
+    dissipating: tuple[float, ...] = _param("A/V^k", "T1 p_d1..p_d4", kind="vector4")
+    force: tuple[tuple[float, ...], ...] = _param("N/A^k per mm^j", "T1 p_fs11..p_fs44", kind="matrix4x4")
+    core_offset_mm: float = _param("mm", "R2", _non_negative)
+    coil_resistance: float = _param("ohm", "R16", _positive)
+    supply_voltage: float = _param("V", "Sec. 3.1", _positive)
+    pwm: str = _param("-", "R15", _one_of("averaged", "switched"), kind="str")
+    pwm_frequency: float = _param("Hz", "Sec. 3", _positive)
+
+
+@dataclass(frozen=True)
+class SpoolParams:
+    """Eq. 14: the moving parts."""
+
+    mass: float = _param("kg", "T1 m", _positive)
+    pressure_area: float = _param("m^2", "T1 A_c", _positive)
+    chamber_area: float = _param("m^2", "T1 A_cc", _non_negative)
+    spring_stiffness: float = _param("N/m", "T1 K", _non_negative)
+    spring_preload: float = _param("N", "T1 f_0", _any_finite)
+    viscous_friction: float = _param("Ns/m", "T1 B", _non_negative)
+    viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _positive, kind="float_or_equivalent")
+    stroke_min_mm: float = _param("mm", "Sec. 4.2", _any_finite)
+    stroke_max_mm: float = _param("mm", "Sec. 4.2", _any_finite)
+
+
+@dataclass(frozen=True)
+class OrificeParams:
+    """Eq. 17 and Sec. 2: the metering holes and gaps."""
+
+    hole_radius: float = _param("m", "Sec. 2, R4", _positive)
+    hole_count: int = _param("-", "Sec. 2", _positive, kind="int")
+    gap_height: float = _param("m", "T1 h_gap", _positive)
+    tank_pilot_hole_radius: float = _param("m", "Sec. 2, R10", _positive)
+    tank_hole_offset: float = _param("m", "Sec. 2, R10", _non_negative)
+    blend_steepness_per_mm: float = _param("1/mm", "Eq. 27, R7", _positive)
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Eqs. 21-25, 31-32: the paper's curve fits (x in mm)."""
+
+    gap_geometry: tuple[float, ...] = _param("-", "Eq. 21", kind="vector4")
+    hole_geometry: tuple[tuple[float, ...], ...] = _param("-", "Eq. 22", kind="matrixNx3")
+    hole_exponent: tuple[float, ...] = _param("-", "Eq. 23", kind="vector3")
+    tank_geometry: tuple[tuple[float, ...], ...] = _param("-", "Eq. 24, R8", kind="matrixNx3")
+    tank_exponent: tuple[float, ...] = _param("-", "Eq. 25", kind="vector3")
+    pump_jet: tuple[tuple[float, ...], ...] = _param("-", "Eq. 31, R8", kind="matrixNx3")
+    pump_jet_cap: float = _param("-", "Eq. 31, R9", _fraction)
+    tank_jet: tuple[tuple[float, ...], ...] = _param("-", "Eq. 32, R8", kind="matrixNx3")
+    tank_jet_cap: float = _param("-", "Eq. 32, R9", _fraction)
+
+
+@dataclass(frozen=True)
+class DampingParams:
+    """Eqs. 28-29: restrictor and damping chamber."""
+
+    restrictor_conductance: float = _param("m^5/(N s)", "T1 K_d", _positive)
+    chamber_volume: float = _param("m^3", "T1 V_c", _positive)
+
+
+@dataclass(frozen=True)
+class FluidParams:
+    density: float = _param("kg/m^3", "T1 rho", _positive)
+    bulk_modulus: float = _param("Pa", "T1 beta", _positive)
+    kinematic_viscosity: float = _param("m^2/s", "T1 nu", _positive)
+
+
+@dataclass(frozen=True)
+class CircuitParams:
+    load_volume: float = _param("m^3", "T1 V", _positive)
+    supply_pressure: float = _param("Pa", "Sec. 3.2", _positive)
+    tank_pressure: float = _param("Pa", "R19", _non_negative)
+
+
+@dataclass(frozen=True)
+class CalibrationParams:
+    net_area: float | None = _param("m^2", "R21, fitted by pcv_sim.analysis.calibrate", _positive, kind="float_or_null")
+
+
+@dataclass(frozen=True)
+class CommandParams:
+    duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _positive, kind="float_or_null")
+
+
+@dataclass(frozen=True)
+class SimulationParams:
+    time_step: float = _param("s", "Sec. 3", _positive)
+    integrator: str = _param("-", "docs/model.md", _one_of("euler", "rk2", "rk4"), kind="str")
+
+
+_SECTIONS: dict[str, type] = {
+    "solenoid": SolenoidParams,
+    "spool": SpoolParams,
+    "orifice": OrificeParams,
+    "fits": FitParams,
+    "damping": DampingParams,
+    "fluid": FluidParams,
+    "circuit": CircuitParams,
+    "calibration": CalibrationParams,
+    "command": CommandParams,
+    "simulation": SimulationParams,
+}
+
+
+@dataclass(frozen=True)
+class ValveParams:
+    """All parameters of the valve model, validated. Build with `load_params` or `default_params`."""
+
+    solenoid: SolenoidParams
+    spool: SpoolParams
+    orifice: OrificeParams
+    fits: FitParams
+    damping: DampingParams
+    fluid: FluidParams
+    circuit: CircuitParams
+    calibration: CalibrationParams
+    command: CommandParams
+    simulation: SimulationParams
+
+    def __post_init__(self) -> None:
+        s = self.spool
+        if not s.stroke_min_mm < 0.0 < s.stroke_max_mm:
+            raise ParameterError(
+                f"spool.stroke_min_mm={s.stroke_min_mm} and spool.stroke_max_mm={s.stroke_max_mm}: "
+                "accepted is stroke_min_mm < 0 < stroke_max_mm (0 is the closed centre)"
+            )
+        if s.chamber_area >= s.pressure_area:
+            raise ParameterError(
+                f"spool.chamber_area={s.chamber_area} >= spool.pressure_area={s.pressure_area}: the net "
+                "area A_c - A_cc that holds the load pressure must be > 0"
+            )
+        cal = self.calibration.net_area
+        if cal is not None and not 0.0 < cal < s.pressure_area:
+            raise ParameterError(
+                f"calibration.net_area={cal}: accepted is null (as printed) or 0 < net_area < "
+                f"spool.pressure_area={s.pressure_area} m^2"
+            )
+        if self.circuit.tank_pressure >= self.circuit.supply_pressure:
+            raise ParameterError("circuit.tank_pressure must be below circuit.supply_pressure")
+        core_min = s.stroke_min_mm + self.solenoid.core_offset_mm
+        if core_min < 0.0:
+            raise ParameterError(
+                f"spool.stroke_min_mm + solenoid.core_offset_mm = {core_min} mm: the core position "
+                "must stay >= 0 mm (the core's end position) over the stroke"
+            )
+        dt = self.simulation.time_step
+        if dt > 1e-3:
+            raise ParameterError(f"simulation.time_step={dt}: accepted is 0 < time_step <= 1e-3 s")
+
+    @property
+    def net_area(self) -> float:
+        """A_c - A_cc, m^2: the area the load pressure acts on at rest (R11), as calibrated (R21)."""
+        cal = self.calibration.net_area
+        return self.spool.pressure_area - self.spool.chamber_area if cal is None else cal
+
+    @property
+    def chamber_area(self) -> float:
+        """A_cc in effect, m^2: the calibration adjusts the chamber side, A_c stays as printed (R21)."""
+        return self.spool.pressure_area - self.net_area
+
+    @property
+    def equivalent_damping(self) -> float:
+        """B + A_cc^2 / K_d, Ns/m: the damper the chamber and restrictor act as (R20)."""
+        return self.spool.viscous_friction + self.chamber_area**2 / self.damping.restrictor_conductance
+
+    @property
+    def simplified_damping(self) -> float:
+        """B of the simplified model (Sec. 4.3), Ns/m."""
+        b = self.spool.viscous_friction_simplified
+        return self.equivalent_damping if b == "equivalent" else float(b)
+
+
+# --- conversion and validation ----------------------------------------------------------------
+
+
+def _number(path: str, value: Any, accepted: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        hint = ""
+        if isinstance(value, str):
+            try:
+                float(value)
+                hint = " (YAML reads 1e9 as text: write 1.0e+9)"
+            except ValueError:
+                pass
+        raise ParameterError(f"{path}: got {value!r} ({type(value).__name__}); accepted is {accepted}{hint}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ParameterError(f"{path}: got {value!r}; accepted is a finite number")
+    return v
+
+
+def _vector(path: str, value: Any, length: int | None) -> tuple[float, ...]:
+    want = f"a list of {length} numbers" if length else "a list of numbers"
+    if not isinstance(value, (list, tuple)) or (length is not None and len(value) != length):
+        raise ParameterError(f"{path}: got {value!r}; accepted is {want}")
+    return tuple(_number(f"{path}[{k}]", v, "a finite number") for k, v in enumerate(value))
+
+
+def _matrix(path: str, value: Any, rows: int | None, cols: int) -> tuple[tuple[float, ...], ...]:
+    shape = f"{rows}x{cols}" if rows else f"Nx{cols}"
+    if not isinstance(value, (list, tuple)) or (rows is not None and len(value) != rows) or not value:
+        raise ParameterError(f"{path}: got {value!r}; accepted is a {shape} list of lists of numbers")
+    return tuple(_vector(f"{path}[{k}]", row, cols) for k, row in enumerate(value))
+
+
+def validate_section_value(section: str, key: str, value: Any) -> Any:
+    """Convert and check one parameter; raise ParameterError naming `section.key` if it is refused."""
+    cls = _SECTIONS.get(section)
+    if cls is None:
+        raise ParameterError(f"unknown section {section!r}; accepted are: {', '.join(_SECTIONS)}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if key not in fields:
+        raise ParameterError(f"unknown parameter {section}.{key}; accepted in {section}: {', '.join(fields)}")
+    meta = fields[key].metadata
+    path, kind, check = f"{section}.{key}", meta["kind"], meta["check"]
+    if kind == "float":
+        out: Any = _number(path, value, f"a number in {meta['unit']}")
+    elif kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
+        out = value
+    elif kind == "str":
+        if not isinstance(value, str):
+            raise ParameterError(f"{path}: got {value!r}; accepted is {check('') or 'a string'}")
+        out = value
+    elif kind == "float_or_null":
+        if value is None:
+            return None
+        out = _number(path, value, f"null (off) or a number in {meta['unit']}")
+    elif kind == "float_or_equivalent":
+        if value == "equivalent":
+            return value
+        out = _number(path, value, f"'equivalent' or a number in {meta['unit']}")
+    elif kind.startswith("vector"):
+        return _vector(path, value, int(kind[6:]))
+    elif kind == "matrix4x4":
+        return _matrix(path, value, 4, 4)
+    elif kind == "matrixNx3":
+        return _matrix(path, value, None, 3)
+    else:  # pragma: no cover - a field declared with an unknown kind is a programming error
+        raise AssertionError(kind)
+    problem = check(out)
+    if problem is not None:
+        raise ParameterError(f"{path}: got {value!r}; accepted is {problem} ({meta['unit']})")
+    return out
+
+
+def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams:
+    """Build ValveParams from a nested mapping (as loaded from YAML), refusing anything unknown."""
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{origin}: the top level must be a mapping of sections ({', '.join(_SECTIONS)})")
+    unknown = sorted(set(data) - set(_SECTIONS))
+    if unknown:
+        raise ParameterError(f"{origin}: unknown section(s) {unknown}; accepted are: {', '.join(_SECTIONS)}")
+    missing = [s for s in _SECTIONS if s not in data]
+    if missing:
+        raise ParameterError(f"{origin}: missing section(s) {missing}")
+    sections: dict[str, Any] = {}
+    for name, cls in _SECTIONS.items():
+        raw = data[name]
+        if not isinstance(raw, Mapping):
+            raise ParameterError(f"{origin}: section {name!r} must be a mapping of key: value")
+        names = [f.name for f in dataclasses.fields(cls)]
+        absent = [k for k in names if k not in raw]
+        if absent:
+            raise ParameterError(f"{origin}: missing parameter(s) {', '.join(f'{name}.{k}' for k in absent)}")
+        values = {str(k): validate_section_value(name, str(k), v) for k, v in raw.items()}
+        sections[name] = cls(**values)
+    try:
+        return ValveParams(**sections)
+    except ParameterError as err:
+        raise ParameterError(f"{origin}: {err}") from None
+
+
+def params_to_mapping(params: ValveParams) -> dict[str, dict[str, Any]]:
+    """The nested plain-Python form of `params` (lists, not tuples), e.g. for YAML or JSON output."""
+
+    def plain(v: Any) -> Any:
+        return [plain(x) for x in v] if isinstance(v, tuple) else v
+
+    return {
+        name: {f.name: plain(getattr(getattr(params, name), f.name)) for f in dataclasses.fields(cls)}
+        for name, cls in _SECTIONS.items()
+    }
+
+
+def load_params(path: str | Path | None = None) -> ValveParams:
+    """Load and validate a valve YAML file (default: config/valve.yaml)."""
+    p = Path(path) if path is not None else _installed_default()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise ParameterError(f"cannot read parameter file {p}: {err.strerror}") from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ParameterError(f"{p}: not valid YAML: {err}") from err
+    return params_from_mapping(data, origin=str(p))
+
+
+_DEFAULT: ValveParams | None = None
+
+
+def default_params() -> ValveParams:
+    """The shipped configuration (cached: ValveParams is immutable)."""
+    global _DEFAULT  # noqa: PLW0603 - immutable cache
+    if _DEFAULT is None:
+        _DEFAULT = load_params()
+    return _DEFAULT
+
+
+def replace_param(params: ValveParams, dotted: str, value: Any) -> ValveParams:
+    """A copy of `params` with `section.key` set to `value`, validated like the YAML file."""
+    section, _, key = dotted.partition(".")
+    checked = validate_section_value(section, key, value)
+    new_section = dataclasses.replace(getattr(params, section), **{key: checked})
+    try:
+        return dataclasses.replace(params, **{section: new_section})
+    except ParameterError as err:
+        raise ParameterError(f"{dotted}={value!r}: {err}") from None
