@@ -1,0 +1,72 @@
+"""Shared fixtures: `colcon_install`, a real colcon build of this package."""
+import os
+from pathlib import Path
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGE = 'pcv_sim'
+
+
+def clean_child_env(**extra):
+    """Environment for a child process: no inherited ros_wheels_bootstrapper mark.
+
+    The child then bootstraps itself (re-exec with LD_LIBRARY_PATH), whatever
+    interpreter it is; see DESIGN.md section 6.
+    """
+    env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
+    env.update(extra)
+    return env
+
+
+def _hook_paths(prefix, variable):
+    """Paths colcon's share/<pkg>/hook/*.dsv prepend to `variable`, made absolute."""
+    paths = []
+    for dsv in sorted((prefix / 'share' / PACKAGE / 'hook').glob('*.dsv')):
+        for line in dsv.read_text().splitlines():
+            parts = line.split(';')
+            if len(parts) >= 3 and parts[0].startswith('prepend') and parts[1] == variable:
+                paths += [str(prefix / p) if p else str(prefix) for p in parts[2:]]
+    return paths
+
+
+@pytest.fixture(scope='session')
+def colcon_install(tmp_path_factory):
+    """Build the package with colcon into a temporary directory, once per session.
+
+    Returns a namespace with
+      prefix      -- the package's install prefix (what AMENT_PREFIX_PATH names)
+      env         -- environment in which `<prefix>/lib/pcv_sim/<exe>` runs, as after
+                     sourcing the install (AMENT_PREFIX_PATH, PYTHONPATH)
+      executable  -- name -> Path of `<prefix>/lib/pcv_sim/<name>` (as `ros2 run` finds it)
+      log         -- colcon's console output
+      new_in_repo -- build/, install/, log/, *.egg-info the build added to the repo (none)
+    The repository is not written to: build, install and log all go to the tmp dir.
+    """
+    base = tmp_path_factory.mktemp('colcon')
+    before = set(os.listdir(REPO))
+    cmd = [
+        sys.executable, '-m', 'colcon', '--log-base', str(base / 'log'),
+        'build', '--base-paths', str(REPO),
+        '--build-base', str(base / 'build'), '--install-base', str(base / 'install'),
+        '--event-handlers', 'console_direct+',
+    ]
+    proc = subprocess.run(cmd, cwd=base, env=clean_child_env(), capture_output=True,
+                          text=True, timeout=300)
+    log = proc.stdout + proc.stderr
+    new_in_repo = sorted(n for n in set(os.listdir(REPO)) - before
+                         if n in ('build', 'install', 'log') or n.endswith('.egg-info'))
+    assert proc.returncode == 0, f'colcon build failed:\n{log}'
+    prefix = base / 'install' / PACKAGE
+    pythonpath = _hook_paths(prefix, 'PYTHONPATH')
+    assert pythonpath, f'colcon wrote no PYTHONPATH hook under {prefix}:\n{log}'
+    ament = _hook_paths(prefix, 'AMENT_PREFIX_PATH') or [str(prefix)]
+    env = clean_child_env(AMENT_PREFIX_PATH=os.pathsep.join(ament),
+                          PYTHONPATH=os.pathsep.join(pythonpath))
+    return SimpleNamespace(
+        base=base, prefix=prefix, env=env, log=log, new_in_repo=new_in_repo,
+        executable=lambda name: prefix / 'lib' / PACKAGE / name,
+    )
