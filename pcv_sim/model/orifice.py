@@ -78,7 +78,10 @@ def gap_discharge_coefficient(g_g: float, area: float, perimeter: float, nu: flo
 
 def hole_geometry_factor(x_mm: float, fit: tuple[tuple[float, ...], ...]) -> float:
     """Eq. 22: g(x) = sum a_k sin(b_k x + c_k), x in mm."""
-    return sum(a * math.sin(b * x_mm + c) for a, b, c in fit)
+    total = 0.0
+    for a, b, c in fit:
+        total += a * math.sin(b * x_mm + c)
+    return total
 
 
 def transition_exponent(s_mm: float, fit: tuple[float, ...]) -> float:
@@ -112,7 +115,11 @@ def pump_discharge_coefficient(cq_gap: float, cq_hole: float, weight: float) -> 
 
 def tank_geometry_factor(s_mm: float, fit: tuple[tuple[float, ...], ...]) -> float:
     """Eq. 24 (reading R8): g_r(s) = sum a exp(-((s - b)/c)^2), s = tank opening in mm."""
-    return sum(a * math.exp(-((s_mm - b) / c) ** 2) for a, b, c in fit)
+    total = 0.0
+    for a, b, c in fit:
+        z = (s_mm - b) / c
+        total += a * math.exp(-z * z)
+    return total
 
 
 def tank_discharge_coefficient(g_r: float, gamma_r: float, dp: float) -> float:

@@ -11,6 +11,7 @@ import math
 
 __all__ = [
     "poly",
+    "coefficients_at",
     "restoring_coefficients",
     "restoring_current",
     "dissipating_current",
@@ -18,6 +19,7 @@ __all__ = [
     "solve_current",
     "flux_linkage_derivative",
     "solenoid_force",
+    "force_from_coefficients",
     "solenoid_force_slope",
     "flux_linkage_at_rest",
 ]
@@ -29,6 +31,38 @@ def poly(coeffs: tuple[float, ...], z: float) -> float:
     for c in coeffs:
         acc = acc * z + c
     return acc
+
+
+def coefficients_at(
+    core_mm: float,
+    f1: tuple[float, ...],
+    f2: tuple[float, ...],
+    f3: tuple[float, ...],
+    force: tuple[tuple[float, ...], ...],
+) -> tuple[float, float, float, float, float, float, float]:
+    """Eqs. 5-7 and 10-13 at one core position (mm): (f_1, f_2, f_3, p_fs1, p_fs2, p_fs3, p_fs4).
+
+    The same polynomials as `restoring_coefficients` and `solenoid_force`, unrolled: this runs
+    twice per real-time step.
+    """
+    z = core_mm
+    a, b, c, d, e, f = f1
+    c1 = ((((a * z + b) * z + c) * z + d) * z + e) * z + f
+    a, b, c, d, e, f = f2
+    c2 = ((((a * z + b) * z + c) * z + d) * z + e) * z + f
+    a, b, c = f3
+    c3 = (a * z + b) * z + c
+    (a1, b1, c1_, d1), (a2, b2, c2_, d2), (a3, b3, c3_, d3), (a4, b4, c4_, d4) = force
+    k1 = ((a1 * z + b1) * z + c1_) * z + d1
+    k2 = ((a2 * z + b2) * z + c2_) * z + d2
+    k3 = ((a3 * z + b3) * z + c3_) * z + d3
+    k4 = ((a4 * z + b4) * z + c4_) * z + d4
+    return c1, c2, c3, k1, k2, k3, k4
+
+
+def force_from_coefficients(i: float, k1: float, k2: float, k3: float, k4: float) -> float:
+    """Eq. 9: F_s = p_fs1 i^5 + p_fs2 i^4 + p_fs3 i^3 + p_fs4 i^2 (N)."""
+    return (((k1 * i + k2) * i + k3) * i + k4) * i * i
 
 
 def restoring_coefficients(
@@ -66,13 +100,14 @@ def solve_current(
     depends on i (reading R17). g(i) = i - i_R - d(V_s - iR) has g' = 1 + R d'(V_L) > 0 for
     V_L < 13.4 V with Table 1's p_d, so Newton from the last current converges in 2-3 steps.
     """
+    p1, p2, p3, p4 = pd
     i = i_guess
     for _ in range(8):
         v_l = v_s - i * resistance
-        g = i - i_r - dissipating_current(v_l, pd)
-        step = g / (1.0 + resistance * dissipating_slope(v_l, pd))
+        g = i - i_r - (((p1 * v_l + p2) * v_l + p3) * v_l + p4)       # Eq. 8 inlined: hot path
+        step = g / (1.0 + resistance * ((3.0 * p1 * v_l + 2.0 * p2) * v_l + p3))
         i -= step
-        if abs(step) < 1e-12:
+        if -1e-12 < step < 1e-12:
             break
     return i
 
@@ -87,11 +122,7 @@ def solenoid_force(i: float, core_mm: float, force: tuple[tuple[float, ...], ...
 
     Each of p_fs1..p_fs4 is a cubic in the core position (mm); F_s = p_fs1 i^5 + ... + p_fs4 i^2.
     """
-    k1 = poly(force[0], core_mm)
-    k2 = poly(force[1], core_mm)
-    k3 = poly(force[2], core_mm)
-    k4 = poly(force[3], core_mm)
-    return (((k1 * i + k2) * i + k3) * i + k4) * i * i
+    return force_from_coefficients(i, *(poly(row, core_mm) for row in force))
 
 
 def solenoid_force_slope(i: float, core_mm: float, force: tuple[tuple[float, ...], ...]) -> tuple[float, float]:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Callable, Literal
 
 from pcv_sim.model import flow_force as ff
 from pcv_sim.model import orifice as orf
@@ -91,6 +91,9 @@ class ValveModel:
         self.p_supply = params.circuit.supply_pressure
         self.k_d = params.damping.restrictor_conductance
         self.v_c = params.damping.chamber_volume
+        self._edges = self._make_edges()
+        self._derivatives = self._make_derivatives()
+        self.derivatives = self._derivatives  # type: ignore[method-assign] - skip one call layer
 
     # --- building blocks ---------------------------------------------------------------------
 
@@ -127,35 +130,50 @@ class ValveModel:
 
     def hydraulics(self, x: float, p: float, p_s: float) -> Hydraulics:
         """Eqs. 16-27 and 30-32 at spool x (m), load pressure p and supply pressure p_s (Pa)."""
-        x_mm = to_fit_mm(x)
-        fit, rho = self.fit, self.rho
-        # Pump side: gap leakage and holes blended by the logistic (Eqs. 17-23, 26-27).
-        dp_p = p_s - p
-        a_p = orf.pump_area(x, self.r, self.n_holes, self.h_gap)
-        weight = orf.blend(x_mm, self.blend_k)
-        cq_gap = orf.gap_discharge_coefficient(
-            orf.gap_geometry_factor(x_mm, fit.gap_geometry), a_p, self.gap_perimeter, self.nu, rho, dp_p
-        )
-        if weight > 1e-15:
-            g = orf.hole_geometry_factor(x_mm, fit.hole_geometry)
-            cq_hole = orf.hole_discharge_coefficient(g, orf.transition_exponent(x_mm, fit.hole_exponent), dp_p)
-        else:  # far inside the gap region the hole term carries no weight: skip its cost
-            cq_hole = 0.0
-        cq_p = orf.pump_discharge_coefficient(cq_gap, cq_hole, weight)
-        q_p = orf.orifice_flow(cq_p, a_p, dp_p, rho)
-        f_p = ff.flow_force(cq_p, a_p, dp_p, ff.jet_cosine(x_mm, fit.pump_jet, fit.pump_jet_cap))
-        # Tank side: fits in the opening |x| for x < 0; for x >= 0 frozen at the closing edge (R22).
-        dp_t = p - self.p_tank
-        s_mm = -x_mm if x_mm < 0.0 else 0.0
-        a_t = orf.tank_area(x, self.r, self.n_holes, self.h_gap, self.r_pilot, self.tank_offset)
-        cq_t = orf.tank_discharge_coefficient(
-            orf.tank_geometry_factor(s_mm, fit.tank_geometry),
-            orf.transition_exponent(s_mm, fit.tank_exponent),
-            dp_t,
-        )
-        q_t = orf.orifice_flow(cq_t, a_t, dp_t, rho)
-        f_t = ff.flow_force(cq_t, a_t, dp_t, ff.jet_cosine(s_mm, fit.tank_jet, fit.tank_jet_cap))
-        return Hydraulics(q_p, q_t, f_p, f_t)
+        return Hydraulics(*self._edges(x, to_fit_mm(x), p, p_s))
+
+    def _make_edges(self) -> Callable[[float, float, float, float], tuple[float, float, float, float]]:
+        """The body of `hydraulics` as a closure over the constants (it runs twice per 0.1 ms step)."""
+        fit, rho, nu = self.fit, self.rho, self.nu
+        r, n, h, r_pilot, offset = self.r, self.n_holes, self.h_gap, self.r_pilot, self.tank_offset
+        perimeter, k_blend, p_tank = self.gap_perimeter, self.blend_k, self.p_tank
+        gg, hg, he = fit.gap_geometry, fit.hole_geometry, fit.hole_exponent
+        tg, te = fit.tank_geometry, fit.tank_exponent
+        pj, pcap, tj, tcap = fit.pump_jet, fit.pump_jet_cap, fit.tank_jet, fit.tank_jet_cap
+        pump_area, tank_area, blend = orf.pump_area, orf.tank_area, orf.blend
+        gap_factor, gap_cq = orf.gap_geometry_factor, orf.gap_discharge_coefficient
+        hole_factor, exponent, hole_cq = orf.hole_geometry_factor, orf.transition_exponent, orf.hole_discharge_coefficient
+        pump_cq, tank_factor, tank_cq = orf.pump_discharge_coefficient, orf.tank_geometry_factor, orf.tank_discharge_coefficient
+        flow, force, jet = orf.orifice_flow, ff.flow_force, ff.jet_cosine
+        # The tank edge's fits at its closing point, which hold for all x >= 0 (R22).
+        g_closed, gamma_closed, cos_closed = tank_factor(0.0, tg), exponent(0.0, te), jet(0.0, tj, tcap)
+        a_closed = tank_area(0.0, r, n, h, r_pilot, offset)
+
+        def edges(x: float, x_mm: float, p: float, p_s: float) -> tuple[float, float, float, float]:
+            """(pump flow, tank flow, pump flow force, tank flow force); x in m and in mm."""
+            # Pump side: gap leakage and holes blended by the logistic (Eqs. 17-23, 26-27).
+            dp_p = p_s - p
+            a_p = pump_area(x, r, n, h)
+            weight = blend(x_mm, k_blend)
+            cq_p = gap_cq(gap_factor(x_mm, gg), a_p, perimeter, nu, rho, dp_p)
+            if weight > 1e-15:  # far inside the gap region the hole term carries no weight: skip its cost
+                cq_p = pump_cq(cq_p, hole_cq(hole_factor(x_mm, hg), exponent(x_mm, he), dp_p), weight)
+            q_p = flow(cq_p, a_p, dp_p, rho)
+            f_p = force(cq_p, a_p, dp_p, jet(x_mm, pj, pcap))
+            # Tank side: fits in the opening |x| for x < 0; for x >= 0 frozen at the closing edge (R22).
+            dp_t = p - p_tank
+            if x_mm < 0.0:
+                a_t = tank_area(x, r, n, h, r_pilot, offset)
+                cq_t = tank_cq(tank_factor(-x_mm, tg), exponent(-x_mm, te), dp_t)
+                cos_t = jet(-x_mm, tj, tcap)
+            else:
+                cq_t, cos_t = tank_cq(g_closed, gamma_closed, dp_t), cos_closed
+                a_t = a_closed
+            q_t = flow(cq_t, a_t, dp_t, rho)
+            f_t = force(cq_t, a_t, dp_t, cos_t)
+            return q_p, q_t, f_p, f_t
+
+        return edges
 
     def spool_force(self, i: float, x: float, v: float, p: float, p_c: float, hyd: Hydraulics) -> float:
         """Eq. 14, right-hand side: net force on the moving parts (N), + toward +x."""
@@ -175,6 +193,50 @@ class ValveModel:
 
     # --- the right-hand side -----------------------------------------------------------------
 
+    def _make_derivatives(self) -> Callable[..., tuple[tuple[float, ...], float]]:
+        """`derivatives` as a closure over the constants: the hot path of every integrator."""
+        edges, full, switched = self._edges, self.kind == "full", self.switched
+        f1, f2, f3, fmap, pd = self.f1, self.f2, self.f3, self.force_map, self.pd
+        offset, resistance, v_supply, coil_voltage = self.core_offset_mm, self.resistance, self.v_supply, self.coil_voltage
+        a_c, a_cc, a_net, k_spring, f0, damping = self.a_c, self.a_cc, self.a_net, self.k_spring, self.f0, self.damping
+        c_load, c_chamber, k_d = self.beta / self.volume, self.beta / self.v_c, self.k_d
+        x_min, x_max, mass = self.x_min, self.x_max, self.mass
+        coefficients_at, restoring_current = sol.coefficients_at, sol.restoring_current
+        solve_current, force_from, dlam_dt = sol.solve_current, sol.force_from_coefficients, sol.flux_linkage_derivative
+
+        def derivatives(
+            t: float, state: tuple[float, ...], duty: float, load_flow: float, supply_pressure: float, i_guess: float
+        ) -> tuple[tuple[float, ...], float]:
+            lam, x, v, p = state[0], state[1], state[2], state[3]
+            v_s = coil_voltage(duty, t) if switched else duty * v_supply
+            x_mm = to_fit_mm(x)
+            c1, c2, c3, k1, k2, k3, k4 = coefficients_at(x_mm + offset, f1, f2, f3, fmap)
+            i = solve_current(restoring_current(lam, c1, c2, c3), v_s, resistance, pd, i_guess)   # Eqs. 1-8
+            q_p, q_t, f_p, f_t = edges(x, x_mm, p, supply_pressure)
+            # Eq. 14 without the chamber and damping terms, which differ per variant.
+            force = force_from(i, k1, k2, k3, k4) - a_c * p - k_spring * x - (f_p - f_t) - f0
+            dlam = dlam_dt(v_s, i, resistance)                                                   # Eq. 3
+            if full:
+                p_c = state[4]
+                q_c = k_d * (p - p_c)                                                            # Eq. 28
+                force += a_cc * p_c - damping * v                                                # Eq. 14
+                dpc = c_chamber * (q_c - a_cc * v)                                               # Eq. 29
+                dp = c_load * (q_p - q_t - q_c - load_flow + a_c * v)                            # Eq. 15
+            else:
+                force += a_cc * p - damping * v                                                  # Eq. 14, p_c = p
+                dp = c_load * (q_p - q_t - load_flow + a_net * v)                                # Eq. 15
+            # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop.
+            if (x <= x_min and v <= 0.0 and force <= 0.0) or (x >= x_max and v >= 0.0 and force >= 0.0):
+                dx = dv = 0.0
+            else:
+                dx, dv = v, force / mass
+            if full:
+                return (dlam, dx, dv, dp, dpc), i
+            return (dlam, dx, dv, dp), i
+
+        derivatives.__doc__ = ValveModel.derivatives.__doc__
+        return derivatives
+
     def derivatives(
         self,
         t: float,
@@ -184,39 +246,16 @@ class ValveModel:
         supply_pressure: float,
         i_guess: float,
     ) -> tuple[tuple[float, ...], float]:
-        """d(state)/dt and the coil current. Eqs. 1-3 (solenoid), 14 (spool), 15 + 29 (continuity).
+        """d(state)/dt and the coil current. Eqs. 1-3 (solenoid), 14 (spool), 15 + 28-29 (continuity).
 
         Continuity (reading R13): the spool's motion displaces the load side by A_c v and the
         chamber by A_cc v. Simplified model: the chamber is rigid and lossless, its flow A_cc v
         comes from the load volume, so the load side sees (A_c - A_cc) v.
         The end stops (Sec. 4.2) are inelastic: at a stop with the force pushing into it, the
-        spool stays (see `at_stop`); integrators also project x and v back.
+        spool stays; integrators also project x and v back (`project`).
+        (Replaced per instance by the closure from `_make_derivatives`; same equations.)
         """
-        lam, x, v, p = state[0], state[1], state[2], state[3]
-        v_s = self.coil_voltage(duty, t)
-        i = self.current(lam, x, v_s, i_guess)
-        hyd = self.hydraulics(x, p, supply_pressure)
-        c = self.beta / self.volume
-        if self.kind == "full":
-            p_c = state[4]
-            q_c = self.k_d * (p - p_c)                               # Eq. 28
-            force = self.spool_force(i, x, v, p, p_c, hyd)
-            dpc = self.beta / self.v_c * (q_c - self.a_cc * v)         # Eq. 29
-            dp = c * (hyd.valve_flow - q_c - load_flow + self.a_c * v)  # Eq. 15
-        else:
-            force = self.spool_force(i, x, v, p, p, hyd)
-            dp = c * (hyd.valve_flow - load_flow + self.a_net * v)     # Eq. 15, p_c = p
-        dx, dv = self.stop_motion(x, v, force)
-        dlam = sol.flux_linkage_derivative(v_s, i, self.resistance)  # Eq. 3
-        if self.kind == "full":
-            return (dlam, dx, dv, dp, dpc), i
-        return (dlam, dx, dv, dp), i
-
-    def stop_motion(self, x: float, v: float, force: float) -> tuple[float, float]:
-        """Eq. 14 with inelastic end stops: (dx/dt, dv/dt)."""
-        if (x <= self.x_min and v <= 0.0 and force <= 0.0) or (x >= self.x_max and v >= 0.0 and force >= 0.0):
-            return 0.0, 0.0
-        return v, force / self.mass
+        return self._derivatives(t, state, duty, load_flow, supply_pressure, i_guess)
 
     def project(self, x: float, v: float) -> tuple[float, float]:
         """Keep (x, v) inside the stroke: an inelastic impact at a stop."""

@@ -1,0 +1,1 @@
+"""Analysis on the model: static characteristic, linearisation, step metrics, calibration."""

@@ -1,0 +1,133 @@
+"""Static characteristic: equilibria of Eq. 14 (v = 0) with continuity Eq. 15 (dp/dt = 0).
+
+At rest the spool balance fixes the load pressure for each spool position x, and continuity
+then says which load flow holds it there: q_l = q_v(x, p). Parametrising by x turns the
+pressure-flow curve (the paper's Fig. 10) into 1-D root finding, with no 2-D solve.
+Sign convention: load flow q_l > 0 is drawn from the load port (reducing mode), q_l < 0 is
+pushed into it and relieved to tank (relieving mode).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from pcv_sim.errors import PcvSimError
+from pcv_sim.model.valve import ValveModel
+from pcv_sim.params import ValveParams
+
+__all__ = [
+    "StaticPoint",
+    "PressureFlowCurve",
+    "EquilibriumError",
+    "balance_pressure",
+    "static_point",
+    "zero_flow_equilibrium",
+    "equilibrium_at_flow",
+    "pressure_flow_curve",
+]
+
+
+class EquilibriumError(PcvSimError, ArithmeticError):
+    """No static equilibrium exists for the inputs asked (e.g. a load flow beyond the valve's reach)."""
+
+
+@dataclass(frozen=True)
+class StaticPoint:
+    """One equilibrium: SI units."""
+
+    duty: float
+    current: float          # A
+    spool_position: float   # m
+    pressure: float         # Pa
+    load_flow: float        # m^3/s
+    pump_flow: float        # m^3/s
+    tank_flow: float        # m^3/s
+    flow_force: float       # N, + toward -x
+
+
+@dataclass(frozen=True)
+class PressureFlowCurve:
+    """A static pressure-flow curve at one duty, ordered by spool position."""
+
+    duty: float
+    spool_position: np.ndarray   # m
+    pressure: np.ndarray         # Pa
+    load_flow: np.ndarray        # m^3/s
+
+
+def balance_pressure(model: ValveModel, current: float, x: float, supply_pressure: float) -> float:
+    """The load pressure (Pa) at which the spool at x is at rest with coil current `current`.
+
+    Solves Eq. 14 with v = 0, p_c = p for p. The net force falls monotonically with p (the area
+    term dominates the flow-force change), so the root is bracketed between tank pressure and
+    well above supply.
+    """
+    lo, hi = model.p_tank, 3.0 * supply_pressure
+
+    def residual(p: float) -> float:
+        return model.static_force(current, x, p, supply_pressure)
+
+    r_lo, r_hi = residual(lo), residual(hi)
+    if r_lo <= 0.0:
+        return lo  # the solenoid cannot even hold the spool at x against the spring at tank pressure
+    if r_hi > 0.0:
+        raise EquilibriumError(f"no balance pressure below {hi:.3g} Pa at x={x:.3g} m, i={current:.3g} A")
+    return brentq(residual, lo, hi, xtol=1e-6, rtol=1e-12)
+
+
+def static_point(model: ValveModel, duty: float, x: float, supply_pressure: float | None = None) -> StaticPoint:
+    """The equilibrium with the spool at x (m) at duty D: pressure from Eq. 14, flow from Eq. 15."""
+    ps = model.p_supply if supply_pressure is None else supply_pressure
+    i = model.steady_current(duty)
+    p = balance_pressure(model, i, x, ps)
+    hyd = model.hydraulics(x, p, ps)
+    return StaticPoint(duty, i, x, p, hyd.valve_flow, hyd.pump_flow, hyd.tank_flow, hyd.flow_force)
+
+
+def equilibrium_at_flow(
+    model: ValveModel, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None
+) -> StaticPoint:
+    """The equilibrium that delivers `load_flow` (m^3/s) at duty D (the net valve flow rises with x)."""
+    ps = model.p_supply if supply_pressure is None else supply_pressure
+
+    def excess(x: float) -> float:
+        return static_point(model, duty, x, ps).load_flow - load_flow
+
+    lo, hi = model.x_min, model.x_max
+    e_lo, e_hi = excess(lo), excess(hi)
+    if not e_lo <= 0.0 <= e_hi:
+        reach = (static_point(model, duty, lo, ps).load_flow, static_point(model, duty, hi, ps).load_flow)
+        raise EquilibriumError(
+            f"load flow {load_flow:.4g} m^3/s is outside what the valve passes at duty {duty:.3g} within its "
+            f"stroke: {reach[0]:.4g} .. {reach[1]:.4g} m^3/s"
+        )
+    x = brentq(excess, lo, hi, xtol=1e-12, rtol=1e-12)
+    return static_point(model, duty, x, ps)
+
+
+def zero_flow_equilibrium(model: ValveModel, duty: float, supply_pressure: float | None = None) -> StaticPoint:
+    """The rest point with no load flow (the dynamic tests' condition, Sec. 3.2)."""
+    return equilibrium_at_flow(model, duty, 0.0, supply_pressure)
+
+
+def pressure_flow_curve(
+    params: ValveParams | ValveModel, duty: float, points: int = 100, supply_pressure: float | None = None
+) -> PressureFlowCurve:
+    """The static pressure-flow curve at duty D over the whole stroke (Fig. 10 a and b)."""
+    model = params if isinstance(params, ValveModel) else ValveModel(params)
+    xs = np.linspace(model.x_min, model.x_max, points)
+    pts = [static_point(model, duty, float(x), supply_pressure) for x in xs]
+    return PressureFlowCurve(
+        duty,
+        xs,
+        np.array([p.pressure for p in pts]),
+        np.array([p.load_flow for p in pts]),
+    )
+
+
+def is_finite_point(p: StaticPoint) -> bool:
+    return all(math.isfinite(v) for v in (p.pressure, p.spool_position, p.load_flow))
