@@ -173,8 +173,14 @@ class CalibrationParams:
     net_area: float | None = _param("m^2", "R21, fitted by pcv_sim.analysis.calibrate", _positive, kind="float_or_null")
 
 
+def _duty_range(v: tuple[float, ...]) -> str | None:
+    lo, hi = v
+    return None if 0.0 <= lo < hi <= 1.0 else "[min, max] with 0 <= min < max <= 1 (duty fractions)"
+
+
 @dataclass(frozen=True)
 class CommandParams:
+    duty_range: tuple[float, ...] = _param("-", "PWM duty, Sec. 3", _duty_range, kind="vector2")
     duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _positive, kind="float_or_null")
 
 
@@ -328,7 +334,7 @@ def validate_section_value(section: str, key: str, value: Any) -> Any:
             return value
         out = _number(path, value, f"'equivalent' or a number in {meta['unit']}")
     elif kind.startswith("vector"):
-        return _vector(path, value, int(kind[6:]))
+        out = _vector(path, value, int(kind[6:]))
     elif kind == "matrix4x4":
         return _matrix(path, value, 4, 4)
     elif kind == "matrixNx3":

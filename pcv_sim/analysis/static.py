@@ -9,7 +9,6 @@ pushed into it and relieved to tank (relieving mode).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,7 +72,9 @@ def balance_pressure(model: ValveModel, current: float, x: float, supply_pressur
 
     r_lo, r_hi = residual(lo), residual(hi)
     if r_lo <= 0.0:
-        return lo  # the solenoid cannot even hold the spool at x against the spring at tank pressure
+        # Even at tank pressure the solenoid cannot hold the spool at x against spring and flow
+        # forces: no free equilibrium there (only one held by an end stop).
+        raise EquilibriumError(f"the spool cannot rest at x={x:.4g} m with i={current:.4g} A at any load pressure")
     if r_hi > 0.0:
         raise EquilibriumError(f"no balance pressure below {hi:.3g} Pa at x={x:.3g} m, i={current:.3g} A")
     return brentq(residual, lo, hi, xtol=1e-6, rtol=1e-12)
@@ -117,17 +118,19 @@ def zero_flow_equilibrium(model: ValveModel, duty: float, supply_pressure: float
 def pressure_flow_curve(
     params: ValveParams | ValveModel, duty: float, points: int = 100, supply_pressure: float | None = None
 ) -> PressureFlowCurve:
-    """The static pressure-flow curve at duty D over the whole stroke (Fig. 10 a and b)."""
+    """The static pressure-flow curve at duty D over the stroke (Fig. 10 a and b).
+
+    Spool positions where no free equilibrium exists (at low duty and large opening the
+    solenoid cannot hold the spool at any pressure) are left out.
+    """
     model = params if isinstance(params, ValveModel) else ValveModel(params)
-    xs = np.linspace(model.x_min, model.x_max, points)
-    pts = [static_point(model, duty, float(x), supply_pressure) for x in xs]
-    return PressureFlowCurve(
-        duty,
-        xs,
-        np.array([p.pressure for p in pts]),
-        np.array([p.load_flow for p in pts]),
-    )
-
-
-def is_finite_point(p: StaticPoint) -> bool:
-    return all(math.isfinite(v) for v in (p.pressure, p.spool_position, p.load_flow))
+    xs, ps, qs = [], [], []
+    for x in np.linspace(model.x_min, model.x_max, points):
+        try:
+            pt = static_point(model, duty, float(x), supply_pressure)
+        except EquilibriumError:
+            continue
+        xs.append(pt.spool_position)
+        ps.append(pt.pressure)
+        qs.append(pt.load_flow)
+    return PressureFlowCurve(duty, np.array(xs), np.array(ps), np.array(qs))

@@ -10,8 +10,9 @@ from pcv_sim.errors import CommandError
 __all__ = ["check_duty", "FallRateLimiter", "DutyProfile"]
 
 
-def check_duty(value: float) -> float:
-    """A duty command as a fraction 0..1, or CommandError saying what is accepted."""
+def check_duty(value: float, duty_range: tuple[float, ...] = (0.0, 1.0)) -> float:
+    """A duty command as a fraction within `duty_range` (default 0..1), or CommandError saying
+    what is accepted (and that 70 means 0.7: the command is a fraction, not percent)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CommandError(f"duty cycle {value!r}: accepted is a number, a fraction 0..1")
     v = float(value)
@@ -19,8 +20,9 @@ def check_duty(value: float) -> float:
         raise CommandError(f"duty cycle {value!r} is not finite: accepted is a fraction 0..1")
     if 1.0 < v <= 100.0:
         raise CommandError(f"duty cycle {v:g} > 1: the command is a fraction 0..1, not percent (did you mean {v / 100:g}?)")
-    if not 0.0 <= v <= 1.0:
-        raise CommandError(f"duty cycle {v:g} is out of range: accepted is a fraction 0..1")
+    lo, hi = duty_range
+    if not lo <= v <= hi:
+        raise CommandError(f"duty cycle {v:g} is out of range: accepted is a fraction {lo:g}..{hi:g}")
     return v
 
 

@@ -66,7 +66,7 @@ class RealTimeStepper:
 
     def reset(self, duty: float = 0.0, load_flow: float = 0.0, supply_pressure: float | None = None) -> None:
         """Back to rest: the equilibrium for `duty` at `load_flow`, model time 0."""
-        self.command = check_duty(duty)
+        self.command = check_duty(duty, self.params.command.duty_range)
         self.load_flow = check_load_flow(load_flow)
         self.supply_pressure = check_supply_pressure(self.model.p_supply if supply_pressure is None else supply_pressure)
         eq = equilibrium_at_flow(self.model, self.command, self.load_flow, self.supply_pressure)
@@ -102,7 +102,8 @@ class RealTimeStepper:
     # --- inputs ------------------------------------------------------------------------------
 
     def set_duty(self, duty: float) -> None:
-        self.command = check_duty(duty)
+        """Raises CommandError (the last valid command stays) unless duty is within command.duty_range."""
+        self.command = check_duty(duty, self.params.command.duty_range)
 
     def set_load_flow(self, q: float) -> None:
         self.load_flow = check_load_flow(q)

@@ -1,0 +1,10 @@
+"""`pcv-sim` subcommands. Each module has NAME, HELP, add_arguments(parser) and run(args) -> int;
+list it in COMMANDS to register it. Commands render typed results from the analysis layer as
+text, JSON (--json) or a plot (--plot FILE.png)."""
+
+COMMANDS = [
+    "pcv_sim.commands.static",
+    "pcv_sim.commands.step",
+    "pcv_sim.commands.working_points",
+    "pcv_sim.commands.linearize",
+]

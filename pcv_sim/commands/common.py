@@ -1,0 +1,96 @@
+"""Shared pieces of the subcommands: options, output, progress, plotting backend."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable, Iterator, TypeVar
+
+from pcv_sim.params import ValveParams, load_params
+
+T = TypeVar("T")
+
+
+def add_output_options(parser: argparse.ArgumentParser, *, plot: bool = True) -> None:
+    parser.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")
+    if plot:
+        parser.add_argument("--plot", metavar="FILE.png", type=Path, help="also write a plot to FILE.png")
+
+
+def fraction(text: str) -> float:
+    """argparse type for a duty: a fraction 0..1; refuses percent with a hint."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; a duty is a fraction 0..1") from None
+    if not math.isfinite(v) or not 0.0 <= v <= 1.0:
+        hint = f" (did you mean {v / 100:g}? the duty is a fraction, not percent)" if 1.0 < v <= 100.0 else ""
+        raise argparse.ArgumentTypeError(f"{text} is outside 0..1{hint}")
+    return v
+
+
+def positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
+    return v
+
+
+def params_from(args: argparse.Namespace) -> ValveParams:
+    return load_params(args.config)
+
+
+def emit_json(data: Any) -> None:
+    def default(o: Any) -> Any:
+        if hasattr(o, "tolist"):
+            return o.tolist()
+        if isinstance(o, complex):
+            return [o.real, o.imag]
+        return str(o)
+
+    def clean(o: Any) -> Any:  # JSON has no NaN/inf: write null
+        if isinstance(o, float) and not math.isfinite(o):
+            return None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        return o
+
+    json.dump(clean(data), sys.stdout, indent=2, default=default)
+    sys.stdout.write("\n")
+
+
+def progress(items: Iterable[T], total: int, label: str) -> Iterator[T]:
+    """Yield items; on a terminal, show a progress line on stderr (nothing when piped)."""
+    tty = sys.stderr.isatty()
+    start = time.monotonic()
+    for k, item in enumerate(items):
+        if tty:
+            sys.stderr.write(f"\r{label}: {k}/{total} ({time.monotonic() - start:.1f} s)")
+            sys.stderr.flush()
+        yield item
+    if tty:
+        sys.stderr.write(f"\r{label}: {total}/{total} ({time.monotonic() - start:.1f} s)\n")
+
+
+def pyplot():  # noqa: ANN201 - matplotlib's module
+    import matplotlib  # noqa: PLC0415 - only commands that plot pay for matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    return plt
+
+
+def save(fig: Any, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}", file=sys.stderr)

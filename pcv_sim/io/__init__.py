@@ -1,0 +1,21 @@
+"""Bag input/output (rosbag2 directories with MCAP files) without rclpy."""
+
+from pcv_sim.io.bag import (
+    DECODABLE_TYPES,
+    FLOAT64,
+    FLUID_PRESSURE,
+    BagContents,
+    BagWriter,
+    TopicSeries,
+    read_bag,
+)
+
+__all__ = [
+    "DECODABLE_TYPES",
+    "FLOAT64",
+    "FLUID_PRESSURE",
+    "BagContents",
+    "BagWriter",
+    "TopicSeries",
+    "read_bag",
+]
