@@ -33,7 +33,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Final, Literal, NoReturn, cast
 
-import lz4.frame
+import lz4.frame  # type: ignore[import-untyped]
 import numpy as np
 import numpy.typing as npt
 import yaml
@@ -46,6 +46,7 @@ from mcap.stream_reader import StreamReader
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -383,7 +384,7 @@ class BagWriter:
         if self._mcap is None or self._file is None:
             return
         try:
-            self._mcap.flush()  # finishes the chunk and flushes the BufferedWriter
+            self._mcap.flush()  # type: ignore[no-untyped-call]  # finishes chunk, flushes file
             if self._fsync:
                 os.fsync(self._file.fileno())
         except OSError as exc:
@@ -434,7 +435,7 @@ class BagWriter:
     def _open_file(self) -> None:
         name = f"{self.path.name}_{len(self._files)}.mcap"
         try:
-            f = cast(io.BufferedWriter, open(self.path / name, "xb"))  # noqa: SIM115
+            f = open(self.path / name, "xb")  # noqa: SIM115 - closed in _flush_locked/close
         except OSError as exc:
             msg = f"cannot create bag file {str(self.path / name)!r}: {exc.strerror}"
             raise BagError(msg) from exc
@@ -473,9 +474,9 @@ class BagWriter:
         self._update_bag_stats()
         text = _dump_yaml(self._metadata()["rosbag2_bagfile_information"]).strip()
         try:
-            mcap.flush()
+            mcap.flush()  # type: ignore[no-untyped-call]
             mcap.add_metadata("rosbag2", {"serialized_metadata": text})
-            mcap.finish()
+            mcap.finish()  # type: ignore[no-untyped-call]
             self._file.flush()
             if self._fsync:
                 os.fsync(self._file.fileno())
@@ -577,10 +578,13 @@ def _build_message(store: Typestore, msgtype: str, fields: Mapping[str, Any], wh
     kwargs: dict[str, Any] = {}
     for name, (nodetype, desc) in fielddefs:
         value = fields[name]
-        if nodetype.name == "NAME" and isinstance(value, Mapping):
-            value = _build_message(store, desc, value, f"{where}.{name}")
-        elif nodetype.name in ("ARRAY", "SEQUENCE") and desc[0][0].name == "NAME":
-            sub = desc[0][1]
+        if nodetype == Nodetype.NAME and isinstance(value, Mapping):
+            value = _build_message(store, cast(str, desc), value, f"{where}.{name}")
+        elif nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            (subtype, sub), _ = cast("tuple[tuple[Nodetype, Any], int]", desc)
+            if subtype != Nodetype.NAME:
+                kwargs[name] = value
+                continue
             value = [
                 _build_message(store, sub, v, f"{where}.{name}[{i}]")
                 if isinstance(v, Mapping)
@@ -857,7 +861,7 @@ class _McapFile:
         """Read the file; return True if it was closed properly and nothing was damaged."""
         path = self.path
         try:
-            f = cast(io.BufferedReader, open(path, "rb"))  # noqa: SIM115
+            f = open(path, "rb")  # noqa: SIM115
         except OSError as exc:
             msg = f"cannot open {str(path)!r}: {exc.strerror}"
             raise BagError(msg) from exc
