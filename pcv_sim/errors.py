@@ -15,3 +15,7 @@ class BagError(PcvSimError, ValueError):
 
 class CommandError(PcvSimError, ValueError):
     """An input command is out of range or not finite."""
+
+
+class UsageError(PcvSimError, ValueError):
+    """Command-line options that cannot go together or are out of range (exit status 2)."""

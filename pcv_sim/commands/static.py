@@ -8,6 +8,7 @@ import argparse
 import numpy as np
 
 from pcv_sim.analysis.static import pressure_flow_curve, zero_flow_equilibrium
+from pcv_sim.errors import UsageError
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, progress, pyplot, save
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.units import PA_PER_BAR, M3S_PER_LPM
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.points < 2:
-        raise SystemExit("pcv-sim static: error: --points must be >= 2")
+        raise UsageError(f"--points {args.points}: accepted is an integer >= 2")
     model = ValveModel(params_from(args))
     rest = [zero_flow_equilibrium(model, d) for d in args.duties]
     curves = [pressure_flow_curve(model, d, args.points) for d in progress(args.duties, len(args.duties), "curves")]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 
 from pcv_sim.analysis.metrics import step_metrics
+from pcv_sim.errors import UsageError
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, pyplot, save
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.simulation.duty import DutyProfile
@@ -38,7 +39,7 @@ def simulate_step(args: argparse.Namespace) -> Trajectory:
     params = params_from(args)
     rate = args.fall_rate if args.fall_rate is not None else params.command.duty_fall_rate_limit
     if args.at >= args.duration:
-        raise SystemExit("pcv-sim step: error: --at must be before --duration")
+        raise UsageError(f"--at {args.at:g} s is not before --duration {args.duration:g} s")
     profile = DutyProfile.step(args.start, args.end, args.at, rate)
     if args.model == "full":
         return simulate_reference(ValveModel(params, "full"), profile, args.duration)
