@@ -1,0 +1,204 @@
+"""Scheduling fixed model steps against a clock: which steps are due now, which are late.
+
+Pure bookkeeping, no ROS and no sleeping: the caller passes the present time (seconds of a
+monotonic clock, e.g. `time.monotonic()`), runs the steps it is told to, then sleeps until
+`next_wake()`. Tests drive it with a fake clock.
+
+Real time (`RealTimeSchedule`)
+    Step k (0-based) covers model time [k dt, (k+1) dt]. It is *due* at wall time
+    d_k = t0 + (k+1) dt: only then has wall time reached the end of its interval, so the model
+    never runs ahead of wall time. At a wake-up at time `now` the steps due are
+    [done, floor((now - t0) / dt)); model time is an integer count of steps, so it never drifts.
+
+    The caller wakes on a fixed grid t0 + m P (P = `wake_period`, a multiple of dt): step k is
+    *scheduled* for the first grid wake at or after its due time, m_k = ceil((k+1) dt / P).
+    A step is *late* when the wake that computes it starts more than `late_threshold` after that
+    scheduled wake (the OS woke the loop late, or the previous wake ran long). Late steps are a
+    prefix of each batch, so they are counted in O(1).
+
+    The lag `now - t0 - model time` is sampled before (`lag`, how stale the model was when the loop
+    woke: normally P plus the wake-up jitter) and after a batch (`lag_after`, what a sample
+    published right then shows: normally less than dt plus the batch's compute time).
+
+    Far behind: when more than `max_catchup` seconds of steps are due at once (the process was
+    stopped, starved or swapped), all but the most recent wake period's worth of them are
+    *skipped*: the caller holds the model state over that interval instead of computing it
+    (`Plan.skipped`), model time jumps to wall time, and the skip is counted. Less than that is
+    caught up in one batch (a few microseconds per step).
+
+Simulated time (`SimulatedSchedule`)
+    Model time is decoupled from wall time: chunks of steps run back to back, paced at a
+    real-time factor (chunk k may start once wall time reaches anchor + model time / factor), or
+    as fast as possible (factor 0 or inf).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+__all__ = ["Plan", "RealTimeSchedule", "SimulatedSchedule", "steps_per"]
+
+Clock = Callable[[], float]
+
+
+def steps_per(period: float, dt: float, *, what: str = "period") -> int:
+    """The whole number of steps dt in `period`; ValueError unless period is a positive multiple of dt."""
+    if not (math.isfinite(period) and period > 0.0):
+        raise ValueError(f"{what} {period!r} s: accepted is a finite number > 0")
+    n = round(period / dt)
+    if n < 1 or abs(n * dt - period) > 1e-9 * max(1.0, period):
+        raise ValueError(f"{what} {period:g} s is not a whole multiple of the model step {dt:g} s")
+    return int(n)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What one wake-up is to do: skip `skipped` steps (hold the model), then compute `steps`."""
+
+    first: int          # index of the first step due (skipped ones come first)
+    skipped: int        # steps too far behind to catch up: model held over them
+    steps: int          # steps to compute now
+    late: int           # of `steps`, how many start more than late_threshold after their scheduled wake
+    lag: float          # s, now - t0 - model time, before this batch
+
+
+class RealTimeSchedule:
+    """Which fixed steps are due at a given wall time; late-step and lag accounting."""
+
+    def __init__(
+        self, dt: float, *, wake_period: float = 1e-3, late_threshold: float = 1e-3,
+        max_catchup: float = 0.05, clock: Clock = time.monotonic,
+    ) -> None:
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"model step {dt!r} s: accepted is a finite number > 0")
+        self.dt = dt
+        self.steps_per_wake = steps_per(wake_period, dt, what="wake_period")
+        self.wake_period = self.steps_per_wake * dt
+        if not (math.isfinite(late_threshold) and late_threshold >= 0.0):
+            raise ValueError(f"late_threshold {late_threshold!r} s: accepted is a finite number >= 0")
+        self.late_threshold = late_threshold
+        if not (math.isfinite(max_catchup) and max_catchup >= self.wake_period):
+            raise ValueError(f"max_catchup {max_catchup!r} s: accepted is a finite number >= wake_period "
+                             f"({self.wake_period:g} s)")
+        self.max_catchup_steps = int(max_catchup / dt)
+        self.clock = clock
+        self.t0 = math.nan
+        self.slot = 0               # steps accounted for: computed + skipped
+        self.computed_steps = 0
+        self.late_steps = 0
+        self.skipped_steps = 0
+        self.skips = 0              # how many times the schedule jumped
+        self.wakes = 0
+        self.max_lag = 0.0
+        self.max_lag_after = 0.0
+        self.lag_after = 0.0
+
+    @property
+    def started(self) -> bool:
+        return not math.isnan(self.t0)
+
+    def start(self, now: float | None = None) -> float:
+        """Anchor model time 0 at `now` (default: the clock). Returns t0."""
+        self.t0 = self.clock() if now is None else now
+        self.slot = 0
+        return self.t0
+
+    @property
+    def model_time(self) -> float:
+        return self.slot * self.dt
+
+    def due(self, now: float) -> int:
+        """Index one past the last step due at `now` (steps [0, due) have ended by then)."""
+        # A tiny tolerance so that a wake exactly on a step boundary counts that step as due.
+        return max(0, math.floor((now - self.t0) / self.dt + 1e-6))
+
+    def plan(self, now: float | None = None) -> Plan:
+        """The steps due at `now`, and account for them as done (the caller must run them)."""
+        if not self.started:
+            raise RuntimeError("RealTimeSchedule.plan() before start()")
+        now = self.clock() if now is None else now
+        self.wakes += 1
+        first = self.slot
+        lag = now - self.t0 - first * self.dt
+        self.max_lag = max(self.max_lag, lag)
+        target = self.due(now)
+        backlog = target - first
+        if backlog <= 0:
+            return Plan(first, 0, 0, 0, lag)
+        skipped = 0
+        if backlog > self.max_catchup_steps:
+            skipped = backlog - self.steps_per_wake
+            self.skipped_steps += skipped
+            self.skips += 1
+        steps = backlog - skipped
+        # Steps scheduled on grid wakes 1..m_late all started late; their indices are < m_late * S.
+        m_late = math.ceil((now - self.late_threshold - self.t0) / self.wake_period) - 1
+        late = min(max(m_late * self.steps_per_wake - (first + skipped), 0), steps)
+        self.late_steps += late
+        self.computed_steps += steps
+        self.slot = target
+        return Plan(first, skipped, steps, late, lag)
+
+    def finish(self, now: float | None = None) -> float:
+        """Record the lag right after a batch (what a sample published now shows); returns it."""
+        now = self.clock() if now is None else now
+        self.lag_after = now - self.t0 - self.slot * self.dt
+        self.max_lag_after = max(self.max_lag_after, self.lag_after)
+        return self.lag_after
+
+    def next_wake(self, now: float | None = None) -> float:
+        """The first grid wake t0 + m P strictly after `now`."""
+        now = self.clock() if now is None else now
+        m = math.floor((now - self.t0) / self.wake_period + 1e-6) + 1
+        return self.t0 + m * self.wake_period
+
+
+class SimulatedSchedule:
+    """Pacing for simulated time: model time runs `factor` times as fast as wall time (0/inf: free)."""
+
+    def __init__(self, dt: float, *, factor: float = 0.0, clock: Clock = time.monotonic) -> None:
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"model step {dt!r} s: accepted is a finite number > 0")
+        self.dt = dt
+        self.clock = clock
+        self.steps = 0
+        self._anchor_wall = math.nan
+        self._anchor_steps = 0
+        self.factor = self._check(factor)
+
+    @staticmethod
+    def _check(factor: float) -> float:
+        if math.isnan(factor) or factor < 0.0:
+            raise ValueError(f"real_time_factor {factor!r}: accepted is a number >= 0 (0 or inf: as fast as possible)")
+        return factor
+
+    @property
+    def free(self) -> bool:
+        return self.factor == 0.0 or math.isinf(self.factor)
+
+    def start(self, now: float | None = None) -> None:
+        self._anchor_wall = self.clock() if now is None else now
+        self._anchor_steps = self.steps
+
+    def set_factor(self, factor: float, now: float | None = None) -> None:
+        """Change the factor from now on (re-anchors, so there is no jump or burst)."""
+        self.factor = self._check(factor)
+        self.start(now)
+
+    def ready_at(self, steps: int) -> float:
+        """Wall time at which a chunk of `steps` more steps may start (-inf when free)."""
+        if self.free:
+            return -math.inf
+        # As in real time, a chunk is due once paced wall time has reached its *end*: the model
+        # never runs ahead of anchor + model time / factor.
+        return self._anchor_wall + (self.steps + steps - self._anchor_steps) * self.dt / self.factor
+
+    def advance(self, steps: int) -> None:
+        self.steps += steps
+
+    @property
+    def model_time(self) -> float:
+        return self.steps * self.dt
