@@ -1,0 +1,262 @@
+"""The emulator node's parameters: node settings and the model's parameters as ROS parameters.
+
+No ROS here: values come in as plain Python (what rclpy's `Parameter.value` gives) and are
+validated with the same rules and messages as the model's YAML (`pcv_sim.params`).
+
+Model parameters appear as `model.<section>.<key>` (e.g. `model.spool.mass`), every scalar and
+vector field of the valve YAML; the matrix-valued curve fits (`solenoid.force`, `fits.*` tables)
+are set through the YAML file named by `valve_config`. `null` in the YAML (e.g.
+`calibration.net_area`) is the string "null" as a ROS parameter; "equivalent" stays a string.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+from pcv_sim.errors import ParameterError
+from pcv_sim.params import ValveParams, params_from_mapping, params_to_mapping
+from pcv_sim.simulation.clock import steps_per
+from pcv_sim.simulation.duty import check_duty
+
+__all__ = [
+    "MODEL_PREFIX", "NODE_PARAMETERS", "ModelParameter", "NodeParameter", "NodeSettings",
+    "RUNTIME_FIXED_MODEL", "check_node_value", "model_parameters", "model_value_from_ros",
+    "params_with", "settings_with",
+]
+
+MODEL_PREFIX = "model."
+_NULL_WORDS = ("null", "none", "~", "")
+
+#: Model parameters that cannot change while the node runs (the schedule is built on them).
+RUNTIME_FIXED_MODEL = ("simulation.time_step",)
+
+
+# --- node settings ---------------------------------------------------------------------------
+
+
+def _number(name: str, v: Any, accepted: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ParameterError(f"{name}: got {v!r} ({type(v).__name__}); accepted is {accepted}")
+    return float(v)
+
+
+def _finite_positive(name: str, v: Any) -> float:
+    x = _number(name, v, "a number > 0")
+    if not (math.isfinite(x) and x > 0.0):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a finite number > 0")
+    return x
+
+
+def _finite_non_negative(name: str, v: Any) -> float:
+    x = _number(name, v, "a number >= 0")
+    if not (math.isfinite(x) and x >= 0.0):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a finite number >= 0")
+    return x
+
+
+def _factor(name: str, v: Any) -> float:
+    x = _number(name, v, "a number >= 0 (0 or inf: as fast as possible)")
+    if math.isnan(x) or x < 0.0:
+        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
+    return x
+
+
+def _fraction(name: str, v: Any) -> float:
+    x = _number(name, v, "a duty fraction 0..1")
+    if not (math.isfinite(x) and 0.0 <= x <= 1.0):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a duty fraction 0..1")
+    return x
+
+
+def _one_of(*choices: str) -> Callable[[str, Any], str]:
+    def check(name: str, v: Any) -> str:
+        if v not in choices:
+            raise ParameterError(f"{name}: got {v!r}; accepted is one of {', '.join(map(repr, choices))}")
+        return str(v)
+    return check
+
+
+def _boolean(name: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise ParameterError(f"{name}: got {v!r}; accepted is true or false")
+    return v
+
+
+def _string(name: str, v: Any) -> str:
+    if not isinstance(v, str):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a string")
+    return v
+
+
+@dataclass(frozen=True)
+class NodeParameter:
+    name: str
+    default: Any
+    unit: str
+    description: str
+    check: Callable[[str, Any], Any]
+    read_only: bool = False
+
+
+NODE_PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("time_mode", "real", "-", "real: model time follows the wall clock (hardware in the loop); "
+                  "simulated: model time decoupled, /clock published (controller CI)", _one_of("real", "simulated"),
+                  read_only=True),
+    NodeParameter("publish_rate", 1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); "
+                  "its period must be a whole multiple of the model step", _finite_positive),
+    NodeParameter("wake_period", 1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock "
+                  "and computes the steps due", _finite_positive, read_only=True),
+    NodeParameter("late_threshold", 1e-3, "s", "real time: a step is late when the wake that computes it comes more "
+                  "than this after its scheduled wake", _finite_non_negative),
+    NodeParameter("max_catchup", 0.05, "s", "real time: a backlog longer than this is skipped (model held), "
+                  "not computed", _finite_positive),
+    NodeParameter("watchdog_timeout", 0.5, "s", "no valid duty command for this long (model time) -> safe_duty; "
+                  "0 = off", _finite_non_negative),
+    NodeParameter("safe_duty", 0.0, "-", "duty fraction applied before the first command and when the watchdog "
+                  "fires", _fraction),
+    NodeParameter("real_time_factor", 0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast "
+                  "as possible", _factor),
+    NodeParameter("lockstep", True, "-", "simulated time: after each published sample wait for one duty_cycle "
+                  "message before advancing (deterministic controller-in-the-loop)", _boolean, read_only=True),
+    NodeParameter("valve_config", "", "-", "valve model YAML; '' = the shipped config/valve.yaml", _string,
+                  read_only=True),
+    NodeParameter("diagnostics_period", 1.0, "s", "wall-clock period of /diagnostics", _finite_positive),
+    NodeParameter("frame_id", "load_port", "-", "header.frame_id of the pressure samples", _string),
+    NodeParameter("reject_log_period", 1.0, "s", "at most one log line per input topic per this period for "
+                  "rejected inputs (all are counted)", _finite_non_negative),
+)
+_NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    time_mode: str = "real"
+    publish_rate: float = 1000.0
+    wake_period: float = 1e-3
+    late_threshold: float = 1e-3
+    max_catchup: float = 0.05
+    watchdog_timeout: float = 0.5
+    safe_duty: float = 0.0
+    real_time_factor: float = 0.0
+    lockstep: bool = True
+    valve_config: str = ""
+    diagnostics_period: float = 1.0
+    frame_id: str = "load_port"
+    reject_log_period: float = 1.0
+
+    def check(self, params: ValveParams) -> NodeSettings:
+        """Cross-checks against the model (step multiples, duty range); returns self or raises."""
+        dt = params.simulation.time_step
+        try:
+            steps_per(1.0 / self.publish_rate, dt, what=f"publish period 1/publish_rate = 1/{self.publish_rate:g}")
+            steps_per(self.wake_period, dt, what="wake_period")
+        except ValueError as err:
+            raise ParameterError(str(err)) from None
+        if self.max_catchup < self.wake_period:
+            raise ParameterError(f"max_catchup: got {self.max_catchup!r}; accepted is a number >= wake_period "
+                                 f"({self.wake_period:g} s)")
+        try:
+            check_duty(self.safe_duty, params.command.duty_range)
+        except ValueError as err:
+            raise ParameterError(f"safe_duty: {err}") from None
+        return self
+
+    def sample_every(self, dt: float) -> int:
+        """Model steps per published sample."""
+        return steps_per(1.0 / self.publish_rate, dt, what="publish period")
+
+
+def check_node_value(name: str, value: Any) -> Any:
+    """Convert and check one node parameter; ParameterError naming it if refused."""
+    spec = _NODE_BY_NAME.get(name)
+    if spec is None:
+        raise ParameterError(f"unknown parameter {name!r}; accepted are: {', '.join(_NODE_BY_NAME)} "
+                             f"and {MODEL_PREFIX}<section>.<key>")
+    return spec.check(name, value)
+
+
+def settings_with(settings: NodeSettings, changes: Mapping[str, Any]) -> NodeSettings:
+    """A copy of settings with node parameters changed, each checked (not yet cross-checked)."""
+    return dataclasses.replace(settings, **{k: check_node_value(k, v) for k, v in changes.items()})
+
+
+# --- model parameters ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ModelParameter:
+    name: str            # model.<section>.<key>
+    section: str
+    key: str
+    kind: str            # pcv_sim.params field kind: float, int, str, float_or_null, vectorN, ...
+    unit: str
+    source: str
+    value: Any           # as a ROS parameter value
+
+
+_EXPOSED_KINDS = ("float", "int", "str", "float_or_null", "float_or_equivalent")
+
+
+def _exposed(kind: str) -> bool:
+    return kind in _EXPOSED_KINDS or kind.startswith("vector")
+
+
+def model_value_to_ros(value: Any) -> Any:
+    if value is None:
+        return "null"
+    if isinstance(value, (tuple, list)):
+        return [float(v) for v in value]
+    return value
+
+
+def model_value_from_ros(kind: str, value: Any) -> Any:
+    """A ROS parameter value in the model's YAML form (validation is params_from_mapping's job)."""
+    if kind == "float_or_null" and (value is None or (isinstance(value, str) and value.strip().lower() in _NULL_WORDS)):
+        return None
+    if kind.startswith("vector") and not isinstance(value, (str, bytes)) and hasattr(value, "__iter__"):
+        return list(value)
+    return value
+
+
+def model_parameters(params: ValveParams) -> list[ModelParameter]:
+    """Every model parameter exposed as a ROS parameter, with its present value."""
+    out = []
+    mapping = params_to_mapping(params)
+    for sec_field in dataclasses.fields(params):
+        section = sec_field.name
+        for f in dataclasses.fields(getattr(params, section)):
+            kind = f.metadata.get("kind", "float")
+            if not _exposed(kind):
+                continue
+            out.append(ModelParameter(
+                f"{MODEL_PREFIX}{section}.{f.name}", section, f.name, kind, f.metadata.get("unit", ""),
+                f.metadata.get("source", ""), model_value_to_ros(mapping[section][f.name])))
+    return out
+
+
+def params_with(params: ValveParams, changes: Mapping[str, Any], *, origin: str = "ROS parameters",
+                runtime: bool = False) -> ValveParams:
+    """params with `model.<section>.<key>` values changed, validated as a whole (so that related
+    values, e.g. both spool areas, can change together). ParameterError names what is wrong."""
+    kinds = {p.name: p.kind for p in model_parameters(params)}
+    mapping = params_to_mapping(params)
+    for name, value in changes.items():
+        if name not in kinds:
+            raise ParameterError(f"unknown model parameter {name!r}; accepted are {MODEL_PREFIX}<section>.<key> "
+                                 f"for the scalar and vector keys of the valve YAML (e.g. {MODEL_PREFIX}spool.mass)")
+        dotted = name[len(MODEL_PREFIX):]
+        if runtime and dotted in RUNTIME_FIXED_MODEL:
+            raise ParameterError(f"{name} is fixed while the node runs (the real-time schedule is built on it): "
+                                 "restart the node with the new value")
+        section, key = dotted.split(".", 1)
+        mapping[section][key] = model_value_from_ros(kinds[name], value)
+    try:
+        return params_from_mapping(mapping, origin=origin)
+    except ParameterError as err:
+        msg = str(err)
+        if msg.startswith(tuple(f"{section}." for section in mapping)):
+            msg = MODEL_PREFIX + msg          # name the ROS parameter: model.spool.mass, not spool.mass
+        raise ParameterError(msg) from None

@@ -1,0 +1,265 @@
+"""ValveDevice and the node's parameter handling, without ROS: inputs, watchdog, fault, samples."""
+import math
+import re
+
+import pytest
+
+from pcv_sim.errors import ParameterError
+from pcv_sim.node.device import ValveDevice, WatchdogState, rest_stepper
+from pcv_sim.node.settings import (
+    NodeSettings, check_node_value, model_parameters, params_with, settings_with,
+)
+from pcv_sim.params import load_params, params_to_mapping
+from pcv_sim.simulation.stepper import RealTimeStepper
+
+PARAMS = load_params()
+
+
+def device(**kw):
+    kw.setdefault('safe_duty', 0.3)
+    return ValveDevice(PARAMS, **kw)
+
+
+# --- inputs ----------------------------------------------------------------------------------
+
+def test_duty_takes_effect_at_the_given_step_like_the_offline_stepper():
+    dev = device(watchdog_timeout=0.0)
+    assert dev.submit('duty_cycle', 0.7, at_step=37) is None
+    samples = dev.run(200)
+    ref = RealTimeStepper(PARAMS, duty=0.3)
+    ref.current                     # the device reads the current at step 0 (as a published sample)
+    expected = []
+    for k in range(1, 201):
+        if k - 1 == 37:
+            ref.set_duty(0.7)
+        ref.advance(1)
+        if k % 10 == 0:
+            expected.append((k, ref.pressure, ref.current, ref.spool_position))
+    got = [(s.step, s.pressure, s.current, s.spool_position) for s in samples]
+    assert [g[0] for g in got] == [e[0] for e in expected]
+    for g, e in zip(got, expected):
+        # Same arithmetic in a different grouping of advance() calls: agreement to rounding.
+        assert g[1] == pytest.approx(e[1], rel=1e-12, abs=1e-6)
+        assert g[3] == pytest.approx(e[3], rel=1e-12, abs=1e-15)
+    assert dev.duty_applied_step == 37
+    assert samples[-1].command == 0.7
+
+
+def test_an_input_for_a_past_step_takes_effect_now():
+    dev = device()
+    dev.run(50)
+    dev.submit('duty_cycle', 0.6, at_step=10)
+    dev.run(1)
+    assert dev.duty_applied_step == 50
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('duty_cycle', 70.0, 'fraction 0..1, not percent'),
+    ('duty_cycle', math.nan, 'not finite'),
+    ('duty_cycle', math.inf, 'not finite'),
+    ('duty_cycle', -0.1, 'out of range'),
+    ('duty_cycle', 1.5, 'fraction'),
+    ('load_flow', math.nan, 'finite number in m\\^3/s'),
+    ('load_flow', 5.0, 'not L/min'),
+    ('supply_pressure', -1.0, 'accepted is 0 < p_s'),
+    ('supply_pressure', 200.0e6, 'not bar'),
+])
+def test_bad_inputs_are_refused_counted_and_the_last_valid_value_stays(name, value, match):
+    dev, twin = device(watchdog_timeout=0.0), device(watchdog_timeout=0.0)
+    for d in (dev, twin):
+        d.submit('duty_cycle', 0.5)
+        d.run(100)
+    reason = dev.submit(name, value)
+    assert reason is not None and re.search(match, reason), reason
+    assert dev.counts.rejected[name] == 1
+    assert dev.counts.last_rejection.startswith(f'{name}: ')
+    samples = dev.run(100)                             # the device keeps running ...
+    assert len(samples) == 10
+    assert dev.command == 0.5 and dev.load_flow == 0.0 and dev.supply_pressure is None
+    assert samples == twin.run(100)                    # ... exactly as if the input never came
+
+
+def test_valid_inputs_are_counted_by_topic():
+    dev = device()
+    dev.submit('duty_cycle', 0.5)
+    dev.submit('load_flow', 1e-5)
+    dev.submit('supply_pressure', 150e5)
+    dev.run(1)
+    assert dev.counts.accepted == {'duty_cycle': 1, 'load_flow': 1, 'supply_pressure': 1}
+    assert dev.stepper.load_flow == 1e-5 and dev.stepper.supply_pressure == 150e5
+
+
+def test_unknown_input_is_an_error():
+    with pytest.raises(ValueError, match='unknown input'):
+        device().submit('flow', 1.0)
+
+
+# --- watchdog --------------------------------------------------------------------------------
+
+def test_watchdog_fires_after_the_timeout_in_model_time_and_resumes():
+    dev = device(safe_duty=0.3, watchdog_timeout=0.01)       # 100 steps
+    assert dev.watchdog_state == WatchdogState.WAITING
+    dev.submit('duty_cycle', 0.7, at_step=5)
+    dev.run(104)
+    assert dev.watchdog_state == WatchdogState.OK and dev.stepper.command == 0.7
+    dev.run(1)                                                # step 105 = 5 + 100
+    assert dev.watchdog_state == WatchdogState.FIRED
+    assert dev.watchdog_fired_step == 105 and dev.watchdog_fired == 1
+    assert dev.stepper.command == 0.3 and dev.duty_command_in_force == 0.3
+    assert dev.command == 0.7                                 # the last command is remembered
+    dev.submit('duty_cycle', 0.6)
+    dev.run(1)
+    assert dev.watchdog_state == WatchdogState.OK and dev.stepper.command == 0.6
+
+
+def test_a_rejected_command_does_not_feed_the_watchdog():
+    dev = device(watchdog_timeout=0.01)
+    dev.submit('duty_cycle', 0.7)
+    for _ in range(20):
+        dev.run(10)
+        dev.submit('duty_cycle', 70.0)
+    assert dev.watchdog_state == WatchdogState.FIRED
+
+
+def test_watchdog_off_and_runtime_changes():
+    dev = device(watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.7)
+    dev.run(100_000)
+    assert dev.watchdog_state == WatchdogState.OFF and dev.stepper.command == 0.7
+    dev.set_watchdog_timeout(0.01)                   # armed from the last command: fires at once
+    dev.run(1)
+    assert dev.watchdog_state == WatchdogState.FIRED and dev.stepper.command == 0.3
+    dev.set_safe_duty(0.4)                           # a new safe duty applies while fired
+    assert dev.stepper.command == 0.4
+    dev.set_watchdog_timeout(0.0)                    # switched off: the last command again
+    assert dev.stepper.command == 0.7
+    with pytest.raises(ValueError, match='watchdog_timeout'):
+        dev.set_watchdog_timeout(-1.0)
+
+
+# --- fault -----------------------------------------------------------------------------------
+
+def test_non_finite_state_is_a_fault_until_reset():
+    stiff = params_with(PARAMS, {'model.fluid.bulk_modulus': 1e14})
+    dev = ValveDevice(stiff, safe_duty=0.3, watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.7)
+    samples = dev.run(2000)
+    assert dev.fault is not None and 'non-finite' in dev.fault
+    assert all(math.isfinite(s.pressure) for s in samples)   # no non-finite sample escapes
+    steps = dev.steps
+    assert dev.run(100) == [] and dev.steps == steps + 100   # time goes on, no samples
+    assert math.isfinite(dev.last_good.pressure)
+    dev.install(dev.prepare(PARAMS))                         # sane parameters, still faulted
+    assert dev.fault is not None
+    message = dev.reset()
+    assert 'cleared fault' in message and dev.fault is None
+    assert len(dev.run(100)) == 10
+
+
+def test_injected_fault():
+    dev = device()
+    dev.set_fault('injected')
+    assert dev.run(20) == [] and dev.fault == 'injected'
+    assert dev.reset().endswith('(cleared fault: injected)')
+
+
+# --- recorder hook ---------------------------------------------------------------------------
+
+def test_recorder_gets_every_nth_step_with_its_stamp():
+    got = []
+    dev = device(recorder=lambda t_ns, sig: got.append((t_ns, dict(sig))), record_every=1)
+    dev.origin_ns = 1_000_000_000
+    dev.submit('duty_cycle', 0.5, at_step=3)
+    dev.run(25)
+    assert [t for t, _ in got] == [1_000_000_000 + k * 100_000 for k in range(1, 26)]
+    assert set(got[0][1]) == {'duty_command', 'duty', 'load_flow', 'supply_pressure', 'pressure', 'current',
+                              'spool_position'}
+    assert got[2][1]['duty_command'] == 0.3 and got[3][1]['duty_command'] == 0.5
+    dev.record_every = 10
+    got.clear()
+    dev.run(30)
+    assert len(got) == 3
+
+
+# --- rest state ------------------------------------------------------------------------------
+
+def test_rest_below_the_equilibrium_range_is_reached_by_settling():
+    """Below ~0.3 duty RealTimeStepper.reset finds no equilibrium (spool on its end stop)."""
+    st = rest_stepper(PARAMS, 0.0)
+    p, x = st.pressure, st.spool_position
+    st.advance(1000)
+    assert st.pressure == pytest.approx(p, abs=1.0) and st.spool_position == pytest.approx(x, abs=1e-9)
+    assert x == pytest.approx(PARAMS.spool.stroke_min_mm * 1e-3)
+
+
+def test_parameter_change_restarts_at_the_present_operating_point():
+    dev = device(watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.6)
+    dev.run(3000)
+    steps = dev.steps
+    heavier = params_with(PARAMS, {'model.spool.mass': 0.05})
+    dev.install(dev.prepare(heavier))
+    assert dev.steps == steps and dev.params.spool.mass == 0.05
+    ref = RealTimeStepper(heavier, duty=0.6)
+    assert dev.stepper.pressure == pytest.approx(ref.pressure)
+
+
+# --- settings --------------------------------------------------------------------------------
+
+def test_model_parameters_cover_the_scalar_and_vector_keys():
+    names = {p.name for p in model_parameters(PARAMS)}
+    assert {'model.spool.mass', 'model.orifice.hole_count', 'model.calibration.net_area',
+            'model.simulation.integrator', 'model.solenoid.restoring_f1'} <= names
+    assert 'model.solenoid.force' not in names                 # matrix: set in the valve YAML
+    mapping = params_to_mapping(PARAMS)
+    assert len(names) == sum(1 for s in mapping.values() for v in s.values()
+                             if not (isinstance(v, list) and v and isinstance(v[0], list)))
+
+
+@pytest.mark.parametrize('changes, match', [
+    ({'model.spool.mass': -1.0}, r'^model\.spool\.mass: got -1\.0; accepted is a finite number > 0 \(kg\)'),
+    ({'model.spool.mass': 'heavy'}, r'model\.spool\.mass'),
+    ({'model.orifice.hole_count': 12.5}, r'model\.orifice\.hole_count: .*integer'),
+    ({'model.spool.chamber_area': 7e-5}, r'net area'),
+    ({'model.spool.mas': 1.0}, r'unknown model parameter'),
+    ({'model.simulation.integrator': 'rk45'}, r"one of 'euler', 'rk2', 'rk4'"),
+])
+def test_invalid_model_parameters_are_refused_with_the_reason(changes, match):
+    with pytest.raises(ParameterError, match=match):
+        params_with(PARAMS, changes)
+
+
+def test_null_and_array_model_values():
+    p = params_with(PARAMS, {'model.calibration.net_area': 'null', 'model.command.duty_range': [0, 1]})
+    assert p.calibration.net_area is None and p.command.duty_range == (0.0, 1.0)
+
+
+def test_time_step_is_fixed_at_runtime():
+    with pytest.raises(ParameterError, match='fixed while the node runs'):
+        params_with(PARAMS, {'model.simulation.time_step': 5e-5}, runtime=True)
+    assert params_with(PARAMS, {'model.simulation.time_step': 5e-5}).simulation.time_step == 5e-5
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('publish_rate', 0.0, 'publish_rate: .*> 0'),
+    ('publish_rate', 'fast', 'publish_rate'),
+    ('time_mode', 'wall', "one of 'real', 'simulated'"),
+    ('watchdog_timeout', -1.0, 'watchdog_timeout'),
+    ('safe_duty', 70.0, 'safe_duty: .*fraction'),
+    ('real_time_factor', -2.0, 'real_time_factor'),
+    ('lockstep', 1, 'true or false'),
+    ('nonsense', 1, 'unknown parameter'),
+])
+def test_invalid_node_parameters(name, value, match):
+    with pytest.raises(ParameterError, match=match):
+        check_node_value(name, value)
+
+
+def test_node_settings_cross_checks():
+    ok = NodeSettings()
+    assert ok.check(PARAMS) is ok and ok.sample_every(1e-4) == 10
+    with pytest.raises(ParameterError, match='not a whole multiple'):
+        settings_with(ok, {'publish_rate': 3.0}).check(PARAMS)
+    with pytest.raises(ParameterError, match='max_catchup'):
+        settings_with(ok, {'max_catchup': 1e-4}).check(PARAMS)
+    assert settings_with(ok, {'publish_rate': 1000}).publish_rate == 1000.0
