@@ -1,0 +1,171 @@
+"""A ROS client of one emulator: send inputs, collect samples and diagnostics, call its services.
+
+Used by the demo, the tests and the benchmarks; also a starting point for a controller.
+
+Samples arrive with sensor-data QoS from the emulator. `qos_profile_sensor_data` keeps only 5
+messages: a Python subscriber busy for a few ms loses 1 kHz samples. This client subscribes
+best-effort with a deep queue (`sample_depth`), which is what a subscriber that must see every
+sample should do.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import FluidPressure
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+__all__ = ["EmulatorClient", "PressureSample", "sample_qos"]
+
+
+def sample_qos(depth: int = 10000) -> QoSProfile:
+    """Best effort (matches the emulator's sensor-data publisher) with a deep queue."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+@dataclass(frozen=True)
+class PressureSample:
+    stamp_ns: int          # header.stamp: the sample's model time (anchored to the ROS clock in real time)
+    pressure: float        # Pa
+    source_ns: int         # DDS source timestamp (when the emulator published it)
+    received_ns: int       # DDS reception timestamp at this client
+
+
+class EmulatorClient:
+    """Talks to the emulator in `namespace` (node name `emulator_node`) from its own node."""
+
+    def __init__(
+        self, namespace: str = "/", *, context: Any = None, node_name: str = "pcv_client",
+        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = ("pressure",),
+        on_pressure: Callable[[PressureSample], None] | None = None,
+    ) -> None:
+        self.context = context
+        self.node = rclpy.create_node(node_name, namespace=namespace, context=context)
+        ns = self.node.get_namespace().rstrip("/")
+        self.emulator_name = f"{ns}/{emulator_node}"
+        self.samples: list[PressureSample] = []
+        self.outputs: dict[str, list[tuple[int, float]]] = {"current": [], "spool_position": []}
+        self.diagnostics: list[dict[str, str]] = []
+        self.diagnostic_levels: list[int] = []
+        self.diagnostic_messages: list[str] = []
+        self.duty_sent: list[tuple[float, int]] = []
+        self._on_pressure = on_pressure
+        qos = sample_qos(sample_depth)
+        cmd = QoSProfile(depth=10)
+        self.pub_duty = self.node.create_publisher(Float64, "duty_cycle", cmd)
+        self.pub_load_flow = self.node.create_publisher(Float64, "load_flow", cmd)
+        self.pub_supply = self.node.create_publisher(FluidPressure, "supply_pressure", cmd)
+        if "pressure" in outputs:
+            self.node.create_subscription(FluidPressure, "pressure", self._pressure, qos)
+        for name in ("current", "spool_position"):
+            if name in outputs:
+                self.node.create_subscription(Float64, name, self._scalar(name), qos)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, QoSProfile(depth=50))
+        self.reset_client = self.node.create_client(Trigger, "reset")
+        self.param_client = self.node.create_client(SetParameters, f"{self.emulator_name}/set_parameters")
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+
+    # --- callbacks ---------------------------------------------------------------------------
+
+    def _pressure(self, msg: FluidPressure, info: Any) -> None:
+        s = PressureSample(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, msg.fluid_pressure,
+                           info["source_timestamp"], info["received_timestamp"])
+        self.samples.append(s)
+        if self._on_pressure is not None:
+            self._on_pressure(s)
+
+    def _scalar(self, name: str) -> Callable[[Float64, Any], None]:
+        def callback(msg: Float64, info: Any) -> None:
+            self.outputs[name].append((info["source_timestamp"], msg.data))
+        return callback
+
+    def _diagnostics(self, msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name.startswith(self.emulator_name + ":"):
+                self.diagnostics.append({kv.key: kv.value for kv in st.values})
+                level = st.level
+                self.diagnostic_levels.append(level[0] if isinstance(level, (bytes, bytearray)) else int(level))
+                self.diagnostic_messages.append(st.message)
+
+    # --- spinning ----------------------------------------------------------------------------
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.01, max(0.0, end - time.monotonic())))
+
+    def spin_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > end:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def wait_for_emulator(self, timeout: float = 20.0) -> bool:
+        """Until the emulator's endpoints are matched and a sample has arrived."""
+        n = len(self.samples)
+        return self.spin_until(lambda: (self.pub_duty.get_subscription_count() > 0 and len(self.samples) > n),
+                               timeout)
+
+    def wait_for_diagnostics(self, predicate: Callable[[dict[str, str]], bool] = lambda d: True,
+                             timeout: float = 10.0) -> dict[str, str] | None:
+        """The first diagnostics message from now on that satisfies predicate (None on timeout)."""
+        start = len(self.diagnostics)
+        found: list[dict[str, str]] = []
+
+        def check() -> bool:
+            found[:] = [d for d in self.diagnostics[start:] if predicate(d)]
+            return bool(found)
+
+        return found[0] if self.spin_until(check, timeout) else None
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def send_duty(self, duty: float) -> None:
+        self.pub_duty.publish(Float64(data=float(duty)))
+        self.duty_sent.append((duty, time.time_ns()))
+
+    def send_load_flow(self, q: float) -> None:
+        self.pub_load_flow.publish(Float64(data=float(q)))
+
+    def send_supply_pressure(self, p: float) -> None:
+        msg = FluidPressure()
+        msg.fluid_pressure = float(p)
+        self.pub_supply.publish(msg)
+
+    # --- services ----------------------------------------------------------------------------
+
+    def _call(self, client: Any, request: Any, timeout: float) -> Any:
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise TimeoutError(f"service {client.srv_name} not available")
+        future = client.call_async(request)
+        if not self.spin_until(future.done, timeout):
+            raise TimeoutError(f"no answer from {client.srv_name} within {timeout} s")
+        return future.result()
+
+    def reset(self, timeout: float = 10.0) -> Any:
+        return self._call(self.reset_client, Trigger.Request(), timeout)
+
+    def set_parameters(self, values: dict[str, Any], timeout: float = 10.0) -> list[SetParametersResult]:
+        """Set the emulator's parameters one by one (as `ros2 param set`); one result per name."""
+        request = SetParameters.Request()
+        request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+        return list(self._call(self.param_client, request, timeout).results)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
