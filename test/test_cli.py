@@ -1,0 +1,244 @@
+"""pcv_sim.cli: the `pcv-sim` commands run in-process (text, --json, --plot) and their exit
+statuses; one subprocess run of `python -m pcv_sim --version`."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pcv_sim import __version__
+from pcv_sim.analysis.static import zero_flow_equilibrium
+from pcv_sim.cli import main
+from pcv_sim.model.valve import ValveModel
+from pcv_sim.params import DEFAULT_CONFIG, default_params
+
+BAR = 1e5
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def strict_json(text: str):  # noqa: ANN201
+    """JSON as other tools read it: NaN and Infinity are not JSON."""
+    def refuse(token: str):  # noqa: ANN202
+        raise ValueError(f"not JSON: {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def run_json(capsys: pytest.CaptureFixture[str], *argv: str):  # noqa: ANN201
+    assert main([*argv, "--json"]) == 0
+    return strict_json(capsys.readouterr().out)
+
+
+@pytest.fixture(scope="module")
+def model() -> ValveModel:
+    return ValveModel(default_params())
+
+
+# --- commands --------------------------------------------------------------------------------
+
+
+def test_static_json(capsys: pytest.CaptureFixture[str], model: ValveModel) -> None:
+    data = run_json(capsys, "static")
+    rest = data["zero_flow"]
+    assert [r["duty"] for r in rest] == [0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+    assert len(data["curves"]) == 8
+    # Sec. 4.2: at zero load flow the spool sits on the tank side; pressure rises with duty.
+    assert all(r["spool_position_m"] < 0.0 for r in rest)
+    pressures = [r["pressure_Pa"] for r in rest]
+    assert pressures == sorted(pressures)
+    # The same numbers as the library (the CLI is a thin layer): 70 % at ~122.5 bar.
+    assert rest[4]["pressure_Pa"] == pytest.approx(zero_flow_equilibrium(model, 0.7).pressure, rel=1e-12)
+    assert rest[4]["current_A"] == pytest.approx(1.5, rel=1e-12)
+    curve = data["curves"][4]
+    assert len(curve["spool_position_m"]) == len(curve["pressure_Pa"]) == len(curve["load_flow_m3s"]) == 100
+
+
+def test_static_text(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["static", "--duties", "0.5", "0.7", "--points", "20"]) == 0
+    out = capsys.readouterr().out
+    assert "Zero load flow" in out and "Pressure-flow curves" in out
+    assert "0.70" in out and "1.500" in out
+
+
+def test_step_json(capsys: pytest.CaptureFixture[str], model: ValveModel) -> None:
+    data = run_json(capsys, "step", "--from", "0.5", "--to", "0.7")
+    assert (data["model"], data["from"], data["to"], data["step_time_s"]) == ("simplified", 0.5, 0.7, 0.02)
+    m = data["metrics"]
+    assert set(m) == {"pressure", "current", "spool_position"}
+    for sig in m.values():
+        assert set(sig) == {"initial", "final", "rise_time", "overshoot_percent", "settling_time", "peak"}
+    p = m["pressure"]
+    # From the 50 % to the 70 % zero-flow equilibrium: ~72.7 -> ~122.5 bar (static analysis).
+    assert p["initial"] == pytest.approx(zero_flow_equilibrium(model, 0.5).pressure, abs=0.01 * BAR)
+    assert p["final"] == pytest.approx(zero_flow_equilibrium(model, 0.7).pressure, abs=0.2 * BAR)
+    assert 120 * BAR < p["final"] < 125 * BAR
+    assert 0.0 < p["rise_time"] < 0.1 and p["settling_time"] < 0.38
+    assert m["current"]["final"] == pytest.approx(1.5, abs=1e-3)
+    assert data["units"]["pressure"] == "Pa"
+
+
+def test_step_full_model_json(capsys: pytest.CaptureFixture[str]) -> None:
+    simplified = run_json(capsys, "step", "--from", "0.5", "--to", "0.7", "--duration", "0.15")
+    full = run_json(capsys, "step", "--from", "0.5", "--to", "0.7", "--duration", "0.15", "--model", "full")
+    assert full["model"] == "full"
+    # R20: with the equivalent damper the two models agree to < 0.05 bar (test_stepper).
+    for key in ("initial", "final", "peak"):
+        assert full["metrics"]["pressure"][key] == pytest.approx(simplified["metrics"]["pressure"][key], abs=0.05 * BAR)
+
+
+def test_step_text_with_fall_rate(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["step", "--from", "0.8", "--to", "0.4", "--fall-rate", "2", "--duration", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "Duty step 0.8 -> 0.4 at 0.02 s, simplified model" in out
+    assert "pressure [bar]" in out and "current [A]" in out
+
+
+def test_working_points_json(capsys: pytest.CaptureFixture[str]) -> None:
+    data = run_json(capsys, "working-points")
+    assert data["as_printed"]["net_area_m2"] == pytest.approx(3.1e-6, rel=1e-9)
+    assert data["calibrated"]["net_area_m2"] == 2.859e-6
+    cal = {p["name"]: p for p in data["calibrated"]["points"]}
+    printed = {p["name"]: p for p in data["as_printed"]["points"]}
+    for name in ("P1", "P2"):
+        assert abs(cal[name]["pressure_error"]) < 1.0 * BAR          # test_static's tolerances
+        assert -15 * BAR < printed[name]["pressure_error"] < -5 * BAR
+    assert [r["name"] for r in data["required_constants"]] == ["P1", "P2"]
+
+
+def test_working_points_text(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["working-points"]) == 0
+    out = capsys.readouterr().out
+    assert "As printed (net area 3.1e-06 m^2)" in out and "Calibrated (net area 2.859e-06 m^2)" in out
+
+
+def test_linearize_json(capsys: pytest.CaptureFixture[str]) -> None:
+    data = run_json(capsys, "linearize")
+    assert set(data) == {"P1", "P2"}
+    assert data["P1"]["K_e"] > 0.0 > data["P2"]["K_e"]          # Sec. 5
+    for point in data.values():
+        assert point["stable"] is True
+        assert len(point["eigenvalues"]) == 4
+        assert all(re < 0.0 for re, _ in point["eigenvalues"])
+        assert point["margins"]["phase_margin_deg"] > 0.0
+    assert data["P2"]["margins"]["phase_margin_deg"] < data["P1"]["margins"]["phase_margin_deg"]
+
+
+def test_linearize_text(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["linearize"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("(stable)") == 2 and "UNSTABLE" not in out
+    assert "K_e = K - K_fx + K_ff" in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["static", "--duties", "0.5", "0.7", "--points", "20"],
+        ["step", "--from", "0.5", "--to", "0.7", "--duration", "0.1"],
+        ["linearize"],
+    ],
+)
+def test_plot_writes_a_png(capsys: pytest.CaptureFixture[str], tmp_path: Path, argv: list[str]) -> None:
+    path = tmp_path / f"{argv[0]}.png"
+    assert main([*argv, "--plot", str(path)]) == 0
+    data = path.read_bytes()
+    assert data.startswith(PNG_MAGIC)
+    assert len(data) > 10_000          # a rendered figure, not an empty canvas
+    assert f"wrote {path}" in capsys.readouterr().err
+
+
+# --- bad arguments: exit status 2 and a message ----------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["step", "--from", "70", "--to", "0.7"], "70 is outside 0..1 (did you mean 0.7? the duty is a fraction, not percent)"),
+        (["step", "--from", "0.5", "--to", "1.5"], "1.5 is outside 0..1"),
+        (["step", "--from", "x", "--to", "0.7"], "'x' is not a number; a duty is a fraction 0..1"),
+        (["step", "--from", "nan", "--to", "0.7"], "nan is outside 0..1"),
+        (["step", "--from", "0.5"], "the following arguments are required: --to"),
+        (["step", "--from", "0.5", "--to", "0.7", "--at", "-1"], "-1 must be a finite number > 0"),
+        (["step", "--from", "0.5", "--to", "0.7", "--model", "exact"], "invalid choice: 'exact'"),
+        (["static", "--duties", "30"], "did you mean 0.3?"),
+        (["bogus"], "invalid choice: 'bogus'"),
+        ([], "the following arguments are required: COMMAND"),
+    ],
+)
+def test_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str], argv: list[str], match: str) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert match in err
+    assert "usage:" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["step", "--from", "0.5", "--to", "0.7", "--at", "0.5"], "pcv-sim step: error: --at 0.5 s is not before --duration 0.4 s"),
+        (["static", "--points", "1"], "pcv-sim static: error: --points 1: accepted is an integer >= 2"),
+    ],
+)
+def test_option_conflicts_exit_2(capsys: pytest.CaptureFixture[str], argv: list[str], match: str) -> None:
+    assert main(argv) == 2
+    assert match in capsys.readouterr().err
+
+
+def test_bad_config_exits_2_naming_the_key(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    data = copy.deepcopy(yaml.safe_load(DEFAULT_CONFIG.read_text(encoding="utf-8")))
+    data["spool"]["masss"] = 0.04          # a typo next to the right key
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["--config", str(path), "static"]) == 2
+    captured = capsys.readouterr()
+    assert "pcv-sim static: error:" in captured.err
+    assert "unknown parameter spool.masss" in captured.err
+    assert captured.out == ""
+    # A misspelt key in place of the right one: the message names the key that is missing.
+    data["spool"].pop("mass")
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["--config", str(path), "static"]) == 2
+    assert "missing parameter(s) spool.mass" in capsys.readouterr().err
+
+
+def test_missing_config_exits_2(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["--config", str(tmp_path / "nope.yaml"), "linearize"]) == 2
+    assert "cannot read parameter file" in capsys.readouterr().err
+
+
+def test_config_is_used(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    # A different calibration in --config changes the result: proof the file is read.
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text(encoding="utf-8"))
+    data["calibration"]["net_area"] = None
+    path = tmp_path / "printed.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    out = run_json(capsys, "--config", str(path), "working-points")
+    assert out["calibrated"]["net_area_m2"] == pytest.approx(3.1e-6, rel=1e-9)
+
+
+# --- version --------------------------------------------------------------------------------
+
+
+def test_version_in_process(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"pcv_sim {__version__}"
+
+
+def test_version_as_a_module() -> None:
+    # DESIGN.md section 6: a child must not inherit the ros_wheels_bootstrapper mark.
+    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    proc = subprocess.run([sys.executable, "-m", "pcv_sim", "--version"], env=env, capture_output=True,
+                          text=True, timeout=60, cwd=Path(__file__).resolve().parent.parent)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"pcv_sim {__version__}"
