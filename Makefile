@@ -42,7 +42,7 @@ PYTEST_ARGS ?=
 
 unexport _ROS_WHEELS_BOOTSTRAP_COMPLETE
 
-.PHONY: venv run test bench clean
+.PHONY: venv run demo test bench clean
 
 venv: $(STAMP)
 
@@ -55,6 +55,11 @@ $(STAMP): $(REQUIREMENTS) requirements/common.txt setup.py setup.cfg package.xml
 
 run: venv
 	$(VENV_PY) -m pcv_sim.node.emulator --ros-args --params-file config/emulator.yaml
+
+# Drives a duty step sequence against an emulator already running (`make run` in another
+# terminal) and prints what it saw; starts nothing itself. DEMO_ARGS='--namespace /left'.
+demo: venv
+	$(VENV_PY) -m pcv_sim.node.demo $(DEMO_ARGS)
 
 test: venv
 	$(VENV_PY) -m pytest -q test $(PYTEST_ARGS)

@@ -1,0 +1,107 @@
+"""The launch file (checked with stand-in launch modules: launch is not on PyPI), the CLI help,
+and the demo client against a running emulator."""
+import ast
+from pathlib import Path
+import re
+import subprocess
+import sys
+import types
+
+from pcv_sim.params import load_params
+from pcv_sim.simulation.stepper import RealTimeStepper
+
+from .conftest import clean_child_env
+
+REPO = Path(__file__).resolve().parents[2]
+LAUNCH = REPO / 'launch' / 'emulator.launch.py'
+
+
+class _Recorded:
+    """Stands in for a launch class: remembers how it was constructed."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+def _fake_modules(share):
+    mods = {}
+    for name in ('launch', 'launch.actions', 'launch.substitutions', 'launch_ros', 'launch_ros.actions',
+                 'ament_index_python', 'ament_index_python.packages'):
+        mods[name] = types.ModuleType(name)
+    mods['launch'].LaunchDescription = type('LaunchDescription', (_Recorded,), {})
+    mods['launch.actions'].DeclareLaunchArgument = type('DeclareLaunchArgument', (_Recorded,), {})
+    mods['launch.substitutions'].LaunchConfiguration = type('LaunchConfiguration', (_Recorded,), {})
+    mods['launch_ros.actions'].Node = type('Node', (_Recorded,), {})
+    mods['ament_index_python.packages'].get_package_share_directory = (
+        lambda pkg: str(share) if pkg == 'pcv_sim' else (_ for _ in ()).throw(LookupError(pkg)))
+    return mods
+
+
+def test_launch_file_starts_the_emulator_executable_with_the_shipped_params(monkeypatch, tmp_path):
+    source = LAUNCH.read_text()
+    compile(source, str(LAUNCH), 'exec')
+    ast.parse(source)
+    for name, module in _fake_modules(tmp_path / 'share' / 'pcv_sim').items():
+        monkeypatch.setitem(sys.modules, name, module)
+    namespace = {}
+    exec(compile(source, str(LAUNCH), 'exec'), namespace)
+    ld = namespace['generate_launch_description']()
+    entities = ld.args[0]
+    args = {e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'}
+    nodes = [e for e in entities if type(e).__name__ == 'Node']
+    assert set(args) == {'namespace', 'params_file'}
+    assert args['params_file']['default_value'] == str(tmp_path / 'share/pcv_sim/config/emulator.yaml')
+    (node,) = nodes
+    assert node.kwargs['package'] == 'pcv_sim'
+    assert node.kwargs['executable'] == 'emulator'
+    assert node.kwargs['name'] == 'emulator'
+    assert node.kwargs['namespace'].args == ('namespace',)
+    assert [p.args for p in node.kwargs['parameters']] == [('params_file',)]
+    # The executable and the params file it names exist: console script and installed config.
+    setup = (REPO / 'setup.py').read_text()
+    assert "'emulator = pcv_sim.node.emulator:main'" in setup
+    assert (REPO / 'config' / 'emulator.yaml').is_file()
+
+
+def test_params_file_matches_the_node_parameters():
+    """config/emulator.yaml: every node parameter with its default, under `/**` (any name/namespace)."""
+    import yaml
+
+    from pcv_sim.node.settings import NODE_PARAMETERS
+
+    data = yaml.safe_load((REPO / 'config' / 'emulator.yaml').read_text())
+    params = data['/**']['ros__parameters']
+    assert {p.name: p.default for p in NODE_PARAMETERS} == params
+
+
+def test_help_lists_the_parameters():
+    proc = subprocess.run([sys.executable, '-m', 'pcv_sim.node.emulator', '--help'], capture_output=True,
+                          text=True, timeout=60, env=clean_child_env())
+    assert proc.returncode == 0, proc.stderr
+    for name in ('publish_rate', 'watchdog_timeout', 'time_mode', 'model.<section>.<key>'):
+        assert name in proc.stdout
+
+
+def test_demo_prints_the_step_table(ros):
+    ros.start(params={'safe_duty': 0.3})
+    proc = subprocess.run(
+        [sys.executable, '-m', 'pcv_sim.node.demo', '--namespace', ros.ns(), '--duties', '0.5,0.7', '--hold', '0.4',
+         '--timeout', '30'],
+        capture_output=True, text=True, timeout=90, env=ros.env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = [line.split() for line in proc.stdout.splitlines() if re.match(r'\s+\d+\s+0\.\d\d\s', line)]
+    assert [r[1] for r in rows] == ['0.50', '0.70']
+    params = load_params()
+    for row, duty in zip(rows, (0.5, 0.7)):
+        settled = float(row[2])
+        # 0.4 s holds: the response is within 1 bar of the rest equilibrium by then (demo settles in ~0.1 s).
+        assert abs(settled - RealTimeStepper(params, duty=duty).pressure / 1e5) < 1.0, row
+        assert 1.0 < float(row[3]) < 100.0                   # rise time, ms
+        assert int(row[5]) > 300                             # samples
+
+
+def test_demo_without_an_emulator_says_so(ros):
+    proc = subprocess.run([sys.executable, '-m', 'pcv_sim.node.demo', '--namespace', ros.ns('nobody'),
+                           '--timeout', '1'], capture_output=True, text=True, timeout=60, env=ros.env)
+    assert proc.returncode == 1
+    assert 'no emulator answering' in proc.stderr and 'make run' in proc.stderr
