@@ -7,4 +7,6 @@ COMMANDS = [
     "pcv_sim.commands.step",
     "pcv_sim.commands.working_points",
     "pcv_sim.commands.linearize",
+    "pcv_sim.commands.replay",
+    "pcv_sim.commands.import_csv",
 ]

@@ -1,0 +1,104 @@
+"""Replay a bag: drive the model with the recorded duty command (and load flow / supply
+pressure when recorded), each command taking effect at its timestamp, and compare the model's
+pressure, current and spool position with the recorded ones: per duty step (rise time,
+overshoot, settling time, steady-state error) and over the whole run (RMSE, max error, NRMSE
+fit %). Exit status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from pcv_sim.commands.common import emit_json, params_from
+from pcv_sim.replay import ReplayError, check_thresholds, load_recording, parse_topic_map, replay
+from pcv_sim.replay.report import plot_signals, render_html, render_markdown, render_text
+
+NAME = "replay"
+HELP = "replay a bag's inputs through the model and compare with its recorded outputs"
+
+
+def _limits(items: list[str] | None, flag: str) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in items or []:
+        for part in item.split(","):
+            key, sep, value = part.partition("=")
+            try:
+                limit = float(value)
+            except ValueError:
+                limit = math.nan
+            if not sep or not key.strip() or not math.isfinite(limit):
+                msg = f"{flag} {part!r}: expected METRIC=NUMBER, e.g. pressure_rmse_bar=0.5"
+                raise ReplayError(msg)
+            out[key.strip()] = limit
+    return out
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("bag", type=Path, metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap) or one .mcap file")
+    p.add_argument("--model", choices=("full", "simplified"), default="full",
+                   help="full: with damping chamber, stiff Radau; simplified: the emulator's model (default: %(default)s)")
+    p.add_argument("--solver", choices=("auto", "stepper", "fast", "radau"), default="auto",
+                   help="auto: radau (full) or the emulator's 0.1 ms stepper (simplified); fast: exponential "
+                        "Heun at 0.5 ms for long bags (simplified only) (default: %(default)s)")
+    p.add_argument("--topic", action="append", metavar="ROLE=/TOPIC",
+                   help="where a signal is in the bag, e.g. pressure=/rig/p (roles: duty_cycle, load_flow, "
+                        "supply_pressure, pressure, current, spool_position; aliases duty, position); repeatable")
+    p.add_argument("--report", type=Path, metavar="OUT.md|OUT.html", help="write a Markdown or HTML report with plots")
+    p.add_argument("--plot-dir", type=Path, metavar="DIR",
+                   help="write the plots (PNG) here; default for a Markdown report: OUT_plots/ beside it")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")
+    p.add_argument("--fail-above", action="append", metavar="METRIC=LIMIT",
+                   help="exit 1 if METRIC > LIMIT, e.g. pressure_rmse_bar=0.5 (comma-separated or repeated); "
+                        "metrics: <signal>_rmse_<u>, _max_error_<u>, _steady_state_error_<u>, _rise_time_error_ms, "
+                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm")
+    p.add_argument("--fail-below", action="append", metavar="METRIC=LIMIT",
+                   help="exit 1 if METRIC < LIMIT, e.g. pressure_fit_percent=99")
+
+
+def run(args: argparse.Namespace) -> int:
+    above = _limits(args.fail_above, "--fail-above")
+    below = _limits(args.fail_below, "--fail-below")
+    if args.report is not None and args.report.suffix.lower() not in (".md", ".html", ".htm"):
+        msg = f"--report {str(args.report)!r}: the file name must end in .md or .html"
+        raise ReplayError(msg)
+    params = params_from(args)
+    recording = load_recording(args.bag, parse_topic_map(args.topic))
+    result = replay(recording, params, model=args.model, solver=args.solver)
+    failures = check_thresholds(result, above, below)
+    if not recording.closed_cleanly:
+        print(f"pcv-sim replay: warning: {args.bag} was not closed properly; replaying its readable part",
+              file=sys.stderr)
+    for w in result.warnings:
+        print(f"pcv-sim replay: warning: {w}", file=sys.stderr)
+
+    plots: dict[str, Path] = {}
+    pngs: dict[str, bytes] = {}
+    plot_dir = args.plot_dir
+    if plot_dir is None and args.report is not None and args.report.suffix.lower() == ".md":
+        plot_dir = args.report.with_name(args.report.stem + "_plots")
+    if plot_dir is not None or args.report is not None:
+        pngs = plot_signals(result)
+    if plot_dir is not None:
+        plot_dir.mkdir(parents=True, exist_ok=True)
+        for role, data in pngs.items():
+            path = plot_dir / f"{Path(result.bag).name}_{role}.png"
+            path.write_bytes(data)
+            plots[role] = path
+    if args.report is not None:
+        args.report.parent.mkdir(parents=True, exist_ok=True)
+        if args.report.suffix.lower() == ".md":
+            text = render_markdown(result, plots, failures, args.report.parent)
+        else:
+            text = render_html(result, pngs, failures)
+        args.report.write_text(text, "utf-8")
+        print(f"wrote {args.report}", file=sys.stderr)
+
+    if args.json:
+        data = result.as_dict()
+        data["thresholds"] = {"above": above, "below": below, "failed": [str(f) for f in failures]}
+        emit_json(data)
+    else:
+        print(render_text(result, failures))
+    return 1 if failures else 0

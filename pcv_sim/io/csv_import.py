@@ -1,0 +1,305 @@
+"""Rig data as CSV -> a bag with the device topics in SI units, for ``pcv-sim replay``.
+
+Columns are named by role (:mod:`pcv_sim.io.topics`: ``time``, ``duty``/``duty_cycle``,
+``pressure``, ``current``, ``position``/``spool_position``, ``load_flow``, ``supply_pressure``;
+``-`` ignores a column) with a unit each, given either by flags (``columns``, ``units``) or by a
+header line such as ``time[s],duty[%],pressure[bar],current[A],position[mm]``. Every value is
+converted to SI once, here. Bad rows (wrong field count, empty or non-numeric fields, NaN/inf,
+time not increasing, duty outside 0..1) are reported with their line numbers: the import refuses
+them, or with ``skip_bad_rows`` leaves them out and lists them in the result.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from pcv_sim.errors import BagError, PcvSimError
+from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE, BagWriter
+from pcv_sim.io.topics import (
+    CURRENT,
+    DUTY_CYCLE,
+    LOAD_FLOW,
+    OUTPUT_ROLES,
+    PRESSURE,
+    ROLE_TYPES,
+    SPOOL_POSITION,
+    SUPPLY_PRESSURE,
+    bag_topic,
+    role_of,
+)
+
+__all__ = ["UNITS", "BadRow", "CsvImportError", "CsvImportResult", "import_csv", "parse_units"]
+
+TIME: Final = "time"
+_PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": 1e5, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
+#: Accepted units per column and their factor to SI.
+UNITS: Final[Mapping[str, Mapping[str, float]]] = {
+    TIME: {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
+    DUTY_CYCLE: {"1": 1.0, "fraction": 1.0, "-": 1.0, "percent": 0.01, "%": 0.01},
+    PRESSURE: _PRESSURE_UNITS,
+    SUPPLY_PRESSURE: _PRESSURE_UNITS,
+    CURRENT: {"a": 1.0, "ma": 1e-3},
+    SPOOL_POSITION: {"m": 1.0, "mm": 1e-3, "um": 1e-6},
+    LOAD_FLOW: {"m3/s": 1.0, "m^3/s": 1.0, "l/min": 1e-3 / 60.0, "lpm": 1e-3 / 60.0, "l/s": 1e-3},
+}
+_SI: Final = {TIME: "s", DUTY_CYCLE: "1", PRESSURE: "Pa", SUPPLY_PRESSURE: "Pa", CURRENT: "A",
+              SPOOL_POSITION: "m", LOAD_FLOW: "m3/s"}
+_HEADER_FIELD: Final = re.compile(r"^\s*([A-Za-z_][\w]*|-)\s*(?:[\[(]\s*([^\])]*?)\s*[\])])?\s*$")
+_MAX_LISTED: Final = 20
+
+
+class CsvImportError(PcvSimError, ValueError):
+    """A CSV file cannot be imported as asked: columns, units or rows."""
+
+
+@dataclass(frozen=True)
+class BadRow:
+    line: int          # 1-based line number in the file
+    reason: str
+
+    def __str__(self) -> str:
+        return f"line {self.line}: {self.reason}"
+
+
+@dataclass(frozen=True)
+class CsvImportResult:
+    bag: Path
+    rows: int                       # rows written
+    skipped: tuple[BadRow, ...]     # bad rows left out (only with skip_bad_rows)
+    columns: tuple[str, ...]        # role per column ('-' ignored)
+    units: Mapping[str, str]        # role -> unit as read
+    topics: Mapping[str, str]       # role -> bag topic
+    ignored_columns: tuple[str, ...] = ()
+
+
+def _canonical(name: str) -> str | None:
+    n = name.strip().lower()
+    if n in ("-", "_", "skip"):
+        return "-"
+    if n in ("time", "t", "timestamp"):
+        return TIME
+    return role_of(n)
+
+
+def _accepted_columns() -> str:
+    return "time, duty (duty_cycle), pressure, current, position (spool_position), load_flow, supply_pressure, - (ignore)"
+
+
+def parse_units(spec: str | Sequence[str] | None) -> dict[str, str]:
+    """``"pressure=bar,time=ms"`` (or a list of such) -> ``{"pressure": "bar", "time": "ms"}``."""
+    items: list[str] = []
+    for s in [spec] if isinstance(spec, str) else (spec or []):
+        items += [p for p in s.split(",") if p.strip()]
+    out: dict[str, str] = {}
+    for item in items:
+        name, sep, unit = item.partition("=")
+        role = _canonical(name)
+        if not sep or role is None or role == "-":
+            msg = f"--units {item!r}: expected COLUMN=UNIT with a column of: {_accepted_columns()}"
+            raise CsvImportError(msg)
+        out[role] = _check_unit(role, unit)
+    return out
+
+
+def _check_unit(role: str, unit: str) -> str:
+    u = unit.strip().lower()
+    if u not in UNITS[role]:
+        msg = f"unit {unit.strip()!r} for {role}: accepted are {', '.join(UNITS[role])}"
+        raise CsvImportError(msg)
+    return u
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def import_csv(
+    csv_path: str | os.PathLike[str],
+    bag_path: str | os.PathLike[str],
+    *,
+    columns: Sequence[str] | None = None,
+    units: Mapping[str, str] | None = None,
+    skip_bad_rows: bool = False,
+    delimiter: str | None = None,
+    start_ns: int = 0,
+    namespace: str = "/",
+) -> CsvImportResult:
+    """Convert ``csv_path`` to a bag at ``bag_path`` (which must not exist).
+
+    Times become bag timestamps ``start_ns + round(time_s * 1e9)``; a FluidPressure's header
+    stamp is the same time. Lines starting with ``#`` are comments; blank lines are ignored.
+
+    Raises:
+        CsvImportError: unknown columns or units, no time or duty or output column, bad rows
+            (listed by line number) unless ``skip_bad_rows``, or no good row at all.
+        BagError: the bag cannot be written.
+    """
+    path = Path(csv_path)
+    try:
+        text = path.read_text("utf-8-sig")
+    except FileNotFoundError:
+        msg = f"CSV file {str(path)!r} does not exist"
+        raise CsvImportError(msg) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        msg = f"cannot read {str(path)!r} as UTF-8 text: {exc}"
+        raise CsvImportError(msg) from exc
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1)
+             if line.strip() and not line.lstrip().startswith("#")]
+    if not lines:
+        msg = f"{str(path)!r} holds no data rows"
+        raise CsvImportError(msg)
+    if delimiter is None:
+        try:
+            delimiter = csv.Sniffer().sniff(lines[0][1], delimiters=",;\t ").delimiter
+        except csv.Error:
+            delimiter = ","
+    rows = [(n, [f.strip() for f in fields]) for (n, _), fields in
+            zip(lines, csv.reader([line for _, line in lines], delimiter=delimiter))]
+    if delimiter == " ":
+        rows = [(n, [f for f in fields if f]) for n, fields in rows]
+
+    first_n, first = rows[0]
+    header_units: dict[str, str] = {}
+    header_roles: list[str] | None = None
+    ignored: list[str] = []
+    if not all(_is_number(f) for f in first if f):  # a header line
+        header_roles = []
+        for field in first:
+            m = _HEADER_FIELD.match(field)
+            role = _canonical(m.group(1)) if m else None
+            if role is None:
+                if columns is None:
+                    ignored.append(field)
+                header_roles.append("-")
+                continue
+            header_roles.append(role)
+            if m and m.group(2) and role != "-":
+                header_units[role] = _check_unit(role, m.group(2))
+        rows = rows[1:]
+    if columns is not None:
+        roles = []
+        for c in columns:
+            role = _canonical(c)
+            if role is None:
+                msg = f"--columns: unknown column {c!r}; accepted: {_accepted_columns()}"
+                raise CsvImportError(msg)
+            roles.append(role)
+    elif header_roles is not None:
+        roles = header_roles
+    else:
+        msg = (
+            f"{str(path)!r} has no header line: name the columns with --columns, e.g. "
+            f"--columns time,duty,pressure,current,position, or add a header such as "
+            f"time[s],duty[%],pressure[bar],current[A],position[mm]"
+        )
+        raise CsvImportError(msg)
+    named = [r for r in roles if r != "-"]
+    if dups := sorted({r for r in named if named.count(r) > 1}):
+        msg = f"column(s) {dups} appear more than once"
+        raise CsvImportError(msg)
+    if TIME not in named or DUTY_CYCLE not in named:
+        msg = f"columns {roles}: a time and a duty column are needed; accepted: {_accepted_columns()}"
+        raise CsvImportError(msg)
+    if not any(r in OUTPUT_ROLES for r in named):
+        msg = f"columns {roles}: at least one of pressure, current, position is needed to compare"
+        raise CsvImportError(msg)
+    unit_of = {r: _SI[r] if r != DUTY_CYCLE else "1" for r in named}
+    unit_of.update({r: u for r, u in header_units.items() if r in unit_of})
+    for r, u in (units or {}).items():
+        if r not in unit_of:
+            msg = f"--units names {r!r}, which is not among the columns {named}"
+            raise CsvImportError(msg)
+        unit_of[r] = _check_unit(r, u)
+    factor = {r: UNITS[r][unit_of[r]] for r in named}
+
+    bad: list[BadRow] = []
+    good: list[tuple[int, list[float]]] = []  # (time ns, values in SI per named role)
+    idx = [(i, r) for i, r in enumerate(roles) if r != "-"]
+    last_t: float | None = None
+    for n, fields in rows:
+        if len(fields) != len(roles):
+            bad.append(BadRow(n, f"{len(fields)} fields, expected {len(roles)}"))
+            continue
+        values: list[float] = []
+        reason = None
+        for i, role in idx:
+            raw = fields[i]
+            if raw == "":
+                reason = f"{role} is empty"
+                break
+            try:
+                v = float(raw)
+            except ValueError:
+                reason = f"{role} {raw!r} is not a number"
+                break
+            if not math.isfinite(v):
+                reason = f"{role} is {raw}"
+                break
+            values.append(v * factor[role])
+        if reason is None:
+            named_values = dict(zip((r for _, r in idx), values))
+            t = named_values[TIME]
+            d = named_values[DUTY_CYCLE]
+            if not 0.0 <= d <= 1.0:
+                hint = " (declare duty=percent?)" if unit_of[DUTY_CYCLE] != "percent" and 1 < d <= 100 else ""
+                reason = f"duty {d:g} is outside 0..1 after conversion{hint}"
+            elif t < 0:
+                reason = f"time {t:g} s is negative"
+            elif last_t is not None and t <= last_t:
+                reason = f"time {t:.9g} s does not increase (previous good row: {last_t:.9g} s)"
+        if reason is not None:
+            bad.append(BadRow(n, reason))
+            continue
+        last_t = values[[r for _, r in idx].index(TIME)]
+        good.append((n, values))
+    if bad and not skip_bad_rows:
+        listed = "; ".join(str(b) for b in bad[:_MAX_LISTED])
+        more = f"; and {len(bad) - _MAX_LISTED} more" if len(bad) > _MAX_LISTED else ""
+        msg = (
+            f"{str(path)!r}: {len(bad)} bad row(s): {listed}{more}. Fix them, or pass "
+            f"--skip-bad-rows to leave them out (they are then listed)"
+        )
+        raise CsvImportError(msg)
+    if not good:
+        msg = f"{str(path)!r}: no good data row"
+        raise CsvImportError(msg)
+
+    order = [r for _, r in idx]
+    topics = {r: bag_topic(r, namespace) for r in order if r != TIME}
+    types = {topics[r]: ROLE_TYPES[r] for r in topics}
+    t_col = order.index(TIME)
+    try:
+        writer = BagWriter(bag_path, topics=types, flush_thread=False, clock=lambda: 0.0)
+    except BagError:
+        raise
+    with writer as w:
+        for _, values in good:
+            t_ns = start_ns + round(values[t_col] * 1e9)
+            for role, v in zip(order, values):
+                if role == TIME:
+                    continue
+                if ROLE_TYPES[role] == FLUID_PRESSURE:
+                    w.write_fluid_pressure(topics[role], t_ns, v, 0.0)
+                else:
+                    assert ROLE_TYPES[role] == FLOAT64
+                    w.write_float64(topics[role], t_ns, v)
+    return CsvImportResult(
+        bag=Path(bag_path),
+        rows=len(good),
+        skipped=tuple(bad),
+        columns=tuple(roles),
+        units={r: unit_of[r] for r in order},
+        topics=topics,
+        ignored_columns=tuple(ignored),
+    )

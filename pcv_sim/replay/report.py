@@ -1,0 +1,215 @@
+"""Replay reports: text summary, Markdown or HTML with plots (measured vs model per signal).
+
+Rendering only: every number comes from a :class:`~pcv_sim.replay.compare.ReplayResult`.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+from pcv_sim.replay.compare import DISPLAY, ReplayResult, ThresholdFailure
+
+__all__ = ["plot_signals", "render_html", "render_markdown", "render_text"]
+
+
+def _f(v: float, digits: int = 4) -> str:
+    if isinstance(v, float) and math.isnan(v):
+        return "n/a"
+    if isinstance(v, float) and math.isinf(v):
+        return "inf"
+    return f"{v:.{digits}g}"
+
+
+def _summary_rows(r: ReplayResult) -> list[list[str]]:
+    rows = []
+    for role, sig in r.signals.items():
+        d = DISPLAY[role]
+        rows.append([d.label, d.unit, str(sig.samples), _f(sig.fit.rmse * d.scale), _f(sig.fit.max_error * d.scale),
+                     f"{sig.fit.nrmse_fit_percent:.4f}"])
+    return rows
+
+
+def _step_rows(r: ReplayResult, role: str) -> list[list[str]]:
+    d = DISPLAY[role]
+    rows = []
+    for sc in r.steps:
+        if role not in sc.measured:
+            continue
+        m, s, e = sc.measured[role], sc.model[role], sc.errors(role)
+        st = sc.step
+        ramp = f" ({st.changes} cmds)" if st.changes > 1 else ""
+        rows.append([
+            str(st.index), f"{st.t_start:.3f}", f"{st.duty_from:g} -> {st.duty_to:g}{ramp}",
+            f"{_f(m.rise_time * 1e3)} / {_f(s.rise_time * 1e3)}",
+            f"{_f(m.overshoot_percent, 3)} / {_f(s.overshoot_percent, 3)}",
+            f"{_f(m.settling_time * 1e3)} / {_f(s.settling_time * 1e3)}",
+            f"{_f(m.final * d.scale, 6)} / {_f(s.final * d.scale, 6)}",
+            _f(e["steady_state_error"] * d.scale, 3),
+        ])
+    return rows
+
+
+_SUMMARY_HEAD = ["signal", "unit", "samples", "RMSE", "max error", "NRMSE fit %"]
+_STEP_HEAD = ["step", "t [s]", "duty", "rise [ms] meas / model", "overshoot [%] meas / model",
+              "settling [ms] meas / model", "steady state meas / model", "steady-state error"]
+
+
+def _header_lines(r: ReplayResult) -> list[tuple[str, str]]:
+    return [
+        ("bag", r.bag),
+        ("model", f"{r.model} ({r.solver})"),
+        ("duration", f"{r.duration_s:.3f} s, {r.input_changes} input changes, {len(r.steps)} steps"),
+        ("topics", ", ".join(f"{k}={v}" for k, v in r.topics.items())),
+        ("bag closed properly", "yes" if r.closed_cleanly else "NO: the writer did not finish; "
+                                                                "the readable part was used"),
+        ("replay speed", f"{r.elapsed_s:.2f} s, {r.real_time_factor:.1f}x real time"),
+    ]
+
+
+def render_text(r: ReplayResult, failures: list[ThresholdFailure] | None = None) -> str:
+    lines = [f"Replay of {r.bag}: {r.model} model ({r.solver}), {r.duration_s:.3f} s, "
+             f"{len(r.steps)} steps, {r.real_time_factor:.1f}x real time"]
+    if not r.closed_cleanly:
+        lines.append("  the bag was NOT closed properly: only its readable part was replayed")
+    lines.append(f"  {'signal':16s} {'unit':5s} {'RMSE':>10s} {'max error':>10s} {'fit %':>10s}")
+    for row in _summary_rows(r):
+        lines.append(f"  {row[0]:16s} {row[1]:5s} {row[3]:>10s} {row[4]:>10s} {row[5]:>10s}")
+    for w in r.warnings:
+        lines.append(f"  warning: {w}")
+    for n in r.notes:
+        lines.append(f"  note: {n}")
+    for f in failures or []:
+        lines.append(f"  FAILED: {f}")
+    return "\n".join(lines)
+
+
+def _md_table(head: list[str], rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
+    return "\n".join(out)
+
+
+def render_markdown(r: ReplayResult, plots: dict[str, Path], failures: list[ThresholdFailure],
+                    base: Path) -> str:
+    """Markdown; ``plots`` (role -> PNG) are linked relative to ``base`` (the report's folder)."""
+    out = [f"# Replay: {Path(r.bag).name}", ""]
+    out += [f"- **{k}**: {v}" for k, v in _header_lines(r)]
+    out.append("")
+    if failures:
+        out += ["## Thresholds FAILED", ""] + [f"- {f}" for f in failures] + [""]
+    if r.warnings:
+        out += ["## Warnings from the bag reader", ""] + [f"- {w}" for w in r.warnings] + [""]
+    out += ["## Whole run (model minus measured)", "", _md_table(_SUMMARY_HEAD, _summary_rows(r)), ""]
+    for role in r.signals:
+        d = DISPLAY[role]
+        out += [f"## Steps: {d.label} [{d.unit}]", ""]
+        rows = _step_rows(r, role)
+        out += [_md_table(_STEP_HEAD, rows) if rows else "No step could be analysed.", ""]
+        if role in plots:
+            rel = _relative(plots[role], base)
+            out += [f"![{d.label}: measured vs model]({rel})", ""]
+    if "duty" in plots:
+        out += ["## Input", "", f"![duty command]({_relative(plots['duty'], base)})", ""]
+    if r.notes:
+        out += ["## Notes", ""] + [f"- {n}" for n in r.notes] + [""]
+    return "\n".join(out)
+
+
+def _relative(p: Path, base: Path) -> str:
+    try:
+        return p.resolve().relative_to(base.resolve()).as_posix()
+    except ValueError:
+        return p.resolve().as_posix()
+
+
+def _html_table(head: list[str], rows: list[list[str]]) -> str:
+    h = "".join(f"<th>{html.escape(c)}</th>" for c in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[ThresholdFailure]) -> str:
+    """A self-contained HTML page (plots embedded as PNG data URIs)."""
+    e = html.escape
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>Replay: {e(Path(r.bag).name)}</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
+        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+        "text-align:right}th{background:#eee}.bad{color:#b00;font-weight:bold}</style></head><body>",
+        f"<h1>Replay: {e(Path(r.bag).name)}</h1><ul>",
+    ]
+    parts += [f"<li><b>{e(k)}</b>: {e(v)}</li>" for k, v in _header_lines(r)]
+    parts.append("</ul>")
+    if failures:
+        parts.append("<h2 class='bad'>Thresholds FAILED</h2><ul>")
+        parts += [f"<li class='bad'>{e(str(f))}</li>" for f in failures]
+        parts.append("</ul>")
+    if r.warnings:
+        parts.append("<h2>Warnings from the bag reader</h2><ul>")
+        parts += [f"<li>{e(w)}</li>" for w in r.warnings]
+        parts.append("</ul>")
+    parts += ["<h2>Whole run (model minus measured)</h2>", _html_table(_SUMMARY_HEAD, _summary_rows(r))]
+    for role in r.signals:
+        d = DISPLAY[role]
+        parts.append(f"<h2>Steps: {e(d.label)} [{e(d.unit)}]</h2>")
+        parts.append(_html_table(_STEP_HEAD, _step_rows(r, role)))
+        if role in pngs:
+            data = base64.b64encode(pngs[role]).decode("ascii")
+            parts.append(f"<img alt='{e(d.label)}' src='data:image/png;base64,{data}' style='max-width:100%'>")
+    if "duty" in pngs:
+        data = base64.b64encode(pngs["duty"]).decode("ascii")
+        parts.append(f"<h2>Input</h2><img alt='duty' src='data:image/png;base64,{data}' style='max-width:100%'>")
+    if r.notes:
+        parts.append("<h2>Notes</h2><ul>")
+        parts += [f"<li>{e(n)}</li>" for n in r.notes]
+        parts.append("</ul>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def plot_signals(r: ReplayResult) -> dict[str, bytes]:
+    """PNG bytes per output role (measured vs model, and the error below) and for the duty."""
+    import matplotlib  # noqa: PLC0415 - only reports pay for matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    out: dict[str, bytes] = {}
+    for role, (t, meas, mod) in r.traces.items():
+        d = DISPLAY[role]
+        fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True,
+                                         gridspec_kw={"height_ratios": [3, 1]})
+        ax.plot(t, meas * d.scale, "-", lw=1.4, label="measured (bag)")
+        ax.plot(t, mod * d.scale, "--", lw=1.1, label=f"model ({r.model})")
+        ax.set_ylabel(f"{d.label} [{d.unit}]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best")
+        ax.set_title(f"{Path(r.bag).name}: {d.label}, measured vs {r.model} model")
+        ax_err.plot(t, (mod - meas) * d.scale, lw=0.9, color="C3")
+        ax_err.set_ylabel(f"error [{d.unit}]")
+        ax_err.set_xlabel("time since first duty command [s]")
+        ax_err.grid(True, alpha=0.3)
+        out[role] = _png(fig, plt)
+    t_d, duty = r.duty
+    t_end = max(r.duration_s, float(t_d[-1]))
+    fig, ax = plt.subplots(figsize=(10, 2.5))
+    ax.step(list(t_d) + [t_end], list(duty) + [duty[-1]], where="post")
+    ax.set_ylabel("duty [-]")
+    ax.set_xlabel("time since first duty command [s]")
+    ax.grid(True, alpha=0.3)
+    out["duty"] = _png(fig, plt)
+    return out
+
+
+def _png(fig: Any, plt: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()
