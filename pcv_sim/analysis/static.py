@@ -89,25 +89,62 @@ def static_point(model: ValveModel, duty: float, x: float, supply_pressure: floa
     return StaticPoint(duty, i, x, p, hyd.valve_flow, hyd.pump_flow, hyd.tank_flow, hyd.flow_force)
 
 
-def equilibrium_at_flow(
-    model: ValveModel, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None
-) -> StaticPoint:
-    """The equilibrium that delivers `load_flow` (m^3/s) at duty D (the net valve flow rises with x)."""
-    ps = model.p_supply if supply_pressure is None else supply_pressure
+def stop_point(model: ValveModel, duty: float, at_max: bool, load_flow: float, supply_pressure: float) -> StaticPoint:
+    """An equilibrium held by an end stop: x at the stop, p from continuity q_v(x, p) = q_l."""
+    x = model.x_max if at_max else model.x_min
+    i = model.steady_current(duty)
 
-    def excess(x: float) -> float:
-        return static_point(model, duty, x, ps).load_flow - load_flow
+    def excess(p: float) -> float:
+        return model.hydraulics(x, p, supply_pressure).valve_flow - load_flow
 
-    lo, hi = model.x_min, model.x_max
-    e_lo, e_hi = excess(lo), excess(hi)
-    if not e_lo <= 0.0 <= e_hi:
-        reach = (static_point(model, duty, lo, ps).load_flow, static_point(model, duty, hi, ps).load_flow)
+    lo, hi = model.p_tank, 3.0 * supply_pressure
+    if not excess(lo) >= 0.0 >= excess(hi):
         raise EquilibriumError(
-            f"load flow {load_flow:.4g} m^3/s is outside what the valve passes at duty {duty:.3g} within its "
-            f"stroke: {reach[0]:.4g} .. {reach[1]:.4g} m^3/s"
+            f"load flow {load_flow:.4g} m^3/s cannot be held with the spool on its {'max' if at_max else 'min'} stop"
         )
-    x = brentq(excess, lo, hi, xtol=1e-12, rtol=1e-12)
-    return static_point(model, duty, x, ps)
+    p = brentq(excess, lo, hi, xtol=1e-6, rtol=1e-12)
+    hyd = model.hydraulics(x, p, supply_pressure)
+    return StaticPoint(duty, i, x, p, hyd.valve_flow, hyd.pump_flow, hyd.tank_flow, hyd.flow_force)
+
+
+def equilibrium_at_flow(
+    model: ValveModel, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None, *, grid: int = 281
+) -> StaticPoint:
+    """The rest state that delivers `load_flow` (m^3/s) at duty D.
+
+    A free equilibrium (spool floating, Eq. 14 balanced) exists only where the solenoid can hold
+    the spool at some pressure: at low duty and large opening it cannot, and at 0 % nowhere.
+    The stroke is scanned on `grid` points for the first bracket of valid positions where the
+    net valve flow crosses `load_flow`; if the flow is out of reach of the free positions on the
+    side of a stop, the spool rests on that stop with the pressure continuity sets.
+    """
+    ps = model.p_supply if supply_pressure is None else supply_pressure
+    xs = np.linspace(model.x_min, model.x_max, grid)
+    points: list[StaticPoint | None] = []
+    for x in xs:
+        try:
+            points.append(static_point(model, duty, float(x), ps))
+        except EquilibriumError:
+            points.append(None)
+    for a, b in zip(points, points[1:]):
+        if a is not None and b is not None and (a.load_flow - load_flow) * (b.load_flow - load_flow) <= 0.0:
+            x = brentq(
+                lambda x: static_point(model, duty, x, ps).load_flow - load_flow,
+                a.spool_position, b.spool_position, xtol=1e-13, rtol=1e-12,
+            )
+            return static_point(model, duty, x, ps)
+    valid = [p for p in points if p is not None]
+    # No free equilibrium delivers it: the spool is pushed onto a stop. The solenoid too weak
+    # everywhere (or more flow than wanted even at x_min) -> min stop; too little -> max stop.
+    if not valid or min(p.load_flow for p in valid) > load_flow:
+        return stop_point(model, duty, False, load_flow, ps)
+    if points[-1] is not None and points[-1].load_flow < load_flow:
+        return stop_point(model, duty, True, load_flow, ps)
+    reach = (min(p.load_flow for p in valid), max(p.load_flow for p in valid))
+    raise EquilibriumError(
+        f"load flow {load_flow:.4g} m^3/s is outside what the valve holds at rest at duty {duty:.3g}: "
+        f"{reach[0]:.4g} .. {reach[1]:.4g} m^3/s"
+    )
 
 
 def zero_flow_equilibrium(model: ValveModel, duty: float, supply_pressure: float | None = None) -> StaticPoint:

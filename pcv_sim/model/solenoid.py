@@ -17,6 +17,7 @@ __all__ = [
     "dissipating_current",
     "dissipating_slope",
     "solve_current",
+    "dissipating_range",
     "flux_linkage_derivative",
     "solenoid_force",
     "force_from_coefficients",
@@ -91,25 +92,73 @@ def dissipating_slope(v_l: float, pd: tuple[float, ...]) -> float:
     return (3.0 * pd[0] * v_l + 2.0 * pd[1]) * v_l + pd[2]
 
 
+def dissipating_range(pd: tuple[float, ...]) -> tuple[float, float]:
+    """The V_L interval where Eq. 8's cubic rises (d' >= 0): its fit range (reading R29).
+
+    With Table 1's p_d that is -6.53 .. 6.03 V. Outside it the cubic turns over (d(12 V) =
+    -0.16 A), which would give Eq. 2 no root for a 0 -> 100 % step from zero flux.
+    """
+    a, b, c = 3.0 * pd[0], 2.0 * pd[1], pd[2]
+    if a == 0.0:
+        return (-math.inf, math.inf) if b == 0.0 else ((-c / b, math.inf) if b > 0 else (-math.inf, -c / b))
+    disc = b * b - 4.0 * a * c
+    if disc <= 0.0:
+        return (-math.inf, math.inf)
+    r1, r2 = sorted(((-b - math.sqrt(disc)) / (2 * a), (-b + math.sqrt(disc)) / (2 * a)))
+    return (r1, r2) if a < 0 else (-math.inf, math.inf)
+
+
 def solve_current(
-    i_r: float, v_s: float, resistance: float, pd: tuple[float, ...], i_guess: float
+    i_r: float, v_s: float, resistance: float, pd: tuple[float, ...], i_guess: float,
+    v_range: tuple[float, float] | None = None,
 ) -> float:
     """Eqs. 1-2 as an algebraic loop: the coil current i with i = i_R + d(V_s - i R).
 
     The dissipating current depends on the inductive voltage V_L = V_s - i R (Eq. 1), which
-    depends on i (reading R17). g(i) = i - i_R - d(V_s - iR) has g' = 1 + R d'(V_L) > 0 for
-    V_L < 13.4 V with Table 1's p_d, so Newton from the last current converges in 2-3 steps.
+    depends on i (reading R17). Eq. 8 is evaluated with V_L clamped to `v_range`, where the
+    cubic rises (reading R29, `dissipating_range`); then g(i) = i - i_R - d(V_s - iR) has
+    g' = 1 + R d' >= 1, one root, and it lies in [i_R + d(lo), i_R + d(hi)]. Newton from the last
+    current converges in 2-3 steps; bisection on that bracket backs it up.
     """
+    if v_range is None:
+        v_range = dissipating_range(pd)
     p1, p2, p3, p4 = pd
+    v_lo, v_hi = v_range
     i = i_guess
     for _ in range(8):
         v_l = v_s - i * resistance
+        if v_l > v_hi:
+            v_l, slope = v_hi, 0.0
+        elif v_l < v_lo:
+            v_l, slope = v_lo, 0.0
+        else:
+            slope = (3.0 * p1 * v_l + 2.0 * p2) * v_l + p3
         g = i - i_r - (((p1 * v_l + p2) * v_l + p3) * v_l + p4)       # Eq. 8 inlined: hot path
-        step = g / (1.0 + resistance * ((3.0 * p1 * v_l + 2.0 * p2) * v_l + p3))
+        step = g / (1.0 + resistance * slope)
         i -= step
         if -1e-12 < step < 1e-12:
+            return i
+    return _bisect_current(i_r, v_s, resistance, pd, v_range)
+
+
+def _bisect_current(i_r: float, v_s: float, resistance: float, pd: tuple[float, ...], v_range: tuple[float, float]) -> float:
+    def g(i: float) -> float:
+        v_l = min(max(v_s - i * resistance, v_range[0]), v_range[1])
+        return i - i_r - dissipating_current(v_l, pd)
+
+    lo = i_r + dissipating_current(v_range[0], pd) - 1e-9
+    hi = i_r + dissipating_current(v_range[1], pd) + 1e-9
+    if not (g(lo) <= 0.0 <= g(hi)) or not math.isfinite(lo + hi):
+        raise ArithmeticError(f"no coil current solves Eq. 2 for i_R={i_r!r} A, V_s={v_s!r} V")
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if g(mid) > 0.0:
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo < 1e-13:
             break
-    return i
+    return 0.5 * (lo + hi)
 
 
 def flux_linkage_derivative(v_s: float, i: float, resistance: float) -> float:

@@ -64,6 +64,7 @@ class ValveModel:
         s, o, f = params.solenoid, params.orifice, params.fits
         self.f1, self.f2, self.f3 = s.restoring_f1, s.restoring_f2, s.restoring_f3
         self.pd = s.dissipating
+        self.v_range = sol.dissipating_range(self.pd)
         self.force_map = s.force
         self.core_offset_mm = s.core_offset_mm
         self.resistance = s.coil_resistance
@@ -104,7 +105,10 @@ class ValveModel:
     def coil_voltage(self, duty: float, t: float) -> float:
         """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform."""
         if self.switched:
-            return self.v_supply if (t % self.pwm_period) < duty * self.pwm_period else 0.0
+            # Phase in periods; edges fall on sample instants, so round away float noise there.
+            phase = t / self.pwm_period
+            phase -= math.floor(phase + 1e-9)
+            return self.v_supply if phase < duty - 1e-9 else 0.0
         return duty * self.v_supply
 
     def steady_current(self, duty: float) -> float:
@@ -118,7 +122,9 @@ class ValveModel:
     def current(self, lam: float, x: float, v_s: float, i_guess: float) -> float:
         """Eqs. 1-8: the coil current for flux linkage lam at spool x and coil voltage v_s."""
         c1, c2, c3 = self.restoring(x)
-        return sol.solve_current(sol.restoring_current(lam, c1, c2, c3), v_s, self.resistance, self.pd, i_guess)
+        return sol.solve_current(
+            sol.restoring_current(lam, c1, c2, c3), v_s, self.resistance, self.pd, i_guess, self.v_range
+        )
 
     def solenoid_force(self, i: float, x: float) -> float:
         """Eqs. 9-13: N, toward +x."""
@@ -196,7 +202,7 @@ class ValveModel:
     def _make_derivatives(self) -> Callable[..., tuple[tuple[float, ...], float]]:
         """`derivatives` as a closure over the constants: the hot path of every integrator."""
         edges, full, switched = self._edges, self.kind == "full", self.switched
-        f1, f2, f3, fmap, pd = self.f1, self.f2, self.f3, self.force_map, self.pd
+        f1, f2, f3, fmap, pd, v_range = self.f1, self.f2, self.f3, self.force_map, self.pd, self.v_range
         offset, resistance, v_supply, coil_voltage = self.core_offset_mm, self.resistance, self.v_supply, self.coil_voltage
         a_c, a_cc, a_net, k_spring, f0, damping = self.a_c, self.a_cc, self.a_net, self.k_spring, self.f0, self.damping
         c_load, c_chamber, k_d = self.beta / self.volume, self.beta / self.v_c, self.k_d
@@ -211,7 +217,7 @@ class ValveModel:
             v_s = coil_voltage(duty, t) if switched else duty * v_supply
             x_mm = to_fit_mm(x)
             c1, c2, c3, k1, k2, k3, k4 = coefficients_at(x_mm + offset, f1, f2, f3, fmap)
-            i = solve_current(restoring_current(lam, c1, c2, c3), v_s, resistance, pd, i_guess)   # Eqs. 1-8
+            i = solve_current(restoring_current(lam, c1, c2, c3), v_s, resistance, pd, i_guess, v_range)  # Eqs. 1-8
             q_p, q_t, f_p, f_t = edges(x, x_mm, p, supply_pressure)
             # Eq. 14 without the chamber and damping terms, which differ per variant.
             force = force_from(i, k1, k2, k3, k4) - a_c * p - k_spring * x - (f_p - f_t) - f0

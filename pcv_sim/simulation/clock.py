@@ -95,6 +95,8 @@ class RealTimeSchedule:
         self.max_lag = 0.0
         self.max_lag_after = 0.0
         self.lag_after = 0.0
+        self.period_max_lag = 0.0       # maxima since the last `take_period_max()` (diagnostics)
+        self.period_max_lag_after = 0.0
 
     @property
     def started(self) -> bool:
@@ -124,6 +126,7 @@ class RealTimeSchedule:
         first = self.slot
         lag = now - self.t0 - first * self.dt
         self.max_lag = max(self.max_lag, lag)
+        self.period_max_lag = max(self.period_max_lag, lag)
         target = self.due(now)
         backlog = target - first
         if backlog <= 0:
@@ -147,7 +150,14 @@ class RealTimeSchedule:
         now = self.clock() if now is None else now
         self.lag_after = now - self.t0 - self.slot * self.dt
         self.max_lag_after = max(self.max_lag_after, self.lag_after)
+        self.period_max_lag_after = max(self.period_max_lag_after, self.lag_after)
         return self.lag_after
+
+    def take_period_max(self) -> tuple[float, float]:
+        """(max lag before, max lag after a batch) since the last call; starts a new period."""
+        out = (self.period_max_lag, self.period_max_lag_after)
+        self.period_max_lag = self.period_max_lag_after = 0.0
+        return out
 
     def next_wake(self, now: float | None = None) -> float:
         """The first grid wake t0 + m P strictly after `now`."""

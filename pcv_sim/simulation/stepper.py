@@ -24,6 +24,7 @@ __all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure"]
 # Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
 MAX_LOAD_FLOW = 100.0 / 60000.0        # m^3/s, 100 L/min (the valve passes ~50 L/min fully open)
 MAX_SUPPLY_PRESSURE = 400.0e5          # Pa
+MIN_SUPPLY_PRESSURE = 1.0e5            # Pa: below 1 bar a value is far more likely bar than Pa
 
 
 def check_load_flow(value: float) -> float:
@@ -40,10 +41,12 @@ def check_load_flow(value: float) -> float:
 def check_supply_pressure(value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise CommandError(f"supply pressure {value!r}: accepted is a finite number in Pa")
-    if not 0.0 < value <= MAX_SUPPLY_PRESSURE:
+    if not MIN_SUPPLY_PRESSURE <= value <= MAX_SUPPLY_PRESSURE:
+        looks_bar = MIN_SUPPLY_PRESSURE <= value * 1e5 <= MAX_SUPPLY_PRESSURE
+        hint = f": {value:g} bar is {value * 1e5:.4g} Pa" if looks_bar else ""
         raise CommandError(
-            f"supply pressure {value:g} Pa: accepted is 0 < p_s <= {MAX_SUPPLY_PRESSURE:.4g} Pa (the unit is Pa, "
-            "not bar)"
+            f"supply pressure {value:g} Pa: accepted is {MIN_SUPPLY_PRESSURE:.4g} .. {MAX_SUPPLY_PRESSURE:.4g} Pa "
+            f"(the unit is Pa, not bar{hint})"
         )
     return float(value)
 

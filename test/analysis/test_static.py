@@ -170,9 +170,10 @@ def test_equilibrium_at_flow_delivers_the_flow(model: ValveModel) -> None:
 
 
 def test_equilibrium_beyond_reach_raises(model: ValveModel) -> None:
-    with pytest.raises(EquilibriumError, match=r"load flow 1 m\^3/s is outside what the valve passes at duty 0\.7"):
+    # 1 m^3/s = 60000 L/min: not even a stop-held rest state passes it.
+    with pytest.raises(EquilibriumError, match=r"load flow 1 m\^3/s cannot be held with the spool on its max stop"):
         equilibrium_at_flow(model, 0.7, 1.0)
-    with pytest.raises(EquilibriumError, match=r"outside what the valve passes"):
+    with pytest.raises(EquilibriumError, match=r"cannot be held with the spool on its min stop"):
         equilibrium_at_flow(model, 0.7, -1.0)
     err = EquilibriumError("x")
     assert isinstance(err, PcvSimError) and isinstance(err, ArithmeticError)
@@ -188,10 +189,6 @@ def test_balance_pressure_failure_branches(model: ValveModel) -> None:
         balance_pressure(model, 1.5, -0.05e-3, 1e5)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: equilibrium_at_flow brackets the whole stroke; at duties 0.2..0.29 brentq probes x ~ +0.25 mm "
-    "where no free equilibrium exists (static_point raises) although the zero-flow equilibrium exists "
-    "at x ~ -0.2 mm (p ~ 23 bar at 0.28). RealTimeStepper(duty=0.28) and simulate_reference fail with it"))
 def test_zero_flow_equilibrium_below_30_percent(model: ValveModel) -> None:
     # Independent evidence that it exists: static_point's load flow changes sign near -0.2 mm.
     lo, hi = static_point(model, 0.28, -0.25e-3), static_point(model, 0.28, -0.15e-3)
