@@ -55,6 +55,7 @@ TICK_NS: Final = 1_000_000                 # command generator and output sample
 START_NS: Final = 1_704_067_200 * 1_000_000_000   # 2024-01-01T00:00:00Z
 ROS_DISTRO: Final = "jazzy"
 QUANTUM: Final = {PRESSURE: 1.0, CURRENT: 2.0**-20, SPOOL_POSITION: 2.0**-30}
+CHUNK_SIZE: Final = 128 * 1024           # uncompressed bytes per MCAP chunk: ~6 chunks per bag
 DEFAULT_OUT: Final = Path(__file__).resolve().parents[2] / "bags"
 
 
@@ -147,7 +148,7 @@ def _pinned_distro() -> Iterator[None]:
 def deterministic_writer(path: Path, topics: dict[str, str]) -> BagWriter:
     """A BagWriter whose bytes depend only on what is written: chunks end by size, never by
     wall-clock time. For offline writing (no durability period is needed)."""
-    return BagWriter(path, topics=topics, flush_thread=False, clock=lambda: 0.0)
+    return BagWriter(path, topics=topics, flush_thread=False, clock=lambda: 0.0, chunk_size=CHUNK_SIZE)
 
 
 def _quantise(x: np.ndarray, q: float) -> np.ndarray:
