@@ -8,8 +8,9 @@ device's model time, `steps * dt`), and
   with its reason and the last valid value stays in force;
 - runs the watchdog in model time: `watchdog_timeout` s after the last valid duty command took
   effect, the duty falls to `safe_duty`; the next valid command resumes;
-- enters a fault state when the model state goes non-finite: it stops stepping and emits no
-  samples (a controller must not read a dead sensor as a valid one) until `reset()`;
+- enters a fault state when the model state goes non-finite or a model step raises (e.g. no
+  coil current solves Eq. 2 for a runaway state): it stops stepping and emits no samples (a
+  controller must not read a dead sensor as a valid one) until `reset()`;
 - returns samples at every `sample_every`-th step (`run`) and calls an optional recorder
   `recorder(t_ns, signals)` at every `record_every`-th step (the hook for bag logging).
 
@@ -30,6 +31,9 @@ from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import RealTimeStepper, check_load_flow, check_supply_pressure
 
 __all__ = ["INPUTS", "SIGNALS", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper"]
+
+#: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
+MODEL_FAILURES = (ArithmeticError, ValueError)
 
 #: Input names, as the node's topics are called.
 INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
@@ -234,21 +238,29 @@ class ValveDevice:
             self._check_watchdog()
             stop = self._next_event(end)
             if self.fault is None:
-                self.stepper.advance(stop - self.steps)
-                if not self.stepper.finite():
+                try:
+                    self.stepper.advance(stop - self.steps)
+                    problem = None if self.stepper.finite() else "model state went non-finite"
+                except MODEL_FAILURES as err:
+                    problem = f"model step failed ({type(err).__name__}: {err})"
+                if problem is not None:
                     self.steps = stop
-                    self.set_fault(f"model state went non-finite at t = {self.time:.4f} s "
-                                   f"(duty {self.stepper.duty:g}, load flow {self.stepper.load_flow:g} m^3/s, "
-                                   f"supply {self.stepper.supply_pressure:g} Pa)")
+                    self._model_fault(problem)
                     continue
             self.steps = stop
             if self.fault is None:
-                if stop % self.sample_every == 0:
-                    s = self.sample()
-                    out.append(s)
-                    self.last_good = s
-                if self.recorder is not None and stop % self.record_every == 0:
-                    self.recorder(self.stamp_ns(stop), self.signals())
+                try:
+                    sample = self.sample() if stop % self.sample_every == 0 else None
+                    signals = (self.signals() if self.recorder is not None and stop % self.record_every == 0
+                               else None)
+                except MODEL_FAILURES as err:
+                    self._model_fault(f"model output failed ({type(err).__name__}: {err})")
+                    continue
+                if sample is not None:
+                    out.append(sample)
+                    self.last_good = sample
+                if signals is not None:
+                    self.recorder(self.stamp_ns(stop), signals)
         # Events due at the end: the state (watchdog, command in force) is that of step `end`.
         self._apply_due_inputs()
         self._check_watchdog()
@@ -273,6 +285,11 @@ class ValveDevice:
         }
 
     # --- faults ------------------------------------------------------------------------------
+
+    def _model_fault(self, problem: str) -> None:
+        st = self.stepper
+        self.set_fault(f"{problem} at t = {self.time:.4f} s (duty {st.duty:g}, load flow {st.load_flow:g} m^3/s, "
+                       f"supply {st.supply_pressure:g} Pa)")
 
     def set_fault(self, reason: str) -> None:
         """Enter the fault state (also the hook for fault injection): no stepping, no samples."""

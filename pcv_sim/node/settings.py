@@ -85,6 +85,12 @@ def _boolean(name: str, v: Any) -> bool:
     return v
 
 
+def _priority(name: str, v: Any) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 99:
+        raise ParameterError(f"{name}: got {v!r}; accepted is an integer 0..99 (0 = normal scheduling)")
+    return v
+
+
 def _string(name: str, v: Any) -> str:
     if not isinstance(v, str):
         raise ParameterError(f"{name}: got {v!r}; accepted is a string")
@@ -113,6 +119,8 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "than this after its scheduled wake", _finite_non_negative),
     NodeParameter("max_catchup", 0.05, "s", "real time: a backlog longer than this is skipped (model held), "
                   "not computed", _finite_positive),
+    NodeParameter("realtime_priority", 0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this "
+                  "priority (needs root or an rtprio limit); 0 = normal scheduling", _priority, read_only=True),
     NodeParameter("watchdog_timeout", 0.5, "s", "no valid duty command for this long (model time) -> safe_duty; "
                   "0 = off", _finite_non_negative),
     NodeParameter("safe_duty", 0.0, "-", "duty fraction applied before the first command and when the watchdog "
@@ -138,6 +146,7 @@ class NodeSettings:
     wake_period: float = 1e-3
     late_threshold: float = 1e-3
     max_catchup: float = 0.05
+    realtime_priority: int = 0
     watchdog_timeout: float = 0.5
     safe_duty: float = 0.0
     real_time_factor: float = 0.0

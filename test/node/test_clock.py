@@ -123,6 +123,8 @@ def test_lag_after_a_batch_is_recorded():
     clock.t += 0.0002                               # the batch took 0.2 ms
     assert s.finish() == pytest.approx(0.00025)
     assert s.max_lag_after == pytest.approx(0.00025)
+    assert s.take_period_max() == pytest.approx((0.00105, 0.00025))
+    assert s.take_period_max() == (0.0, 0.0)            # a new period
 
 
 def test_plan_before_start_is_an_error():
