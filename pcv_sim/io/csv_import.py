@@ -49,8 +49,8 @@ UNITS: Final[Mapping[str, Mapping[str, float]]] = {
     SPOOL_POSITION: {"m": 1.0, "mm": 1e-3, "um": 1e-6},
     LOAD_FLOW: {"m3/s": 1.0, "m^3/s": 1.0, "l/min": 1e-3 / 60.0, "lpm": 1e-3 / 60.0, "l/s": 1e-3},
 }
-_SI: Final = {TIME: "s", DUTY_CYCLE: "1", PRESSURE: "Pa", SUPPLY_PRESSURE: "Pa", CURRENT: "A",
-              SPOOL_POSITION: "m", LOAD_FLOW: "m3/s"}
+_SI: Final = {TIME: "s", DUTY_CYCLE: "1", PRESSURE: "pa", SUPPLY_PRESSURE: "pa", CURRENT: "a",
+              SPOOL_POSITION: "m", LOAD_FLOW: "m3/s"}  # keys of UNITS (lower case)
 _HEADER_FIELD: Final = re.compile(r"^\s*([A-Za-z_][\w]*|-)\s*(?:[\[(]\s*([^\])]*?)\s*[\])])?\s*$")
 _MAX_LISTED: Final = 20
 
@@ -214,7 +214,7 @@ def import_csv(
     if not any(r in OUTPUT_ROLES for r in named):
         msg = f"columns {roles}: at least one of pressure, current, position is needed to compare"
         raise CsvImportError(msg)
-    unit_of = {r: _SI[r] if r != DUTY_CYCLE else "1" for r in named}
+    unit_of = {r: _SI[r] for r in named}
     unit_of.update({r: u for r, u in header_units.items() if r in unit_of})
     for r, u in (units or {}).items():
         if r not in unit_of:
