@@ -348,7 +348,7 @@ def _run_stepper(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[
 
 
 def _run_fast(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[np.int64], h: float) -> ModelRun:
-    """Simplified model, step h; commands and samples fall on exact (shortened) sub-steps.
+    """Simplified model, exponential Heun; commands and samples fall on step boundaries.
 
     With c = B/m and g = dv/dt + c v (the force per mass without the damping term), the
     velocity obeys v' = -c v + g. Per step: a = f(y_n); predictor: Euler for lam and p, the
@@ -358,6 +358,10 @@ def _run_fast(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[np.
     x_n + (h (g_n + g*)/2 - (v_{n+1} - v_n))/c, the exact integral of v under the same g.
     Integrating x with v's endpoints instead (plain trapezoid) makes the error 20x larger,
     since v follows g within 1/c = 0.13 ms.
+
+    Step size: ``h`` (0.5 ms), except where the valve is at rest: an interval of up to 2 h is
+    first tried as one step, kept when the predictor/corrector difference in pressure is below
+    100 Pa and in position below 0.1 um, else redone in steps of h.
     """
     model = ValveModel(params, "simplified")
     if model.switched:
@@ -367,22 +371,42 @@ def _run_fast(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[np.
         msg = f"fast step {h!r} s: accepted is 0 < h <= 2 ms"
         raise ReplayError(msg)
     state, i = _rest_state(model, float(tl.duty[0]), float(tl.load_flow[0]), float(tl.supply_pressure[0]))
-    y0, y1, y2, y3 = state
     c = model.damping / model.mass
     deriv, x_min, x_max, project = model.derivatives, model.x_min, model.x_max, model.project
-    coef: dict[float, tuple[float, float, float]] = {}
+    coef: dict[int, tuple[float, float, float]] = {}
 
-    def phis(hh: float) -> tuple[float, float, float]:
-        got = coef.get(hh)
+    def phis(step_ns: int) -> tuple[float, float, float]:
+        hh = step_ns / _NS
+        z = c * hh
+        e = math.exp(-z)
+        phi1 = -math.expm1(-z) / z
+        phi2 = (z - 1.0 + e) / (z * z) if z > 1e-4 else 0.5 - z / 6.0
+        return e, phi1 * hh, phi2 * hh
+
+    def step(y: tuple[float, float, float, float], t_ns: int, step_ns: int, i: float, duty: float, q_l: float,
+             p_s: float) -> tuple[tuple[float, float, float, float], float, float, float]:
+        """One step; returns the new state, current guess and the |corrector - predictor| of p, x."""
+        got = coef.get(step_ns)
         if got is None:
-            z = c * hh
-            e = math.exp(-z)
-            phi1 = -math.expm1(-z) / z
-            phi2 = (z - 1.0 + e) / (z * z) if z > 1e-4 else 0.5 - z / 6.0
-            got = coef[hh] = (e, phi1 * hh, phi2 * hh)
-        return got
+            got = coef[step_ns] = phis(step_ns)
+        e, p1h, p2h = got
+        hh = step_ns / _NS
+        y0, y1, y2, y3 = y
+        (a0, a1, a2, a3), i = deriv(t_ns / _NS, y, duty, q_l, p_s, i)
+        g_a = a2 + c * y2
+        v_pred = y2 * e + g_a * p1h
+        x_pred = y1 + (hh * g_a - (v_pred - y2)) / c
+        p_pred = y3 + hh * a3
+        (b0, _, b2, b3), i = deriv(t_ns / _NS + hh, (y0 + hh * a0, x_pred, v_pred, p_pred), duty, q_l, p_s, i)
+        g_b = b2 + c * v_pred
+        hh2 = 0.5 * hh
+        v_new = y2 * e + g_a * p1h + (g_b - g_a) * p2h
+        x_new = y1 + (hh2 * (g_a + g_b) - (v_new - y2)) / c
+        p_new = y3 + hh2 * (a3 + b3)
+        if not x_min <= x_new <= x_max:
+            x_new, v_new = project(x_new, v_new)
+        return (y0 + hh2 * (a0 + b0), x_new, v_new, p_new), i, abs(p_new - p_pred), abs(x_new - x_pred)
 
-    # Stop points: every input change and every sample; integrate between them in steps <= h.
     stops = np.unique(np.concatenate([tl.t_ns, sample_ns]))
     h_ns = int(round(h * _NS))
     p_out = np.empty(len(sample_ns))
@@ -390,42 +414,37 @@ def _run_fast(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[np.
     x_out = np.empty(len(sample_ns))
     seg = np.searchsorted(tl.t_ns, stops, side="right") - 1
     is_sample = np.isin(stops, sample_ns)
+    y: tuple[float, float, float, float] = (state[0], state[1], state[2], state[3])
     j = 0
     t_ns = 0
     k_now = 0
     duty, q_l, p_s = float(tl.duty[0]), float(tl.load_flow[0]), float(tl.supply_pressure[0])
+    calm = False
+    steps = 0
     for s_ns, k, want in zip(stops.tolist(), seg.tolist(), is_sample.tolist()):
-        # integrate from t_ns to s_ns with the inputs of the segment in force before s_ns
         remaining = s_ns - t_ns
+        if calm and 0 < remaining <= 2 * h_ns:  # at rest: try the interval in one step
+            y_try, i_try, dp, dx = step(y, t_ns, remaining, i, duty, q_l, p_s)
+            steps += 1
+            if dp < 100.0 and dx < 1e-7:
+                y, i, t_ns, remaining = y_try, i_try, s_ns, 0
+            else:
+                calm = False
         while remaining > 0:
             step_ns = h_ns if remaining >= h_ns else remaining
-            hh = step_ns / _NS
-            e, p1h, p2h = phis(hh)
-            t = t_ns / _NS
-            (a0, a1, a2, a3), i = deriv(t, (y0, y1, y2, y3), duty, q_l, p_s, i)
-            g_a = a2 + c * y2
-            v_pred = y2 * e + g_a * p1h
-            x_pred = y1 + (hh * g_a - (v_pred - y2)) / c
-            (b0, b1, b2, b3), i = deriv(t + hh, (y0 + hh * a0, x_pred, v_pred, y3 + hh * a3),
-                                        duty, q_l, p_s, i)
-            g_b = b2 + c * v_pred
-            hh2 = 0.5 * hh
-            v_new = y2 * e + g_a * p1h + (g_b - g_a) * p2h
-            dx = (hh2 * (g_a + g_b) - (v_new - y2)) / c
-            y0 += hh2 * (a0 + b0)
-            y3 += hh2 * (a3 + b3)
-            y1 += dx
-            y2 = v_new
-            if not x_min <= y1 <= x_max:
-                y1, y2 = project(y1, y2)
+            y, i, dp, dx = step(y, t_ns, step_ns, i, duty, q_l, p_s)
+            steps += 1
+            calm = dp < 25.0 and dx < 2.5e-8
             t_ns += step_ns
             remaining -= step_ns
         if k != k_now:
             k_now = k
             duty, q_l, p_s = float(tl.duty[k]), float(tl.load_flow[k]), float(tl.supply_pressure[k])
+            calm = False
         if want:
-            i = model.current(y0, y1, duty * model.v_supply, i)
-            p_out[j], i_out[j], x_out[j] = y3, i, y1
+            i = model.current(y[0], y[1], duty * model.v_supply, i)
+            p_out[j], i_out[j], x_out[j] = y[3], i, y[1]
             j += 1
     return ModelRun(sample_ns, {PRESSURE: p_out, CURRENT: i_out, SPOOL_POSITION: x_out},
-                    "simplified", f"fast (exponential Heun, {h * 1e3:g} ms)", len(tl))
+                    "simplified", f"fast (exponential Heun, {h * 1e3:g} ms)", len(tl),
+                    (f"fast solver: {steps} steps for {t_ns / 1e9:.3f} s",))
