@@ -198,6 +198,35 @@ def test_zero_flow_equilibrium_below_30_percent(model: ValveModel) -> None:
     assert abs(pt.load_flow) < 1e-12
 
 
+def test_rest_states_held_by_the_stops(model: ValveModel) -> None:
+    """R30: where no free equilibrium delivers the flow, the spool rests on a stop and the
+    pressure is what continuity (Eq. 15 with dp/dt = 0) gives there."""
+    # 0 %: no solenoid force, the 2 N preload holds the spool on x_min; the tank side is wide
+    # open and the pump side only leaks, so the load pressure sits near tank pressure.
+    rest = zero_flow_equilibrium(model, 0.0)
+    assert rest.spool_position == model.x_min
+    assert 0.0 < rest.pressure < 0.1 * BAR
+    h = model.hydraulics(model.x_min, rest.pressure, 200e5)
+    assert h.pump_flow == pytest.approx(h.tank_flow, rel=1e-6)
+    # 30 L/min drawn at 100 %: more than any free position delivers -> the max stop.
+    up = equilibrium_at_flow(model, 1.0, 30 * LPM)
+    assert up.spool_position == model.x_max
+    assert up.load_flow == pytest.approx(30 * LPM, rel=1e-9)
+    assert model.static_force(up.current, model.x_max, up.pressure, 200e5) > 0.0   # pushes into the stop
+    # 30 L/min pushed in at 30 %: the min stop, the pressure above supply.
+    down = equilibrium_at_flow(model, 0.3, -30 * LPM)
+    assert down.spool_position == model.x_min
+    assert down.pressure > 200 * BAR
+    assert model.static_force(down.current, model.x_min, down.pressure, 200e5) < 0.0
+
+
+def test_flow_in_the_gap_of_free_positions_raises(model: ValveModel) -> None:
+    # At 28 % the solenoid cannot hold the spool between ~0.1 and ~0.27 mm (the flow-force
+    # peak), which would deliver ~9 .. 32 L/min: 20 L/min has no rest state.
+    with pytest.raises(EquilibriumError, match=r"load flow 0\.0003333 m\^3/s is outside what the valve holds at rest at duty 0\.28"):
+        equilibrium_at_flow(model, 0.28, 20 * LPM)
+
+
 def test_pressure_flow_curve_skips_positions_without_equilibrium(model: ValveModel) -> None:
     # At 30 % the solenoid cannot hold the spool where the flow force peaks: those x are left out.
     c = pressure_flow_curve(model, 0.3, 50)

@@ -92,7 +92,8 @@ def test_dissipating_current_eq_8() -> None:
 )
 @pytest.mark.parametrize("guess", [None, 1.5, 5.0, -3.0])
 def test_solve_current_satisfies_the_algebraic_loop(i_r: float, v_s: float, guess: float | None) -> None:
-    """Eqs. 1-2 (reading R17): i = i_R + d(V_s - i R), from a good or a poor first guess."""
+    """Eqs. 1-2 (readings R17, R29): i = i_R + d(V_s - i R) with V_L in d clamped to the cubic's
+    rising range, from a good or a poor first guess."""
     i0 = i_r if guess is None else guess
     i = sol.solve_current(i_r, v_s, R, PD, i0)
     assert abs(i - i_r - _clamped_d(v_s - i * R)) < 1e-10
@@ -114,7 +115,7 @@ def test_dissipating_range_is_where_the_cubic_rises() -> None:
 
 
 def test_the_loop_has_no_root_at_zero_flux_and_full_voltage() -> None:
-    """Why the next test matters: with Table 1's cubic p_d, d(12 V) = -0.16 A (the fit turns over
+    """Why reading R29 clamps V_L: with Table 1's cubic p_d, d(12 V) = -0.16 A (the fit turns over
     beyond its measured range), and g(i) = i - i_R - d(V_s - i R) stays > 0 for every i when
     i_R = 0 and V_s = 12 V: Eq. 2 has no solution at zero flux under full voltage (a cold start
     to 100 % duty)."""
@@ -126,17 +127,43 @@ def test_the_loop_has_no_root_at_zero_flux_and_full_voltage() -> None:
 @pytest.mark.parametrize(
     ("i_r", "v_s", "guess"),
     [
-        (1.3, 12.0, 0.0),    # root at ~1.6 A exists; from 0 A Newton leaves -13.97 < V_L < 13.47 and returns -1.64 A
-        (0.0, 12.0, 0.0),    # no root (test above); returns -0.71 A with residual 0.24 A
-        (0.5, 0.0, 2.14),    # root exists; returns -7.27 A
+        # Before reading R29 plain Newton returned non-solutions here:
+        (1.3, 12.0, 0.0),    # -1.64 A (residual 4.6e-4 A) although a root exists near 1.6 A
+        (0.0, 12.0, 0.0),    # -0.71 A: the unclamped Eq. 2 has no root at all (test above)
+        (0.5, 0.0, 2.14),    # -7.27 A
+        (0.0, 12.0, -50.0),  # a wild guess
+        (2.2, 0.0, 50.0),
     ],
 )
-def test_solve_current_returns_a_root_or_raises(i_r: float, v_s: float, guess: float) -> None:
-    try:
-        i = sol.solve_current(i_r, v_s, R, PD, guess)
-    except ArithmeticError:
-        return
+def test_solve_current_always_returns_the_root(i_r: float, v_s: float, guess: float) -> None:
+    """With Eq. 8 clamped to its rising range (R29), g(i) = i - i_R - d(V_s - i R) has g' >= 1:
+    exactly one root, which must come back whatever the guess."""
+    i = sol.solve_current(i_r, v_s, R, PD, guess)
     assert abs(i - i_r - _clamped_d(v_s - i * R)) < 1e-10
+    lo, hi = sol.dissipating_range(PD)
+    # The root lies in the bracket [i_R + d(lo), i_R + d(hi)] the docstring names.
+    assert i_r + sol.dissipating_current(lo, PD) - 1e-9 <= i <= i_r + sol.dissipating_current(hi, PD) + 1e-9
+
+
+def test_solve_current_raises_when_no_root_exists() -> None:
+    # Unclamped (the paper's cubic as printed over all V_L), zero flux under 12 V has no root.
+    with pytest.raises(ArithmeticError, match=r"no coil current solves Eq\. 2 for i_R=0\.0 A, V_s=12\.0 V"):
+        sol.solve_current(0.0, 12.0, R, PD, 0.0, v_range=(-math.inf, math.inf))
+    with pytest.raises(ArithmeticError, match=r"no coil current solves Eq\. 2 for i_R=nan A"):
+        sol.solve_current(math.nan, 12.0, R, PD, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("pd", "expected"),
+    [
+        ((0.0, 0.0, 0.05, 0.0), (-math.inf, math.inf)),     # linear: rises everywhere
+        ((0.0, 0.01, 0.05, 0.0), (-2.5, math.inf)),         # quadratic: d' = 0.02 V + 0.05 >= 0 from -2.5 V
+        ((0.0, -0.01, 0.05, 0.0), (-math.inf, 2.5)),        # d' = -0.02 V + 0.05 >= 0 up to 2.5 V
+        ((0.001, 0.0, 0.05, 0.0), (-math.inf, math.inf)),   # d' = 0.003 V^2 + 0.05 > 0: no turn-over
+    ],
+)
+def test_dissipating_range_other_shapes(pd: tuple[float, ...], expected: tuple[float, float]) -> None:
+    assert sol.dissipating_range(pd) == pytest.approx(expected, rel=1e-12)
 
 
 def test_current_at_zero_inductive_voltage_is_restoring_plus_p_d4() -> None:

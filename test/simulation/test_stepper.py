@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from pcv_sim.analysis.static import zero_flow_equilibrium
+from pcv_sim.analysis.static import equilibrium_at_flow, zero_flow_equilibrium
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import default_params, replace_param
@@ -238,8 +238,9 @@ def test_bad_inputs_are_refused_and_the_last_command_stays(params, method: str, 
 
 def test_supply_pressure_in_bar_is_refused(params) -> None:  # noqa: ANN001
     st = RealTimeStepper(params, duty=0.6)
-    with pytest.raises(CommandError, match=r"Pa"):
+    with pytest.raises(CommandError, match=r"supply pressure 200 Pa: .*the unit is Pa, not bar: 200 bar is 2e\+07 Pa"):
         st.set_supply_pressure(200)
+    assert st.supply_pressure == 200e5
 
 
 def test_duty_range_from_the_config(params) -> None:  # noqa: ANN001
@@ -292,6 +293,11 @@ def test_end_stops_hold(params, duty: float, q_lpm: float, stop: str) -> None:  
     assert xs[-1] == getattr(m, stop)
     assert st.state[2] == 0.0            # held: inelastic stop, no velocity
     assert st.finite()
+    # Dynamics and statics agree: after 2 s the stepper rests in the stop-held static state.
+    st.advance(18000)
+    rest = equilibrium_at_flow(m, duty, q_lpm * LPM)
+    assert rest.spool_position == st.spool_position
+    assert st.pressure == pytest.approx(rest.pressure, abs=1e-3 * BAR)
 
 
 # --- switched PWM ---------------------------------------------------------------------------
@@ -356,6 +362,19 @@ def test_stepper_starts_at_low_duty(params, duty: float) -> None:  # noqa: ANN00
     st = RealTimeStepper(params, duty=duty)
     assert st.finite()
     assert st.model.x_min <= st.spool_position < 0.0
+    if duty == 0.0:
+        assert st.spool_position == st.model.x_min       # R30: held on the stop by the preload
+    start = (st.spool_position, st.pressure)
+    st.advance(2000)
+    # A rest state stays at rest.
+    assert st.spool_position == pytest.approx(start[0], abs=1e-9)
+    assert st.pressure == pytest.approx(start[1], abs=1e-3 * BAR)
+
+
+def test_default_stepper_starts_at_zero_duty(params) -> None:  # noqa: ANN001
+    st = RealTimeStepper(params)
+    assert st.command == st.duty == 0.0
+    assert st.spool_position == st.model.x_min
 
 
 def test_cold_start_to_full_duty(params) -> None:  # noqa: ANN001
