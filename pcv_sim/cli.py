@@ -42,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     except PcvSimError as err:
         print(f"pcv-sim {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # e.g. `pcv-sim static --json | head`: the reader left, nothing to report
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print(f"pcv-sim {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -363,10 +363,13 @@ def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams
         if not isinstance(raw, Mapping):
             raise ParameterError(f"{origin}: section {name!r} must be a mapping of key: value")
         names = [f.name for f in dataclasses.fields(cls)]
+        try:
+            values = {str(k): validate_section_value(name, str(k), v) for k, v in raw.items()}
+        except ParameterError as err:  # unknown keys first: a misspelt key is not reported as missing
+            raise ParameterError(f"{origin}: {err}") from None
         absent = [k for k in names if k not in raw]
         if absent:
             raise ParameterError(f"{origin}: missing parameter(s) {', '.join(f'{name}.{k}' for k in absent)}")
-        values = {str(k): validate_section_value(name, str(k), v) for k, v in raw.items()}
         sections[name] = cls(**values)
     try:
         return ValveParams(**sections)

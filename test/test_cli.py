@@ -203,8 +203,13 @@ def test_bad_config_exits_2_naming_the_key(capsys: pytest.CaptureFixture[str], t
     assert "pcv-sim static: error:" in captured.err
     assert "unknown parameter spool.masss" in captured.err
     assert captured.out == ""
-    # A misspelt key in place of the right one: the message names the key that is missing.
+    # A misspelt key in place of the right one: the typo is named (and the file), not "missing".
     data["spool"].pop("mass")
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["--config", str(path), "static"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown parameter spool.masss" in err and str(path) in err
+    data["spool"].pop("masss")
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     assert main(["--config", str(path), "static"]) == 2
     assert "missing parameter(s) spool.mass" in capsys.readouterr().err
