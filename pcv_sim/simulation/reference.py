@@ -73,19 +73,26 @@ def simulate_reference(
     out_t, out_y = [], []
     y = np.array(initial_state, dtype=float)
     bps = profile.breakpoints(t_end)
-    if model.switched:
-        bps = sorted(set(bps) | set(np.arange(0.0, t_end, model.pwm_period / 2).tolist()))
+    if model.switched:  # the coil voltage jumps at every PWM edge: on at k T, off at k T + D T
+        edges = [k * model.pwm_period + off for k in range(int(t_end / model.pwm_period) + 1)
+                 for off in (0.0, profile.effective(k * model.pwm_period) * model.pwm_period)]
+        bps = sorted(set(bps) | {e for e in edges if 0.0 < e < t_end})
+    eps = 1e-9 * sample_time
     for t0, t1 in zip(bps[:-1], bps[1:]):
         t = t0
-        while t < t1:
-            mask = (t_samples >= t) & (t_samples <= t1)
+        last = t1 >= t_end - eps
+        while t < t1 - eps:
+            # Samples owned by this segment: [t, t1), and t_end itself in the last one. t1 is
+            # always evaluated too, so the next segment starts from the state at t1 exactly.
+            own = t_samples[(t_samples >= t - eps) & ((t_samples < t1 - eps) | (last & (t_samples <= t1 + eps)))]
+            t_eval = np.unique(np.clip(np.append(own, t1), t, t1))
             sol = solve_ivp(
-                rhs, (t, t1), y, method=method, t_eval=t_samples[mask], rtol=rtol, atol=atol,
+                rhs, (t, t1), y, method=method, t_eval=t_eval, rtol=rtol, atol=atol,
                 events=(hit_min, hit_max), max_step=model.pwm_period / 20 if model.switched else np.inf,
             )
             if sol.status < 0:
                 raise ReferenceError(f"{method} failed at t={t:.6g} s: {sol.message}")
-            keep = sol.t < t1 if t1 < t_end else np.ones_like(sol.t, dtype=bool)
+            keep = np.isin(sol.t, np.clip(own, t, t1))
             out_t.append(sol.t[keep])
             out_y.append(sol.y[:, keep])
             if sol.status == 1:  # a stop was hit: inelastic impact (v = 0), then carry on
