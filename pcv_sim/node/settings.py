@@ -266,6 +266,8 @@ def params_with(params: ValveParams, changes: Mapping[str, Any], *, origin: str 
         return params_from_mapping(mapping, origin=origin)
     except ParameterError as err:
         msg = str(err)
+        if msg.startswith(f"{origin}: "):    # the per-key messages name the ROS parameter instead
+            msg = msg[len(origin) + 2:]
         if msg.startswith(tuple(f"{section}." for section in mapping)):
             msg = MODEL_PREFIX + msg          # name the ROS parameter: model.spool.mass, not spool.mass
         raise ParameterError(msg) from None
