@@ -1,0 +1,387 @@
+"""Recording the emulated device into a bag, from inside the node, without ROS.
+
+:class:`BagRecorder` is the device's recorder (the ``recorder(t_ns, signals)`` hook of
+:class:`pcv_sim.node.device.ValveDevice`, called at every model step) on top of
+:class:`pcv_sim.io.bag.BagWriter`. It writes the device topics (:mod:`pcv_sim.io.topics`) with
+the node's namespace, so a bag of the emulator in ``/left`` holds ``/left/pressure`` etc.
+
+What is written, and when (log time = model sample time, one clock for inputs and outputs):
+
+- Outputs (``pressure``, ``current``, ``spool_position``) at every ``every``-th model step
+  counted from the start (``every = 1``: the full 0.1 ms model rate). ``pressure`` is a
+  FluidPressure whose header stamp equals its log time.
+- Inputs (``duty_cycle``, ``load_flow``, ``supply_pressure``) at the start and then only when
+  they change, as the model actually used them: the duty after the watchdog and the fall-rate
+  limiter. A value the model used over the step [t - dt, t] (seen in the call for step end t)
+  is stamped t - dt, the step at which it took effect. This needs a call at *every* model step,
+  whatever the output rate: the recorder decimates the outputs itself.
+- :meth:`BagRecorder.start` writes every selected signal at the first stamp (the device at
+  rest): a replay starts the model at rest at the first duty command.
+
+Timing. The model loop must not wait for the disk. By default (``threaded=True``) a call only
+appends a tuple to a ``collections.deque`` (about 1 µs per step with all signals); a writer
+thread takes the queue every ``batch_period`` s, serialises the messages and lets the
+BagWriter compress and flush its chunks. Python threads share one interpreter lock: while the
+writer thread runs Python code, a loop that wakes from its sleep waits for the lock up to the
+interpreter's switch interval (``sys.getswitchinterval()``, 5 ms by default), so a node that
+records sets it lower (:data:`SWITCH_INTERVAL`). ``threaded=False`` writes inside the call
+(each ~3.5 µs per message, and every chunk flush, ~8 ms for a 1 MiB chunk, lands on a model
+step); BENCHMARKS.md ("Recording") compares the two.
+
+Durability: a SIGKILL or a power cut (chunks are fsync'ed) loses at most what was queued (``batch_period``) plus what the BagWriter
+had not flushed (``0.8 * flush_period_s`` at most, plus one flush), under one second with the
+defaults; ``close()`` (SIGINT/SIGTERM in the node) finalizes the bag. Nothing is dropped
+silently: when the writer cannot keep up (more than ``max_queue_s`` of data waiting) or
+writing failed (disk full), later messages are counted in :attr:`RecorderStatus.dropped` and
+the failure is kept in :attr:`RecorderStatus.error`; the device keeps running either way.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import re
+import threading
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final, Literal
+
+from pcv_sim.errors import BagError
+from pcv_sim.io.bag import BagWriter
+from pcv_sim.io.topics import (
+    CURRENT,
+    DUTY_CYCLE,
+    INPUT_ROLES,
+    LOAD_FLOW,
+    OUTPUT_ROLES,
+    PRESSURE,
+    ROLE_ALIASES,
+    ROLE_TYPES,
+    ROLES,
+    SPOOL_POSITION,
+    SUPPLY_PRESSURE,
+    bag_topic,
+    role_of,
+)
+
+__all__ = [
+    "RECORDABLE",
+    "SWITCH_INTERVAL",
+    "BagRecorder",
+    "RecorderStatus",
+    "bag_name",
+    "check_signals",
+]
+
+#: Signals a recorder can write, by role (the device's topic names).
+RECORDABLE: Final = ROLES
+#: Interpreter switch interval (s) a node sets while a threaded recorder runs: the longest a
+#: woken model loop waits for the writer thread to hand over the interpreter lock.
+SWITCH_INTERVAL: Final = 2e-4
+
+# Device signal (pcv_sim.node.device.SIGNALS) each role is recorded from.
+_SOURCE: Final = {
+    DUTY_CYCLE: "duty",             # effective: after watchdog and fall-rate limiter
+    LOAD_FLOW: "load_flow",
+    SUPPLY_PRESSURE: "supply_pressure",
+    PRESSURE: "pressure",
+    CURRENT: "current",
+    SPOOL_POSITION: "spool_position",
+}
+_IN: Final = 0     # queue item (_IN, role index, t_ns, value)
+_OUT: Final = 1    # queue item (_OUT, t_ns, pressure, current, spool_position)
+_NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def check_signals(signals: Iterable[str]) -> tuple[str, ...]:
+    """Roles to record, in the canonical order; aliases (``duty``, ``position``) accepted.
+
+    Raises:
+        BagError: an unknown name, a non-string, or nothing selected.
+    """
+    if isinstance(signals, str):
+        signals = [signals]
+    accepted = f"{', '.join(RECORDABLE)} (aliases: {', '.join(sorted(ROLE_ALIASES))})"
+    chosen: set[str] = set()
+    for s in signals:
+        role = role_of(s) if isinstance(s, str) else None
+        if role is None:
+            msg = f"record signal {s!r} is not a device signal; accepted are {accepted}"
+            raise BagError(msg)
+        chosen.add(role)
+    if not chosen:
+        msg = f"no signal selected to record; accepted are {accepted}"
+        raise BagError(msg)
+    return tuple(r for r in RECORDABLE if r in chosen)
+
+
+def bag_name(namespace: str = "/", when: float | None = None) -> str:
+    """A timestamped bag name, ``emulator[_<namespace>]_YYYYmmdd-HHMMSS`` (local time)."""
+    ns = "_".join(p for p in namespace.strip("/").split("/") if p)
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(time.time() if when is None else when))
+    return f"emulator_{ns}_{stamp}" if ns else f"emulator_{stamp}"
+
+
+@dataclass(frozen=True)
+class RecorderStatus:
+    """What the recorder has done so far (diagnostics)."""
+
+    state: Literal["recording", "failed", "closed"]
+    path: Path
+    files: int            # MCAP files so far (split)
+    messages: int         # handed to the bag writer
+    bytes: int            # on disk now (flushed chunks)
+    queued: int           # samples waiting for the writer thread
+    dropped: int          # messages not written: queue full or writing failed
+    error: str            # why writing failed ('' if it did not)
+
+
+class BagRecorder:
+    """The device recorder writing a rosbag2/MCAP bag (see the module docstring).
+
+    Args:
+        directory: Where the bag directory is created (made if missing).
+        name: Bag directory name; ``None`` = :func:`bag_name` (timestamped). An existing bag
+            is never overwritten.
+        signals: Roles to record (:func:`check_signals`); default all six.
+        every: Record the outputs at every ``every``-th model step (1 = every 0.1 ms step).
+        dt_ns: Model step in ns.
+        namespace: The node's namespace, for the topic names (:func:`bag_topic`).
+        frame_id: ``header.frame_id`` of the FluidPressure messages.
+        split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
+        threaded: Write from a writer thread (default) or inside each call.
+        batch_period: s between the writer thread's turns.
+        max_queue_s: Longest backlog (in model time) the queue holds before dropping.
+        flush_period_s: The BagWriter's flush period (durability bound, wall clock).
+        chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
+        fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
+            the writer thread when threaded; inline it lands on a model step).
+    """
+
+    def __init__(
+        self,
+        directory: str | os.PathLike[str],
+        *,
+        name: str | None = None,
+        signals: Iterable[str] = RECORDABLE,
+        every: int = 1,
+        dt_ns: int = 100_000,
+        namespace: str = "/",
+        frame_id: str = "",
+        split_size_bytes: int | None = None,
+        threaded: bool = True,
+        batch_period: float = 0.02,
+        max_queue_s: float = 10.0,
+        flush_period_s: float = 0.9,
+        chunk_size: int = 1 << 20,
+        fsync: bool = True,
+    ) -> None:
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            msg = f"every {every!r}: accepted is an integer >= 1 (model steps between output samples)"
+            raise BagError(msg)
+        if isinstance(dt_ns, bool) or not isinstance(dt_ns, int) or dt_ns < 1:
+            msg = f"dt_ns {dt_ns!r}: accepted is an integer >= 1 (model step in ns)"
+            raise BagError(msg)
+        if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
+            msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
+            raise BagError(msg)
+        if not (math.isfinite(max_queue_s) and max_queue_s > 0.0):
+            msg = f"max_queue_s {max_queue_s!r} s: accepted is a finite number > 0"
+            raise BagError(msg)
+        if name is None:
+            name = bag_name(namespace)
+        if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
+            msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
+                   f"'_', '-', '.' (the directory is given separately)")
+            raise BagError(msg)
+        self.signals = check_signals(signals)
+        self.every = every
+        self.dt_ns = dt_ns
+        self.frame_id = frame_id
+        self.topics = {role: bag_topic(role, namespace) for role in self.signals}
+        self.path = Path(directory) / name
+        if self.path.exists():
+            msg = (f"bag {str(self.path)!r} exists already; the recorder never overwrites a bag: "
+                   f"choose another name (or the default timestamped one) or move it away")
+            raise BagError(msg)
+        try:
+            Path(directory).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            msg = f"cannot create the recording directory {str(directory)!r}: {exc.strerror}"
+            raise BagError(msg) from exc
+        self._writer = BagWriter(
+            self.path,
+            topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
+            flush_period_s=flush_period_s,
+            split_size_bytes=split_size_bytes,
+            chunk_size=chunk_size,
+            fsync=fsync,
+        )
+        self._inputs = tuple((k, r, _SOURCE[r]) for k, r in enumerate(INPUT_ROLES) if r in self.signals)
+        self._input_topics = tuple(bag_topic(r, namespace) for r in INPUT_ROLES)
+        self._outputs = any(r in self.signals for r in OUTPUT_ROLES)
+        self._p_topic = self.topics.get(PRESSURE)
+        self._i_topic = self.topics.get(CURRENT)
+        self._x_topic = self.topics.get(SPOOL_POSITION)
+        self._last = [math.nan] * len(INPUT_ROLES)
+        self._origin: int | None = None
+        self._every_ns = every * dt_ns
+        self._per_output = sum(r in self.signals for r in OUTPUT_ROLES)
+        # Queue bound in items: outputs at their rate plus one input change per step.
+        self._max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
+        self._queue: collections.deque[tuple[float, ...]] = collections.deque()
+        self._dropped = 0
+        self._error = ""
+        self._closed = False
+        self._lock = threading.Lock()          # writer side only: drain vs close
+        self.threaded = threaded
+        self.batch_period = batch_period
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, name=f"BagRecorder:{name}", daemon=True)
+            self._thread.start()
+
+    # --- the model loop's side ----------------------------------------------------------------
+
+    def start(self, t_ns: int, signals: Mapping[str, float]) -> None:
+        """Anchor the output grid at ``t_ns`` and write every selected signal there (at rest)."""
+        self._origin = t_ns
+        put = self._put
+        for k, _role, key in self._inputs:
+            v = signals[key]
+            self._last[k] = v
+            put((_IN, k, t_ns, v))
+        if self._outputs:
+            put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
+
+    def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None:
+        """One model step ended at ``t_ns``: inputs on change (stamped t - dt), outputs on the grid."""
+        if self._origin is None:
+            self.start(t_ns, signals)
+            return
+        last = self._last
+        for k, _role, key in self._inputs:
+            v = signals[key]
+            if v != last[k]:
+                last[k] = v
+                self._put((_IN, k, t_ns - self.dt_ns, v))
+        if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
+            self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
+
+    def _put(self, item: tuple[float, ...]) -> None:
+        if self.threaded:
+            q = self._queue
+            if len(q) < self._max_items and not self._error and not self._closed:
+                q.append(item)
+            else:
+                self._dropped += self._count(item)
+        elif self._error or self._closed:
+            self._dropped += self._count(item)
+        else:
+            try:
+                self._write(item)
+            except (BagError, OSError) as exc:
+                self._fail(exc)
+                self._dropped += self._count(item)
+
+    # --- the writer's side ------------------------------------------------------------------
+
+    def _count(self, item: tuple[float, ...]) -> int:
+        return 1 if item[0] == _IN else self._per_output
+
+    def _write(self, item: tuple[float, ...]) -> None:
+        w = self._writer
+        if item[0] == _OUT:
+            _, t, p, i, x = item
+            t = int(t)
+            if self._p_topic is not None:
+                w.write_fluid_pressure(self._p_topic, t, p, 0.0, self.frame_id)
+            if self._i_topic is not None:
+                w.write_float64(self._i_topic, t, i)
+            if self._x_topic is not None:
+                w.write_float64(self._x_topic, t, x)
+        else:
+            _, k, t, v = item
+            k, t = int(k), int(t)
+            if INPUT_ROLES[k] == SUPPLY_PRESSURE:
+                w.write_fluid_pressure(self._input_topics[k], t, v, 0.0, self.frame_id)
+            else:
+                w.write_float64(self._input_topics[k], t, v)
+
+    def _drain(self) -> None:
+        """Write what is queued (writer thread, or close)."""
+        q = self._queue
+        with self._lock:
+            for _ in range(len(q)):
+                item = q.popleft()
+                if self._error:
+                    self._dropped += self._count(item)
+                    continue
+                try:
+                    self._write(item)
+                except (BagError, OSError) as exc:
+                    self._fail(exc)
+                    self._dropped += self._count(item)
+
+    def _fail(self, exc: BaseException) -> None:
+        if not self._error:
+            self._error = f"{type(exc).__name__}: {exc}"
+
+    def _run(self) -> None:
+        _normal_scheduling()
+        while not self._stop.wait(self.batch_period):
+            self._drain()
+
+    # --- status and shutdown ------------------------------------------------------------------
+
+    @property
+    def error(self) -> str:
+        return self._error
+
+    def status(self) -> RecorderStatus:
+        files = self._writer.files
+        size = 0
+        for f in files:
+            try:
+                size += f.stat().st_size
+            except OSError:
+                pass
+        state: Literal["recording", "failed", "closed"] = (
+            "failed" if self._error else "closed" if self._closed else "recording")
+        return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
+                              len(self._queue), self._dropped, self._error)
+
+    def close(self) -> RecorderStatus:
+        """Write what is queued and finalize the bag (summary, footer, metadata.yaml). Idempotent."""
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+        if not self._closed:
+            self._drain()
+            self._closed = True
+            try:
+                self._writer.close()
+            except (BagError, OSError) as exc:
+                self._fail(exc)
+        return self.status()
+
+    def __enter__(self) -> BagRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _normal_scheduling() -> None:
+    """The writer thread never runs under SCHED_FIFO, even if its creator later does."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
