@@ -159,6 +159,9 @@ class BagRecorder:
         chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
         fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
             the writer thread when threaded; inline it lands on a model step).
+        when_full: What a call does when ``max_queue_s`` of data is waiting: ``drop`` (real
+            time: count the messages as dropped) or ``wait`` for the writer thread (simulated
+            time, where the model may run far faster than the writer: a complete bag).
     """
 
     def __init__(
@@ -178,6 +181,7 @@ class BagRecorder:
         flush_period_s: float = 0.9,
         chunk_size: int = 1 << 20,
         fsync: bool = True,
+        when_full: Literal["drop", "wait"] = "drop",
     ) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             msg = f"every {every!r}: accepted is an integer >= 1 (model steps between output samples)"
@@ -187,6 +191,9 @@ class BagRecorder:
             raise BagError(msg)
         if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
             msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
+            raise BagError(msg)
+        if when_full not in ("drop", "wait"):
+            msg = f"when_full {when_full!r}: accepted are 'drop' and 'wait'"
             raise BagError(msg)
         if not (math.isfinite(max_queue_s) and max_queue_s > 0.0):
             msg = f"max_queue_s {max_queue_s!r} s: accepted is a finite number > 0"
@@ -238,6 +245,7 @@ class BagRecorder:
         self._closed = False
         self._lock = threading.Lock()          # writer side only: drain vs close
         self.threaded = threaded
+        self.when_full = when_full
         self.batch_period = batch_period
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -275,6 +283,9 @@ class BagRecorder:
     def _put(self, item: tuple[float, ...]) -> None:
         if self.threaded:
             q = self._queue
+            if len(q) >= self._max_items and self.when_full == "wait":
+                while len(q) >= self._max_items and self._thread is not None and self._thread.is_alive():
+                    time.sleep(self.batch_period / 4)
             if len(q) < self._max_items and not self._error and not self._closed:
                 q.append(item)
             else:

@@ -30,6 +30,11 @@ The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz
 Recorder hook: `EmulatorNode.set_recorder(recorder, every)` makes the device call
 `recorder(t_ns, signals)` at every `every`-th model step (see pcv_sim.node.device.SIGNALS); a
 `close()` method, if the recorder has one, is called at shutdown.
+
+Recording (`record.enabled`): a `pcv_sim.io.recorder.BagRecorder` on that hook, called at every
+model step from the start (the device at rest; stamps are the samples' model time, in simulated
+time from 0), finalized by SIGINT/SIGTERM; a writer thread does the disk work, so the loop only
+queues samples. Its state is in the diagnostics (`recording*` keys).
 """
 
 from __future__ import annotations
@@ -57,7 +62,8 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import BagError, ParameterError
+from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, RecorderStatus
 from pcv_sim.node.device import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.node.settings import (
     MODEL_PREFIX, NODE_PARAMETERS, NodeSettings, check_node_value, model_parameters, params_with,
@@ -129,6 +135,8 @@ class EmulatorNode(Node):
         self._diag_wall = time.monotonic()
         self._diag_steps = 0
         self._diag_counts: dict[str, int] = {}
+        self._diag_dropped = 0
+        self.recorder = self._make_recorder()
         self.get_logger().info(
             f"{'simulated' if self.simulated else 'real'} time, samples at {s.publish_rate:g} Hz, "
             f"model step {dt * 1e3:g} ms ({self.device.stepper.integrator}), watchdog "
@@ -144,7 +152,7 @@ class EmulatorNode(Node):
                                        read_only=spec.read_only)
             value = self.declare_parameter(spec.name, spec.default, desc).value
             values[spec.name] = check_node_value(spec.name, value)
-        settings = NodeSettings(**values)
+        settings = NodeSettings.from_parameters(values)
         if self.get_parameter("use_sim_time").value:
             raise ParameterError("use_sim_time: the emulator keeps its own time (time_mode real or simulated, "
                                  "where it publishes /clock itself); leave use_sim_time false")
@@ -217,6 +225,76 @@ class EmulatorNode(Node):
             names = ", ".join(p.name for p in parameters if p.name.startswith(MODEL_PREFIX))
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
                                    f"operating point, {dev.stepper.pressure / 1e5:.2f} bar")
+
+    # --- recording ---------------------------------------------------------------------------
+
+    def _make_recorder(self) -> BagRecorder | None:
+        """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
+        s, dev = self.settings, self.device
+        if not s.record_enabled:
+            return None
+        try:
+            recorder = BagRecorder(
+                os.path.expanduser(s.record_directory), name=s.record_name or None, signals=s.record_signals,
+                every=s.record_every(dev.dt), dt_ns=dev.dt_ns, namespace=self.get_namespace(),
+                frame_id=s.frame_id,
+                split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
+        except BagError as err:
+            raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
+        self.set_recorder(recorder, 1)      # every step: inputs stamped exactly, outputs decimated inside
+        return recorder
+
+    def _start_recording(self) -> None:
+        """Anchor the recording at the present model time, the device at rest."""
+        rec = self.recorder
+        if rec is None:
+            return
+        dev = self.device
+        rec.start(dev.stamp_ns(), dev.signals())
+        if rec.threaded:
+            sys.setswitchinterval(SWITCH_INTERVAL)
+        self.get_logger().info(
+            f"recording {', '.join(rec.signals)} to {rec.path} (outputs every {rec.every * dev.dt * 1e3:g} ms of "
+            f"model time, inputs on change)")
+
+    def _stop_recording(self) -> None:
+        rec = self.recorder
+        close = getattr(self.device.recorder, "close", None)
+        if rec is None:
+            if callable(close):
+                close()
+            return
+        st = rec.close()
+        text = (f"bag {st.path}: {st.messages} messages, {st.bytes} bytes in {st.files} file(s)"
+                f"{f', {st.dropped} messages dropped' if st.dropped else ''}")
+        if st.error:
+            self.get_logger().error(f"recording failed ({st.error}); {text}")
+        else:
+            self.get_logger().info(f"recording finished: {text}")
+
+    def _recording_values(self, values: dict[str, Any], problems: list[str]) -> None:
+        rec = self.recorder
+        if rec is None:
+            values["recording"] = "off"
+            return
+        st: RecorderStatus = rec.status()
+        new_dropped = st.dropped - self._diag_dropped
+        self._diag_dropped = st.dropped
+        if st.error:
+            problems.append(f"recording failed: {st.error}")
+        if new_dropped:
+            problems.append(f"recording dropped {new_dropped} messages in the last period")
+        values.update({
+            "recording": st.state,
+            "recording_path": str(st.path),
+            "recording_messages": st.messages,
+            "recording_bytes": st.bytes,
+            "recording_files": st.files,
+            "recording_queued": st.queued,
+            "recording_dropped": st.dropped,
+            "recording_error": st.error,
+        })
 
     # --- recorder hook -----------------------------------------------------------------------
 
@@ -360,6 +438,8 @@ class EmulatorNode(Node):
         rejected = {k[len('rejected.'):]: v for k, v in new.items() if k.startswith("rejected.") and v}
         if rejected:
             problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
+        recording: dict[str, Any] = {}
+        self._recording_values(recording, problems)
         if dev.fault is None:
             st.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         waiting = dev.watchdog_state == WatchdogState.WAITING
@@ -410,6 +490,7 @@ class EmulatorNode(Node):
         else:
             values["lockstep"] = str(s.lockstep).lower()
             values["real_time_factor_set"] = f"{s.real_time_factor:g}"
+        values.update(recording)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
 
@@ -429,9 +510,7 @@ class EmulatorNode(Node):
             else:
                 self._run_real_time(stop)
         finally:
-            close = getattr(self.device.recorder, "close", None)
-            if callable(close):
-                close()
+            self._stop_recording()
 
     def _run_real_time(self, stop: Stop) -> None:
         """Wake on the grid, take inputs, run the due steps, publish; see RealTimeSchedule."""
@@ -446,6 +525,7 @@ class EmulatorNode(Node):
         mono = time.monotonic
         sched.start()
         dev.origin_ns = self.get_clock().now().nanoseconds
+        self._start_recording()
         self._diag_wall = mono()
         next_diag = self._diag_wall + s.diagnostics_period
         self._publish([dev.sample()])
@@ -501,6 +581,7 @@ class EmulatorNode(Node):
         _freeze_heap()
         mono = time.monotonic
         dev.origin_ns = 0
+        self._start_recording()
         sim.start()
         self._diag_wall = mono()
         next_diag = self._diag_wall + s.diagnostics_period

@@ -16,7 +16,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import BagError, ParameterError
+from pcv_sim.io.recorder import RECORDABLE, check_signals
 from pcv_sim.params import ValveParams, params_from_mapping, params_to_mapping
 from pcv_sim.simulation.clock import steps_per
 from pcv_sim.simulation.duty import check_duty
@@ -97,6 +98,26 @@ def _string(name: str, v: Any) -> str:
     return v
 
 
+def _record_signals(name: str, v: Any) -> tuple[str, ...]:
+    if isinstance(v, str):                    # -p record.signals:=pressure,duty_cycle
+        v = [x.strip() for x in v.split(",") if x.strip()]
+    if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a list of signal names, e.g. "
+                             f"[{', '.join(RECORDABLE)}]")
+    try:
+        return check_signals(v)
+    except BagError as err:
+        raise ParameterError(f"{name}: {err}") from None
+
+
+def _bag_name(name: str, v: Any) -> str:
+    v = _string(name, v)
+    if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
+        raise ParameterError(f"{name}: got {v!r}; accepted is '' (a timestamped name) or a plain directory "
+                             "name of letters, digits, '_', '-', '.'")
+    return v
+
+
 @dataclass(frozen=True)
 class NodeParameter:
     name: str
@@ -105,6 +126,11 @@ class NodeParameter:
     description: str
     check: Callable[[str, Any], Any]
     read_only: bool = False
+
+    @property
+    def attr(self) -> str:
+        """The NodeSettings field (dots become underscores: record.rate_hz -> record_rate_hz)."""
+        return self.name.replace(".", "_")
 
 
 NODE_PARAMETERS: tuple[NodeParameter, ...] = (
@@ -135,6 +161,19 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("frame_id", "load_port", "-", "header.frame_id of the pressure samples", _string),
     NodeParameter("reject_log_period", 1.0, "s", "at most one log line per input topic per this period for "
                   "rejected inputs (all are counted)", _finite_non_negative),
+    NodeParameter("record.enabled", False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start "
+                  "(the device at rest) until SIGINT/SIGTERM", _boolean, read_only=True),
+    NodeParameter("record.directory", ".", "-", "directory the bag is created in (made if missing; ~ expanded)",
+                  _string, read_only=True),
+    NodeParameter("record.name", "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an "
+                  "existing bag is never overwritten", _bag_name, read_only=True),
+    NodeParameter("record.signals", list(RECORDABLE), "-", "signals to record: inputs on change (the duty as the "
+                  "model used it), outputs at record.rate_hz", _record_signals, read_only=True),
+    NodeParameter("record.rate_hz", 1000.0, "Hz", "output samples in the bag (model time); 10000 = every 0.1 ms "
+                  "model step; the period must be a whole multiple of the model step", _finite_positive,
+                  read_only=True),
+    NodeParameter("record.split_size_mb", 0.0, "MB", "start a new .mcap file of the bag at this size "
+                  "(10^6 bytes); 0 = one file", _finite_non_negative, read_only=True),
 )
 _NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
 
@@ -155,6 +194,12 @@ class NodeSettings:
     diagnostics_period: float = 1.0
     frame_id: str = "load_port"
     reject_log_period: float = 1.0
+    record_enabled: bool = False
+    record_directory: str = "."
+    record_name: str = ""
+    record_signals: tuple[str, ...] = RECORDABLE
+    record_rate_hz: float = 1000.0
+    record_split_size_mb: float = 0.0
 
     def check(self, params: ValveParams) -> NodeSettings:
         """Cross-checks against the model (step multiples, duty range); returns self or raises."""
@@ -162,6 +207,7 @@ class NodeSettings:
         try:
             steps_per(1.0 / self.publish_rate, dt, what=f"publish period 1/publish_rate = 1/{self.publish_rate:g}")
             steps_per(self.wake_period, dt, what="wake_period")
+            steps_per(1.0 / self.record_rate_hz, dt, what=f"record.rate_hz {self.record_rate_hz:g}: record period")
         except ValueError as err:
             raise ParameterError(str(err)) from None
         if self.max_catchup < self.wake_period:
@@ -177,6 +223,15 @@ class NodeSettings:
         """Model steps per published sample."""
         return steps_per(1.0 / self.publish_rate, dt, what="publish period")
 
+    def record_every(self, dt: float) -> int:
+        """Model steps per recorded output sample."""
+        return steps_per(1.0 / self.record_rate_hz, dt, what="record period")
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any]) -> NodeSettings:
+        """Settings from checked values keyed by parameter name (record.rate_hz, ...)."""
+        return cls(**{_NODE_BY_NAME[k].attr: v for k, v in values.items()})
+
 
 def check_node_value(name: str, value: Any) -> Any:
     """Convert and check one node parameter; ParameterError naming it if refused."""
@@ -189,7 +244,8 @@ def check_node_value(name: str, value: Any) -> Any:
 
 def settings_with(settings: NodeSettings, changes: Mapping[str, Any]) -> NodeSettings:
     """A copy of settings with node parameters changed, each checked (not yet cross-checked)."""
-    return dataclasses.replace(settings, **{k: check_node_value(k, v) for k, v in changes.items()})
+    return dataclasses.replace(settings, **{_NODE_BY_NAME[k].attr if k in _NODE_BY_NAME else k: check_node_value(k, v)
+                                            for k, v in changes.items()})
 
 
 # --- model parameters ------------------------------------------------------------------------

@@ -197,3 +197,16 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
     result = replay(load_recording(tmp_path / "b"), PARAMS, model="simplified", solver="stepper")
     assert result.signals["pressure"].fit.max_error < 1e-3, result.signals["pressure"].fit
     assert result.signals["pressure"].fit.nrmse_fit_percent > 99.999
+
+
+def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], batch_period=0.005, when_full="wait")
+    rec._max_items = 50                                    # noqa: SLF001 - a small queue, filled fast
+    record(rec, 2000, {})
+    st = rec.close()
+    assert st.dropped == 0 and st.messages == 2001
+
+
+def test_when_full_is_checked(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
+        BagRecorder(tmp_path, name="b", when_full="block")  # type: ignore[arg-type]
