@@ -17,6 +17,7 @@ import argparse
 import math
 import sys
 import time
+from typing import TextIO
 
 import numpy as np
 import rclpy
@@ -48,7 +49,7 @@ def _positive(text: str) -> float:
     return v
 
 
-def run_demo(client: EmulatorClient, duties: list[float], hold: float, out: any = sys.stdout) -> list[dict[str, float]]:
+def run_demo(client: EmulatorClient, duties: list[float], hold: float, out: TextIO = sys.stdout) -> list[dict[str, float]]:
     """Send the sequence, return one row of metrics per step (and print the table)."""
     steps = []
     for duty in duties:

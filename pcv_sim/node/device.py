@@ -22,7 +22,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Protocol
+from typing import Mapping, Protocol
 
 from pcv_sim.analysis.static import EquilibriumError
 from pcv_sim.errors import CommandError
