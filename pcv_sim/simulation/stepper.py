@@ -94,10 +94,11 @@ class RealTimeStepper:
 
     @property
     def current(self) -> float:
-        """Coil current at the present state (A), Eqs. 1-8."""
+        """Coil current at the present state (A), Eqs. 1-8. Reading it changes nothing: the
+        stepper's own Newton guess stays as stepping left it, so results do not depend on how
+        often the current is read."""
         m = self.model
-        self._i = m.current(self.state[0], self.state[1], m.coil_voltage(self.duty, self.time), self._i)
-        return self._i
+        return m.current(self.state[0], self.state[1], m.coil_voltage(self.duty, self.time), self._i)
 
     def finite(self) -> bool:
         return all(math.isfinite(s) for s in self.state)
@@ -117,7 +118,11 @@ class RealTimeStepper:
     # --- stepping ----------------------------------------------------------------------------
 
     def advance(self, n: int = 1) -> None:
-        """n fixed steps with the present inputs."""
+        """n fixed steps with the present inputs.
+
+        A state that runs away shows as `finite()` turning False, or as ArithmeticError (no coil
+        current solves Eq. 2, or a float overflow) raised from here: callers treat both as a fault.
+        """
         if self.integrator == "rk2":
             self._advance_heun(n)
             return
