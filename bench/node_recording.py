@@ -1,0 +1,321 @@
+"""Benchmark: does recording make model steps late? Recording off vs on at the full 0.1 ms rate.
+
+    .venv-kilted/bin/python bench/node_recording.py                       # both parts, 60 s each run
+    .venv-kilted/bin/python bench/node_recording.py --part node --duration 600
+    .venv-kilted/bin/python bench/node_recording.py --part loop --duration 20
+
+Part `loop` (no ROS, one fresh process per configuration): the emulator's real-time loop as
+`pcv_sim.node.emulator` runs it (1 ms wakes on the monotonic grid, `RealTimeSchedule`,
+`ValveDevice.run`, 1 ns timer slack, frozen heap), with the device's recorder hook called at every
+0.1 ms step and all six signals recorded at every step (10 kHz outputs). Configurations:
+
+- `off`: no recorder (the device still steps in batches);
+- `hook`: the hook called at every step with a recorder that does nothing (the device's cost of
+  recording at every step: single steps and a signals dict);
+- `inline`: `BagRecorder(threaded=False)`: messages serialised and chunks flushed inside the call;
+- `thread per-message [5ms]`: the first threaded design: the writer thread serialises message by
+  message (`write_float64` / `write_fluid_pressure`, ~3.5 µs each), with Python's default switch
+  interval (5 ms) or the one the node sets (`SWITCH_INTERVAL`, 0.2 ms);
+- `thread [5ms]`: the recorder as the node runs it: the writer thread serialises the output
+  samples in bulk (`BagWriter.write_samples`), with the default or the node's switch interval.
+
+The configurations run in `--rounds` interleaved rounds (each round runs every configuration for
+duration / rounds), so that other load on the machine falls on all of them alike; late steps are
+summed and lags are the maxima over the rounds.
+
+Per configuration: late steps (late_threshold 1 ms, as the node), max model lag before / after a
+batch, the recorder's cost per step (time inside the hook calls / steps), the longest single
+hook call (a chunk flush inline), CPU of the process (all threads), bag size per minute.
+
+Part `node` (real DDS): `bench/node_realtime.py` (the node as a subprocess, a client stepping the
+duty 0.3 <-> 0.7 every ~0.7 s) twice, recording off and on (`record.rate_hz: 10000`, all signals),
+for `--duration` s each; late steps, lags, CPU and the bag's size from its files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = Path(__file__).resolve().parent
+LOOP_CONFIGS = ("off", "hook", "inline", "thread per-message 5ms", "thread per-message", "thread 5ms", "thread")
+
+
+# --- part loop: one configuration in this process --------------------------------------------------
+
+
+def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
+    import ctypes
+
+    from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
+    _PerMessageRecorder = _per_message_recorder()
+    from pcv_sim.node.device import ValveDevice
+    from pcv_sim.params import load_params
+    from pcv_sim.simulation.clock import RealTimeSchedule
+
+    params = load_params()
+    dev = ValveDevice(params, safe_duty=0.3, watchdog_timeout=0.0, sample_every=10)
+    rec = None
+    spent = [0.0, 0.0, 0]                              # total s in the hook, longest call, calls
+    perf = time.perf_counter
+
+    def timed(inner):
+        def hook(t_ns, signals):
+            t = perf()
+            inner(t_ns, signals)
+            d = perf() - t
+            spent[0] += d
+            spent[2] += 1
+            if d > spent[1]:
+                spent[1] = d
+        return hook
+
+    if config == "hook":
+        dev.recorder, dev.record_every = timed(lambda t_ns, s: None), 1
+    elif config != "off":
+        cls = _PerMessageRecorder if "per-message" in config else BagRecorder
+        rec = cls(out_dir, name="bag", every=1, dt_ns=dev.dt_ns, frame_id="load_port", threaded=config != "inline")
+        dev.recorder, dev.record_every = timed(rec), 1
+        sys.setswitchinterval(0.005 if config.endswith("5ms") else
+                              float(config.split("@")[1]) * 1e-3 if "@" in config else SWITCH_INTERVAL)
+    try:
+        ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)        # PR_SET_TIMERSLACK 1 ns, as the node
+    except (OSError, AttributeError):
+        pass
+    gc.collect()
+    gc.freeze()
+    sched = RealTimeSchedule(dev.dt, wake_period=1e-3, late_threshold=1e-3, max_catchup=0.05)
+    mono = time.monotonic
+    sched.start()
+    dev.origin_ns = time.time_ns()
+    if rec is not None:
+        rec.start(dev.stamp_ns(), dev.signals())
+    duties = (0.3, 0.7)
+    next_cmd, n_cmd = 0.7, 0
+    cpu0 = time.process_time()
+    t_end = sched.t0 + duration
+    while True:
+        now = mono()
+        if now >= t_end:
+            break
+        if now - sched.t0 >= next_cmd:                 # duty steps as bench/node_realtime.py sends them
+            n_cmd += 1
+            dev.submit("duty_cycle", duties[n_cmd % 2])
+            next_cmd += 0.7
+        plan = sched.plan(now)
+        if plan.skipped:
+            dev.skip(plan.skipped)
+        if plan.steps:
+            dev.run(plan.steps)
+        sched.finish()
+        delay = sched.next_wake() - mono()
+        if delay > 0.0:
+            time.sleep(delay)
+    cpu = time.process_time() - cpu0
+    steps = sched.computed_steps
+    res = {
+        "config": config, "duration_s": duration, "steps": steps,
+        "late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
+        "max_lag_ms": sched.max_lag * 1e3, "max_lag_after_ms": sched.max_lag_after * 1e3,
+        "hook_us_per_step": spent[0] / max(spent[2], 1) * 1e6, "hook_max_ms": spent[1] * 1e3,
+        "cpu_percent": 100.0 * cpu / duration, "switch_interval_s": sys.getswitchinterval(),
+    }
+    if rec is not None:
+        t = perf()
+        st = rec.close()
+        res.update(close_s=perf() - t, messages=st.messages, dropped=st.dropped,
+                   bag_mb_per_min=sum(f.stat().st_size for f in st.path.glob("*.mcap")) / 1e6 * 60 / duration)
+    return res
+
+
+def _per_message_recorder():
+    from pcv_sim.io.recorder import BagRecorder
+
+    class PerMessage(BagRecorder):
+        """The writer thread serialising message by message (the design before write_samples)."""
+
+        def _drain(self) -> None:
+            q = self._queue
+            with self._lock:
+                for _ in range(len(q)):
+                    self._write(q.popleft())
+
+    return PerMessage
+
+
+def _merge(runs: list[dict]) -> dict:
+    out = dict(runs[0])
+    for key in ("duration_s", "steps", "late_steps", "skipped_steps", "messages", "dropped"):
+        if key in out:
+            out[key] = sum(r[key] for r in runs)
+    for key in ("max_lag_ms", "max_lag_after_ms", "hook_max_ms", "close_s"):
+        if key in out:
+            out[key] = max(r[key] for r in runs)
+    for key in ("hook_us_per_step", "cpu_percent", "bag_mb_per_min"):
+        if key in out:
+            out[key] = sum(r[key] * r["duration_s"] for r in runs) / out["duration_s"]
+    return out
+
+
+def part_loop(duration: float, rounds: int) -> list[dict]:
+    runs: dict[str, list[dict]] = {c: [] for c in LOOP_CONFIGS}
+    for _ in range(rounds):
+        for config in LOOP_CONFIGS:
+            with tempfile.TemporaryDirectory(prefix="pcv_rec_bench_") as tmp:
+                out = subprocess.run([sys.executable, __file__, "--_loop", config, "--duration",
+                                      str(duration / rounds), "--_dir", tmp], capture_output=True, text=True,
+                                     check=True)
+                runs[config].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    results = [_merge(runs[c]) for c in LOOP_CONFIGS]
+    print(f"\nLoop without ROS, {duration:g} s per configuration ({rounds} rounds), all signals at every 0.1 ms "
+          "step:\n")
+    print("| configuration | late steps (of ~{:.0f}) | max lag before / after a batch [ms] | recorder µs per step "
+          "| longest hook call [ms] | CPU [% of a core] | bag [MB/min] |".format(duration * 1e4))
+    print("|---|---|---|---|---|---|---|")
+    for r in results:
+        name = r["config"].replace(" 5ms", "") + (f" ({r['switch_interval_s'] * 1e3:g} ms switch interval)"
+                                                  if r["config"].startswith("thread") else "")
+        bag = f"{r['bag_mb_per_min']:.1f}" if "bag_mb_per_min" in r else "-"
+        hook = f"{r['hook_us_per_step']:.2f}" if r["config"] != "off" else "-"
+        longest = f"{r['hook_max_ms']:.2f}" if r["config"] != "off" else "-"
+        print(f"| {name} | {r['late_steps']} | {r['max_lag_ms']:.2f} / {r['max_lag_after_ms']:.2f} | {hook} | "
+              f"{longest} | {r['cpu_percent']:.1f} | {bag} |")
+    return results
+
+
+# --- part costs: per-message serialisation and chunk flushes ---------------------------------------
+
+
+def part_costs() -> dict:
+    """Writer costs for 10 kHz samples of all three outputs (30 000 messages per second of model
+    time): per message one by one vs in bulk, and the pause of one chunk flush (zstd, 1 MiB)."""
+    import numpy as np
+
+    from pcv_sim.io.bag import BagWriter
+    from pcv_sim.io.topics import BAG_TOPICS
+
+    n = 20_000
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000
+    rng = np.random.default_rng(0)
+    p, i, x = 1e7 + rng.normal(size=n) * 1e5, 1.0 + rng.normal(size=n) * 0.1, rng.normal(size=n) * 1e-4
+    res: dict = {}
+    with tempfile.TemporaryDirectory(prefix="pcv_rec_cost_") as tmp:
+        for mode in ("one by one", "bulk"):
+            for fsync in (False, True):
+                flushes: list[float] = []
+                w = BagWriter(Path(tmp) / f"{mode.replace(' ', '_')}{fsync}", topics=BAG_TOPICS, flush_thread=False,
+                              fsync=fsync, flush_period_s=100.0)
+                inner = w._flush_locked
+
+                def timed_flush(inner=inner, flushes=flushes):
+                    t0 = time.perf_counter()
+                    inner()
+                    flushes.append(time.perf_counter() - t0)
+
+                w._flush_locked = timed_flush
+                t0 = time.perf_counter()
+                if mode == "bulk":
+                    for s in range(0, n, 200):                  # 20 ms batches, as the writer thread
+                        sl = slice(s, s + 200)
+                        w.write_samples(t[sl], {"/pressure": p[sl], "/current": i[sl], "/spool_position": x[sl]},
+                                        frame_id="load_port")
+                else:
+                    for k in range(n):
+                        tk = int(t[k])
+                        w.write_fluid_pressure("/pressure", tk, float(p[k]), 0.0, "load_port")
+                        w.write_float64("/current", tk, float(i[k]))
+                        w.write_float64("/spool_position", tk, float(x[k]))
+                total = time.perf_counter() - t0
+                w.close()
+                per_msg = (total - sum(flushes)) / (3 * n) * 1e6
+                res[f"{mode}{' + fsync' if fsync else ''}"] = {
+                    "us_per_message": per_msg, "flush_ms_median": float(np.median(flushes)) * 1e3,
+                    "flush_ms_max": max(flushes) * 1e3, "flushes": len(flushes)}
+    print("\nWriter costs (all three outputs, 20 000 samples, 1 MiB zstd chunks):\n")
+    print("| serialisation | µs per message (without flushes) | chunk flush median / max [ms] |")
+    print("|---|---|---|")
+    for k, v in res.items():
+        print(f"| {k} | {v['us_per_message']:.2f} | {v['flush_ms_median']:.1f} / {v['flush_ms_max']:.1f} "
+              f"({v['flushes']} flushes) |")
+    return res
+
+
+# --- part node: the real node over DDS ---------------------------------------------------------------
+
+
+def part_node(duration: float) -> list[dict]:
+    results = []
+    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    for record in (False, True):
+        tmp = Path(tempfile.mkdtemp(prefix="pcv_rec_bench_node_"))
+        try:
+            cmd = [sys.executable, str(HERE / "node_realtime.py"), "--duration", str(duration),
+                   "--json", str(tmp / "figures.json")]
+            if record:
+                cmd += ["--param", "record.enabled:=true", "--param", "record.rate_hz:=10000.0",
+                        "--param", f"record.directory:={tmp / 'bags'}", "--param", "record.name:=bench"]
+            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+            res = json.loads((tmp / "figures.json").read_text())
+            res["record"] = record
+            if record:
+                files = list((tmp / "bags" / "bench").glob("*.mcap"))
+                res["bag_bytes"] = sum(f.stat().st_size for f in files)
+                from pcv_sim.io import read_bag
+
+                bag = read_bag(tmp / "bags" / "bench")
+                t_p = bag["/bench/pressure"].t_ns
+                span = (int(t_p[-1]) - int(t_p[0])) / 1e9          # the node records from its start
+                res["bag_closed_cleanly"] = bag.closed_cleanly
+                res["bag_pressure_samples"] = len(t_p)
+                res["bag_span_s"] = span
+                res["bag_mb_per_min"] = res["bag_bytes"] / 1e6 * 60 / span
+            results.append(res)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    print(f"\nThe node over DDS (bench/node_realtime.py), {duration:g} s per run:\n")
+    print("| recording | late / skipped steps | max lag before / after a batch [ms] | publish lag p99 / max [ms] "
+          "| node CPU [% of a core] | bag [MB/min] |")
+    print("|---|---|---|---|---|---|")
+    for r in results:
+        what = "on, 10 kHz, all signals" if r["record"] else "off"
+        bag = f"{r['bag_mb_per_min']:.1f}" if r["record"] else "-"
+        print(f"| {what} | {r['late_steps']} / {r['skipped_steps']} (of ~{r['steps']}) | "
+              f"{r['max_lag_before_batch_ms']:.2f} / {r['max_lag_after_batch_ms']:.2f} | "
+              f"{r['publish_lag_ms']['p99']:.3f} / {r['publish_lag_ms']['max']:.3f} | {r['cpu_percent']:.1f} | {bag} |")
+    return results
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--duration", type=float, default=60.0, help="s per run (default 60)")
+    ap.add_argument("--part", choices=("loop", "costs", "node", "all"), default="all")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the loop part (default 3)")
+    ap.add_argument("--json", type=Path, help="write the raw figures here")
+    ap.add_argument("--_loop", help=argparse.SUPPRESS)
+    ap.add_argument("--_dir", type=Path, help=argparse.SUPPRESS)
+    opts = ap.parse_args()
+    if opts._loop:
+        print(json.dumps(_run_loop(opts._loop, opts.duration, opts._dir)))
+        return 0
+    figures = {}
+    if opts.part in ("costs", "all"):
+        figures["costs"] = part_costs()
+    if opts.part in ("loop", "all"):
+        figures["loop"] = part_loop(opts.duration, opts.rounds)
+    if opts.part in ("node", "all"):
+        figures["node"] = part_node(opts.duration)
+    if opts.json:
+        opts.json.write_text(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
