@@ -1,6 +1,6 @@
 """Benchmark: does recording make model steps late? Recording off vs on at the full 0.1 ms rate.
 
-    .venv-kilted/bin/python bench/node_recording.py                       # both parts, 60 s each run
+    .venv-kilted/bin/python bench/node_recording.py                       # writer costs, loop and node parts, 60 s per run
     .venv-kilted/bin/python bench/node_recording.py --part node --duration 600
     .venv-kilted/bin/python bench/node_recording.py --part loop --duration 20
 
@@ -15,7 +15,7 @@ Part `loop` (no ROS, one fresh process per configuration): the emulator's real-t
 - `inline`: `BagRecorder(threaded=False)`: messages serialised and chunks flushed inside the call;
 - `thread per-message [5ms]`: the first threaded design: the writer thread serialises message by
   message (`write_float64` / `write_fluid_pressure`, ~3.5 µs each), with Python's default switch
-  interval (5 ms) or the one the node sets (`SWITCH_INTERVAL`, 0.2 ms);
+  interval (5 ms) or the one the node sets (`SWITCH_INTERVAL`, 1 ms);
 - `thread [5ms]`: the recorder as the node runs it: the writer thread serialises the output
   samples in bulk (`BagWriter.write_samples`), with the default or the node's switch interval.
 

@@ -19,23 +19,22 @@ What is written, and when (log time = model sample time, one clock for inputs an
   rest): a replay starts the model at rest at the first duty command.
 
 Timing. The model loop must not wait for the disk. By default (``threaded=True``) a call only
-appends a tuple to a ``collections.deque`` (about 1 µs per step with all signals); a writer
-thread takes the queue every ``batch_period`` s, serialises the output samples as whole numpy
-arrays (``BagWriter.write_samples``) and lets the BagWriter compress and flush its chunks
-(compression, CRC, write and fsync run without the interpreter lock). Python threads share one interpreter lock: while the
-writer thread runs Python code, a loop that wakes from its sleep waits for the lock up to the
-interpreter's switch interval (``sys.getswitchinterval()``, 5 ms by default), so a node that
-records sets it lower (:data:`SWITCH_INTERVAL`), and the writer keeps its own share of the
-lock small: with message-by-message serialisation (~3.5 µs per message, 30 000 messages/s at
-the full rate) a writer thread made ~8 % of the steps late, with the bulk path about as few as
-no recording. ``threaded=False`` writes inside the call
-(each ~3.5 µs per message, and every chunk flush, ~8 ms for a 1 MiB chunk, lands on a model
-step); BENCHMARKS.md ("Recording") compares the two.
+appends a tuple to a ``collections.deque`` (~1 µs per step with all signals); a writer thread
+takes the queue every ``batch_period`` s, serialises the output samples as whole numpy arrays
+(``BagWriter.write_samples``, ~0.2 µs per message) and lets the BagWriter compress and flush its
+chunks (zstd, CRC, write and fsync run without the interpreter lock). Python threads share one
+interpreter lock, so what counts is how long the writer holds it: serialising message by message
+(~5 µs each, 30 000 messages per second at the full rate) in the writer thread made 10-16 % of
+the steps late, the bulk path about as few as no recording; ``threaded=False`` (all of it inside
+the call, every ~5-8 ms chunk flush landing on a model step) 4 %. BENCHMARKS.md ("Recording") has
+the figures. A node that records sets the interpreter's switch interval to :data:`SWITCH_INTERVAL`
+(1 ms, the wake period; default 5 ms): it bounds how long a woken loop can wait for the lock
+whenever the writer does have longer work (a backlog, a burst of input changes).
 
-Durability: a SIGKILL or a power cut (chunks are fsync'ed) loses at most what was queued (``batch_period``) plus what the BagWriter
-had not flushed (``0.8 * flush_period_s`` at most, plus one flush), under one second with the
-defaults; ``close()`` (SIGINT/SIGTERM in the node) finalizes the bag. Nothing is dropped
-silently: when the writer cannot keep up (more than ``max_queue_s`` of data waiting) or
+Durability: a SIGKILL or a power cut (chunks are fsync'ed) loses at most what was queued
+(``batch_period``) plus what the BagWriter had not flushed (``0.8 * flush_period_s`` at most,
+plus one flush), under one second with the defaults; ``close()`` (SIGINT/SIGTERM in the node)
+finalizes the bag. Nothing is dropped silently: when the writer cannot keep up (more than ``max_queue_s`` of data waiting) or
 writing failed (disk full), later messages are counted in :attr:`RecorderStatus.dropped` and
 the failure is kept in :attr:`RecorderStatus.error`; the device keeps running either way.
 """
@@ -86,7 +85,7 @@ __all__ = [
 RECORDABLE: Final = ROLES
 #: Interpreter switch interval (s) a node sets while a threaded recorder runs: the longest a
 #: woken model loop waits for the writer thread to hand over the interpreter lock.
-SWITCH_INTERVAL: Final = 2e-4
+SWITCH_INTERVAL: Final = 1e-3
 
 # Device signal (pcv_sim.node.device.SIGNALS) each role is recorded from.
 _SOURCE: Final = {
