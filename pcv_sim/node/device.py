@@ -146,8 +146,12 @@ class ValveDevice:
     # --- inputs ------------------------------------------------------------------------------
 
     def submit(self, name: str, value: float, at_step: int | None = None) -> str | None:
-        """Validate an input now; if valid it takes effect at step max(at_step, now). Returns the
-        reason it was refused (counted, and the last valid value stays), or None."""
+        """Validate an input now; if valid it takes effect at step max(at_step, now + 1). Returns
+        the reason it was refused (counted, and the last valid value stays), or None.
+
+        The present step has been shown already (sample, recorder): an input that arrives now
+        can act from the next step at the earliest, so that every sample shows the inputs in
+        force at its stamp."""
         try:
             if name == "duty_cycle":
                 value = check_duty(value, self.params.command.duty_range)
@@ -159,7 +163,7 @@ class ValveDevice:
                 raise ValueError(f"unknown input {name!r}; accepted are {', '.join(INPUTS)}")
         except CommandError as err:
             return self._reject(name, str(err))
-        step = self.steps if at_step is None else max(int(at_step), self.steps)
+        step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
         self._seq += 1
         bisect.insort(self._pending, (step, self._seq, name, value))
         return None
@@ -230,12 +234,17 @@ class ValveDevice:
         return self.origin_ns + (self.steps if step is None else step) * self.dt_ns
 
     def run(self, n: int) -> list[Sample]:
-        """Advance n steps; returns the samples at the multiples of sample_every reached."""
+        """Advance n steps; returns the samples at the multiples of sample_every reached.
+
+        Convention (the same in the recorder, replay and docs): the sample of step k is stamped
+        k * dt and shows the state at that instant with the inputs in force from step k on; an
+        input due at step k acts on the interval [k, k + 1) and on the sample of step k.
+        """
         out: list[Sample] = []
         end = self.steps + n
+        self._apply_due_inputs()
+        self._check_watchdog()
         while self.steps < end:
-            self._apply_due_inputs()
-            self._check_watchdog()
             stop = self._next_event(end)
             if self.fault is None:
                 try:
@@ -248,6 +257,10 @@ class ValveDevice:
                     self._model_fault(problem)
                     continue
             self.steps = stop
+            # A sample at step k shows the state at k and the inputs in force from k on: inputs
+            # and a watchdog timeout due at k act before it (right-continuous, as replay does).
+            self._apply_due_inputs()
+            self._check_watchdog()
             if self.fault is None:
                 try:
                     sample = self.sample() if stop % self.sample_every == 0 else None
@@ -261,9 +274,6 @@ class ValveDevice:
                     self.last_good = sample
                 if signals is not None:
                     self.recorder(self.stamp_ns(stop), signals)
-        # Events due at the end: the state (watchdog, command in force) is that of step `end`.
-        self._apply_due_inputs()
-        self._check_watchdog()
         return out
 
     def skip(self, n: int) -> None:

@@ -74,6 +74,8 @@ class RealTimeStepper:
         self.supply_pressure = check_supply_pressure(self.model.p_supply if supply_pressure is None else supply_pressure)
         eq = equilibrium_at_flow(self.model, self.command, self.load_flow, self.supply_pressure)
         self.state: tuple[float, ...] = self.model.initial_state(self.command, eq.spool_position, eq.pressure)
+        # limiter.value: the duty of the last computed step; self.duty: the duty in force from
+        # the present step on (what a sample at the present time shows: right-continuous).
         self.limiter = FallRateLimiter(self.params.command.duty_fall_rate_limit, self.command)
         self.duty = self.command
         self.steps = 0
@@ -106,8 +108,11 @@ class RealTimeStepper:
     # --- inputs ------------------------------------------------------------------------------
 
     def set_duty(self, duty: float) -> None:
-        """Raises CommandError (the last valid command stays) unless duty is within command.duty_range."""
+        """The command from the present step on. Raises CommandError (the last valid command stays)
+        unless duty is within command.duty_range. The effective duty (after the fall-rate limiter)
+        changes at once, so outputs at the present time already see the new coil voltage."""
         self.command = check_duty(duty, self.params.command.duty_range)
+        self.duty = self.limiter.peek(self.command, self.dt)
 
     def set_load_flow(self, q: float) -> None:
         self.load_flow = check_load_flow(q)
@@ -129,7 +134,7 @@ class RealTimeStepper:
         m, h, method = self.model, self.dt, self._method
         q_l, p_s, deriv = self.load_flow, self.supply_pressure, m.derivatives
         state, steps, i_last = self.state, self.steps, self._i
-        duty = self.limiter.value
+        duty, limiter, command = self.duty, self.limiter, self.command
 
         def f(t: float, y: tuple[float, ...]) -> tuple[float, ...]:
             nonlocal i_last
@@ -137,9 +142,10 @@ class RealTimeStepper:
             return dy
 
         for _ in range(n):
-            duty = self.limiter.update(self.command, h)
             state = self._project(method(f, steps * h, state, h))
             steps += 1
+            limiter.value = duty
+            duty = limiter.peek(command, h)
         self.state, self.steps, self._i, self.duty = state, steps, i_last, duty
 
     def _advance_heun(self, n: int) -> None:
@@ -149,13 +155,10 @@ class RealTimeStepper:
         m, h, hh = self.model, self.dt, 0.5 * self.dt
         q_l, p_s, deriv = self.load_flow, self.supply_pressure, m.derivatives
         y0, y1, y2, y3 = self.state
-        steps, i, command = self.steps, self._i, self.command
-        update = self.limiter.update if self.limiter.rate is not None else None
-        duty = self.limiter.value if update is not None else command
+        steps, i, command, duty, limiter = self.steps, self._i, self.command, self.duty, self.limiter
+        limited = limiter.rate is not None
         x_min, x_max = m.x_min, m.x_max
         for _ in range(n):
-            if update is not None:
-                duty = update(command, h)
             t = steps * h
             (a0, a1, a2, a3), i = deriv(t, (y0, y1, y2, y3), duty, q_l, p_s, i)
             (b0, b1, b2, b3), i = deriv(t + h, (y0 + h * a0, y1 + h * a1, y2 + h * a2, y3 + h * a3), duty, q_l, p_s, i)
@@ -163,7 +166,9 @@ class RealTimeStepper:
             if not x_min <= y1 <= x_max:
                 y1, y2 = m.project(y1, y2)
             steps += 1
-        self.limiter.value = duty
+            if limited:
+                limiter.value = duty
+                duty = limiter.peek(command, h)
         self.state, self.steps, self._i, self.duty = (y0, y1, y2, y3), steps, i, duty
 
     def _project(self, state: tuple[float, ...]) -> tuple[float, ...]:
@@ -174,19 +179,32 @@ class RealTimeStepper:
         return (state[0], x, v) + state[3:]
 
     def run(self, profile: DutyProfile, t_end: float, *, sample_every: int = 1) -> Trajectory:
-        """Drive the stepper with a duty profile from its present state; returns the samples."""
+        """Drive the stepper with a duty profile from its present state; returns the samples.
+
+        Each command takes effect at the first step at or after its switching instant; a sample
+        at time t shows the state at t and the inputs in force from t on (right-continuous).
+        """
         n = int(round(t_end / self.dt))
         times = np.array(profile.times)
-        ts, duty, cur, pres, pos = [self.time], [self.duty], [self.current], [self.pressure], [self.spool_position]
         t0 = self.time
-        for k in range(0, n, sample_every):
-            t_rel = k * self.dt
-            # Change the command exactly at the profile's switching instants.
-            self.set_duty(profile.values[int(np.searchsorted(times, t_rel + 1e-12, side="right")) - 1])
-            self.advance(min(sample_every, n - k))
-            ts.append(self.time)
-            duty.append(self.duty)
-            cur.append(self.current)
-            pres.append(self.pressure)
-            pos.append(self.spool_position)
+        switch = np.ceil(times / self.dt - 1e-9).astype(int)       # step at which each value takes effect
+        ts, duty, cur, pres, pos = [], [], [], [], []
+        k_next, k = 0, 0
+        while True:
+            while k_next < len(switch) and switch[k_next] <= k:
+                self.set_duty(profile.values[k_next])
+                k_next += 1
+            if k % sample_every == 0 or k == n:
+                ts.append(self.time)
+                duty.append(self.duty)
+                cur.append(self.current)
+                pres.append(self.pressure)
+                pos.append(self.spool_position)
+            if k >= n:
+                break
+            nxt = min(n, k + sample_every - k % sample_every)
+            if k_next < len(switch):
+                nxt = min(nxt, int(switch[k_next]))
+            self.advance(nxt - k)
+            k = nxt
         return Trajectory(np.array(ts) - t0, np.array(duty), np.array(cur), np.array(pres), np.array(pos))
