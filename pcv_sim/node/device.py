@@ -24,7 +24,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping, Protocol
 
-from pcv_sim.analysis.static import EquilibriumError
 from pcv_sim.errors import CommandError
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
@@ -319,44 +318,13 @@ class ValveDevice:
         return f"{what} (cleared fault: {was})" if was else what
 
 
-_FALLBACK_DUTIES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
-_SETTLE_CHUNK = 100          # steps between convergence checks of the pre-roll
-_SETTLE_MAX = 2.0            # s of model time at most
-
-
 def rest_stepper(params: ValveParams, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None,
                  *, integrator: str | None = None) -> RealTimeStepper:
-    """A stepper at rest for these inputs: the static equilibrium if `RealTimeStepper.reset` finds one,
-    else (below ~0.3 duty the spool sits on its end stop, where `equilibrium_at_flow` finds none)
-    the state reached by running the model from a feasible equilibrium with these inputs until it
-    settles (over 10 ms: pressure within 1 Pa, spool within 1 nm, current within 1 uA; at most 2 s of
-    model time)."""
-    try:
-        stepper = RealTimeStepper(params, integrator=integrator, duty=duty)
-        if load_flow != 0.0 or supply_pressure is not None:
-            stepper.reset(duty, load_flow, supply_pressure)
-        return stepper
-    except EquilibriumError:
-        pass
-    for start in _FALLBACK_DUTIES:
-        try:
-            stepper = RealTimeStepper(params, integrator=integrator, duty=start)
-            break
-        except (EquilibriumError, CommandError):
-            continue
-    else:
-        raise EquilibriumError("the model has no rest equilibrium at any duty 0.3 .. 1 to start from")
-    stepper.set_duty(duty)
-    stepper.set_load_flow(load_flow)
-    if supply_pressure is not None:
-        stepper.set_supply_pressure(supply_pressure)
-    for _ in range(int(_SETTLE_MAX / (_SETTLE_CHUNK * stepper.dt))):
-        p, x, i = stepper.pressure, stepper.spool_position, stepper.current
-        stepper.advance(_SETTLE_CHUNK)
-        if not stepper.finite():
-            raise EquilibriumError(f"the model does not settle at duty {duty:g}, load flow {load_flow:g} m^3/s")
-        if abs(stepper.pressure - p) < 1.0 and abs(stepper.spool_position - x) < 1e-9 and abs(stepper.current - i) < 1e-6:
-            break
+    """A stepper at rest for these inputs (`pcv_sim.simulation.rest.rest_state`: the static
+    equilibrium, or where the model settles when none exists, e.g. on the end stop at low duty)."""
+    stepper = RealTimeStepper(params, integrator=integrator, duty=duty)
+    if load_flow != 0.0 or supply_pressure is not None:
+        stepper.reset(duty, load_flow, supply_pressure)
     return stepper
 
 

@@ -251,7 +251,8 @@ def test_model_parameters_cover_the_scalar_and_vector_keys():
     ({'model.orifice.hole_count': 12.5}, r'model\.orifice\.hole_count: .*integer'),
     ({'model.spool.chamber_area': 7e-5}, r'net area'),
     ({'model.spool.mas': 1.0}, r'unknown model parameter'),
-    ({'model.simulation.integrator': 'rk45'}, r"one of 'euler', 'rk2', 'rk4'"),
+    ({'model.simulation.integrator': 'rk45'}, r"one of 'auto', 'euler', 'rk2', 'rk4', 'erk2'"),
+        ({'model.simulation.model': 'full', 'model.simulation.integrator': 'rk2'}, r'explicit method diverge'),
 ])
 def test_invalid_model_parameters_are_refused_with_the_reason(changes, match):
     with pytest.raises(ParameterError, match=match):
