@@ -16,7 +16,11 @@ Integrators (all fixed step, inputs held over a step: zero-order hold):
     erk2    exponential Heun (ETD2RK): states with a declared stiff rate lam (the valve's damping
             chamber, lam = K_d beta / V_c ~ 2.6e8 1/s) are integrated with the exact response of
             their linear part, x' = -lam x + N(x): x1 = e^{-lam h} x0 + h phi1 N0 + h phi2 (N* - N0);
-            for lam = 0 this is Heun exactly. This is what runs the full model at 0.1 ms.
+            the stiff states are relaxed at the predictor and at the end (x = e^{-lam h} x0 + h phi1
+            N(x), one more evaluation each), so that a state slaved to the others (the chamber
+            pressure to the spool velocity) sits on its slow manifold at every stage: 4
+            evaluations per step with stiff states, 2 (Heun exactly) without. This is what runs
+            the full model at 0.1 ms.
 """
 
 from __future__ import annotations
@@ -93,11 +97,59 @@ def advance_erk2(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
         for i in range(NX):
             s1[i] += LAM[i] * x[i]
             xt[i] = E[i] * x[i] + A[i] * s1[i]
+            s4[i] = x[i]
+        if STIFF:
+            relax(t + h, xt, s4, u, P, F, W, Y, U, s3, E, A)
         derivs(t + h, xt, u, P, F, W, Y, U, s2)
         for i in range(NX):
             s2[i] += LAM[i] * xt[i]
             x[i] = E[i] * x[i] + A[i] * s1[i] + B[i] * (s2[i] - s1[i])
+        if STIFF:
+            relax(t + h, x, s4, u, P, F, W, Y, U, s3, E, A)
         project(x, P)
+
+
+@jit
+def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
+    # The stiff states of y once more, with their forcing N at y itself (exponential Euler from
+    # y0 with end-point forcing): a state slaved to the others (the chamber pressure to the spool
+    # velocity) then sits on its slow manifold at every stage, so the force it exerts (the
+    # chamber's damping) is that of the stage's own velocity. N does not depend on the stiff
+    # state itself (its linear part is lam x), so one evaluation gives it exactly.
+    derivs(t, y, u, P, F, W, Y, U, s)
+    for i in range(NX):
+        if LAM[i] > 0.0:
+            y[i] = E[i] * y0[i] + A[i] * (s[i] + LAM[i] * y[i])
+'''
+
+
+_RUN = '''
+
+@jit
+def run_{name}(k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, change_steps, change_values,
+               sample_steps, out):
+    # Inputs change_values[c] act from step change_steps[c] on; at each of sample_steps (sorted)
+    # every output goes into out, with the inputs due at that step already in force.
+    c = 0
+    k = k0
+    for j in range(len(sample_steps)):
+        target = sample_steps[j]
+        while True:
+            while c < len(change_steps) and change_steps[c] <= k:
+                for i in range(len(u)):
+                    u[i] = change_values[c, i]
+                c += 1
+            if k >= target:
+                break
+            nxt = target
+            if c < len(change_steps) and change_steps[c] < nxt:
+                nxt = change_steps[c]
+            advance_{name}(nxt - k, k, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
+            k = nxt
+        outputs(k * h, x, u, P, F, W, Y, U)
+        for i in range(len(Y)):
+            out[j, i] = Y[i]
+    return k
 '''
 
 
@@ -129,6 +181,7 @@ def generate_source(plant: Composite) -> str:
     lines.append(f"NX = {xs[-1]}")
     lam = ", ".join(repr(float(v)) for v in plant.rates) or ""
     lines.append(f"LAM = np.array([{lam}], dtype=np.float64)")
+    lines.append(f"STIFF = {bool(np.any(plant.rates > 0.0))}")
 
     def view(name: str, off: list[int], k: int) -> str:
         return f"{name}[{off[k]}:{off[k + 1]}]"
@@ -154,7 +207,7 @@ def generate_source(plant: Composite) -> str:
              f"{view('W', ws, k)}, {view('Y', ys, k)})" for k in range(len(plant.systems))]
     body += ["", "", "@jit", "def project(x, P):"]
     body += [f"    proj_{k}({view('x', xs, k)}, {view('P', ps, k)})" for k in range(len(plant.systems))]
-    return "\n".join(lines + body) + _LOOPS
+    return "\n".join(lines + body) + _LOOPS + "".join(_RUN.format(name=n) for n in INTEGRATORS)
 
 
 _LOADED: dict[str, ModuleType] = {}

@@ -32,6 +32,7 @@ class Simulator:
         module = compiled_module(plant)
         self._module = module
         self._advance = getattr(module, f"advance_{integrator}")
+        self._run = getattr(module, f"run_{integrator}")
         self._outputs = module.outputs
         self._derivs = module.derivs
         self._project = module.project
@@ -64,6 +65,22 @@ class Simulator:
         self._advance(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
                       s1, s2, s3, s4, xt, e, a, b)
         self.steps += n
+
+    def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
+        """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:
+        external inputs `change_values[c]` act from step `change_steps[c]` on (sorted); returns
+        every output (rows) at each sample step, with the inputs due at that step in force."""
+        change_steps = np.ascontiguousarray(change_steps, dtype=np.int64)
+        change_values = np.ascontiguousarray(change_values, dtype=np.float64).reshape(len(change_steps), len(self.u))
+        sample_steps = np.ascontiguousarray(sample_steps, dtype=np.int64)
+        if sample_steps.size and sample_steps[0] < self.steps:
+            raise ValueError(f"sample step {int(sample_steps[0])} is before the present step {self.steps}")
+        out = np.empty((len(sample_steps), len(self.Y)))
+        s1, s2, s3, s4, xt = self._scratch
+        e, a, b = self._weights
+        self.steps = int(self._run(self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
+                                   s1, s2, s3, s4, xt, e, a, b, change_steps, change_values, sample_steps, out))
+        return out
 
     def outputs(self) -> np.ndarray:
         """Every output at the present time (inputs in force from now on); a view, overwritten later."""

@@ -43,7 +43,15 @@ def params():  # noqa: ANN201
 
 @pytest.fixture(scope="session")
 def full_results(params):  # noqa: ANN001, ANN201
-    """Full-model replays of every reference bag (the slowest part: ~10 s together)."""
+    """Full-model replays of every reference bag on the stiff reference solver (Radau), the way
+    the bags were made (the slowest part: ~10 s together)."""
+    return {name: replay(load_recording(BAGS / name), params, model="full", solver="radau")
+            for name in REFERENCE_BAGS}
+
+
+@pytest.fixture(scope="session")
+def full_stepper_results(params):  # noqa: ANN001, ANN201
+    """Full-model replays on the emulator's engine (the default): exponential Heun at 0.1 ms."""
     return {name: replay(load_recording(BAGS / name), params, model="full") for name in REFERENCE_BAGS}
 
 
