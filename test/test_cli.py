@@ -247,3 +247,11 @@ def test_version_as_a_module() -> None:
                           text=True, timeout=60, cwd=Path(__file__).resolve().parent.parent)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == f"pcv_sim {__version__}"
+
+
+def test_reference_bags_refuses_a_file_as_out(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    # The bit-for-bit run of `pcv-sim reference-bags --out DIR` is test/replay/test_reproducible.py.
+    target = tmp_path / "file"
+    target.write_text("x")
+    assert main(["reference-bags", "--out", str(target)]) == 2
+    assert "is a file; expected a directory" in capsys.readouterr().err

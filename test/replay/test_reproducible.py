@@ -23,5 +23,5 @@ def test_reference_bags_regenerate_bit_for_bit(regeneration):  # noqa: ANN001
             assert a.read_bytes() == b.read_bytes(), (
                 f"{name}/{fname} differs from a fresh regeneration (sha256 {_digest(a)} vs {_digest(b)}). "
                 f"If the model, config/valve.yaml or a pinned package changed on purpose, run "
-                f"`python -m pcv_sim.replay.reference_bags` and commit bags/ (bags/README.md)"
+                f"`pcv-sim reference-bags` and commit bags/ (bags/README.md)"
             )
