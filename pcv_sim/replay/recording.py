@@ -263,7 +263,7 @@ def load_recording(
     out_of_range = np.nonzero((duty < 0.0) | (duty > 1.0))[0]
     if out_of_range.size:
         k = int(out_of_range[0])
-        hint = " (percent? the duty is a fraction 0..1)" if 1.0 < duty[k] <= 100.0 else ""
+        hint = " (percent? the duty is a fraction 0..1)" if 2.0 <= duty[k] <= 100.0 else ""
         msg = (
             f"duty_cycle: {out_of_range.size} value(s) on {topics[DUTY_CYCLE]} outside 0..1, "
             f"first {duty[k]:g} at message {k}{hint}"
