@@ -2,7 +2,9 @@
 pressure when recorded), each command taking effect at its timestamp, and compare the model's
 pressure, current and spool position with the recorded ones: per duty step (rise time,
 overshoot, settling time, steady-state error) and over the whole run (RMSE, max error, NRMSE
-fit %). Exit status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
+fit %). Gaps in the recorded outputs (an emulator that skipped steps, a logger that lost samples)
+are listed, and the samples from each gap until --resync-ms after it are not compared. Exit
+status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from pathlib import Path
 
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.replay import ReplayError, check_thresholds, load_recording, parse_topic_map, replay
+from pcv_sim.replay.compare import RESYNC_S
 from pcv_sim.replay.report import plot_signals, render_html, render_markdown, render_text
 
 NAME = "replay"
@@ -49,10 +52,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot-dir", type=Path, metavar="DIR",
                    help="write the plots (PNG) here; default for a Markdown report: OUT_plots/ beside it")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")
+    p.add_argument("--resync-ms", type=float, default=RESYNC_S * 1e3, metavar="MS",
+                   help="after a gap in the recorded outputs, leave this long out of the comparison while "
+                        "model and device re-synchronise (default: %(default)g)")
     p.add_argument("--fail-above", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC > LIMIT, e.g. pressure_rmse_bar=0.5 (comma-separated or repeated); "
                         "metrics: <signal>_rmse_<u>, _max_error_<u>, _steady_state_error_<u>, _rise_time_error_ms, "
-                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm")
+                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm; gaps, gap_max_ms")
     p.add_argument("--fail-below", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC < LIMIT, e.g. pressure_fit_percent=99")
 
@@ -63,9 +69,12 @@ def run(args: argparse.Namespace) -> int:
     if args.report is not None and args.report.suffix.lower() not in (".md", ".html", ".htm"):
         msg = f"--report {str(args.report)!r}: the file name must end in .md or .html"
         raise ReplayError(msg)
+    if not (math.isfinite(args.resync_ms) and args.resync_ms >= 0):
+        msg = f"--resync-ms {args.resync_ms:g}: accepted is a finite number >= 0 (ms)"
+        raise ReplayError(msg)
     params = params_from(args)
     recording = load_recording(args.bag, parse_topic_map(args.topic))
-    result = replay(recording, params, model=args.model, solver=args.solver)
+    result = replay(recording, params, model=args.model, solver=args.solver, resync=args.resync_ms / 1e3)
     failures = check_thresholds(result, above, below)
     if not recording.closed_cleanly:
         print(f"pcv-sim replay: warning: {args.bag} was not closed properly; replaying its readable part",
