@@ -103,6 +103,8 @@ def test_distro_detection(monkeypatch: pytest.MonkeyPatch) -> None:
     assert detect_ros_distro() == ""
     del versions["rclpy"]
     assert detect_ros_distro() == ""
+    versions["ros-jazzy-rclpy"] = "7.1.6"          # the Jazzy wheels' distribution name
+    assert detect_ros_distro() == "jazzy"
 
 
 def test_bad_distro_and_qos_are_refused(tmp_path: Path) -> None:

@@ -107,11 +107,20 @@ def detect_ros_distro() -> str:
     env = os.environ.get("ROS_DISTRO", "").strip()
     if env:
         return env
-    try:
-        major = int(importlib.metadata.version("rclpy").split(".")[0])
-    except (importlib.metadata.PackageNotFoundError, ValueError):
-        return ""
-    return _RCLPY_DISTRO.get(major, "")
+    # The Kilted wheels install the distributions rclpy and ros-rclpy, the Jazzy ones
+    # ros-jazzy-rclpy (requirements/*.txt): a distribution name that says it wins.
+    for name in ("ros-jazzy-rclpy", "ros-kilted-rclpy", "ros-rolling-rclpy", "rclpy", "ros-rclpy"):
+        try:
+            version = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+        if name.count("-") == 2:
+            return name.split("-")[1]
+        try:
+            return _RCLPY_DISTRO.get(int(version.split(".")[0]), "")
+        except ValueError:
+            return ""
+    return ""
 
 
 def check_ros_distro(distro: object) -> str:
