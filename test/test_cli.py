@@ -241,7 +241,7 @@ def test_version_in_process(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_version_as_a_module() -> None:
-    # DESIGN.md section 6: a child must not inherit the ros_wheels_bootstrapper mark.
+    # docs/ros_wheels.md: a child must not inherit the ros_wheels_bootstrapper mark.
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
     proc = subprocess.run([sys.executable, "-m", "pcv_sim", "--version"], env=env, capture_output=True,
                           text=True, timeout=60, cwd=Path(__file__).resolve().parent.parent)

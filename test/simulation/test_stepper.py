@@ -79,7 +79,7 @@ def test_load_flow_step_matches_the_reference(params, q_lpm: float) -> None:  # 
     assert np.max(np.abs(traj.pressure - ref.pressure)) < 0.1 * BAR
     # Drawing flow lowers the pressure at first, pushing flow in raises it (Eq. 15).
     assert np.sign(traj.pressure[50] - traj.pressure[0]) == -np.sign(q_lpm)
-    # Explicit Euler at the same step is visibly worse (DESIGN.md section 2): > 0.1 bar.
+    # Explicit Euler at the same step is visibly worse (docs/model.md, numerics): > 0.1 bar.
     st_e = RealTimeStepper(params, integrator="euler", duty=0.7)
     st_e.set_load_flow(q_lpm * LPM)
     euler = st_e.run(hold, 0.1)
