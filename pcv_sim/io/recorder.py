@@ -17,6 +17,9 @@ What is written, and when (log time = model sample time, one clock for inputs an
   whatever the output rate: the recorder decimates the outputs itself.
 - :meth:`BagRecorder.start` writes every selected signal at the first stamp (the device at
   rest): a replay starts the model at rest at the first duty command.
+- The bag's metadata names the ROS distribution and, per topic, the QoS the node offers
+  (:data:`ROLE_QOS`: outputs best effort keep last 5, inputs reliable keep last 10), so that
+  ``ros2 bag play`` republishes each topic as the node does (docs/interface.md).
 
 Timing. The model loop must not wait for the disk. By default (``threaded=True``) a call only
 appends a tuple to a ``collections.deque`` (~1 µs per step with all signals); a writer thread
