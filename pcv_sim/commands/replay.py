@@ -81,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     for w in result.warnings:
         print(f"pcv-sim replay: warning: {w}", file=sys.stderr)
+    if result.gaps:
+        longest = max(g.duration for g in result.gaps) * 1e3
+        print(f"pcv-sim replay: warning: {len(result.gaps)} gap(s) in the recorded outputs (longest "
+              f"{longest:.1f} ms); not compared until {result.resync_s * 1e3:g} ms after each", file=sys.stderr)
 
     plots: dict[str, Path] = {}
     pngs: dict[str, bytes] = {}

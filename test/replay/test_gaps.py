@@ -96,7 +96,9 @@ def test_gaps_in_text_json_and_report(gappy: Path, tmp_path: Path, capsys: pytes
     assert data["signals"]["pressure"]["excluded_samples"] == 602 and data["resync_s"] == 0.3
     assert data["metrics"]["gaps"] == 2
     assert main([*argv, "--resync-ms", "100", "--report", str(tmp_path / "r.md")]) == 0
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
+    assert "warning: 2 gap(s) in the recorded outputs (longest 56.0 ms); not compared until 100 ms" in captured.err
     assert "gaps in the measured outputs: 2 (56.0-56.0 ms, 112.0 ms in all)" in text
     assert "gap 1: 0.1040 -> 0.1600 s (56.0 ms, ~55 samples missing), compared again from 0.2600 s" in text
     report = (tmp_path / "r.md").read_text()
