@@ -70,3 +70,18 @@ def colcon_install(tmp_path_factory):
         base=base, prefix=prefix, env=env, log=log, new_in_repo=new_in_repo,
         executable=lambda name: prefix / 'lib' / PACKAGE / name,
     )
+
+
+@pytest.fixture
+def cpu_load():
+    """Two CPU-bound processes beside the test for its duration: on this 2-core machine the node
+    then competes for a core, as it does on a shared machine. Ordering promises must hold so."""
+    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env())
+            for _ in range(2)]
+    try:
+        yield hogs
+    finally:
+        for h in hogs:
+            h.kill()
+        for h in hogs:
+            h.wait(5)

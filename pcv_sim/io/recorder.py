@@ -12,9 +12,10 @@ What is written, and when (log time = model sample time, one clock for inputs an
   FluidPressure whose header stamp equals its log time.
 - Inputs (``duty_cycle``, ``load_flow``, ``supply_pressure``) at the start and then only when
   they change, as the model actually used them: the duty after the watchdog and the fall-rate
-  limiter. A value the model used over the step [t - dt, t] (seen in the call for step end t)
-  is stamped t - dt, the step at which it took effect. This needs a call at *every* model step,
-  whatever the output rate: the recorder decimates the outputs itself.
+  limiter. The call for step t carries the state at t and the inputs in force from t on (the
+  device's convention, `ValveDevice.run`), so a changed input is stamped t, the step at which
+  it took effect. This needs a call at *every* model step, whatever the output rate: the
+  recorder decimates the outputs itself.
 - :meth:`BagRecorder.start` writes every selected signal at the first stamp (the device at
   rest): a replay starts the model at rest at the first duty command.
 - The bag's metadata names the ROS distribution and, per topic, the QoS the node offers
@@ -289,7 +290,7 @@ class BagRecorder:
             put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 
     def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None:
-        """One model step ended at ``t_ns``: inputs on change (stamped t - dt), outputs on the grid."""
+        """The device at step ``t_ns``: inputs on change (stamped t), outputs on the grid."""
         if self._origin is None:
             self.start(t_ns, signals)
             return
@@ -298,7 +299,7 @@ class BagRecorder:
             v = signals[key]
             if v != last[k]:
                 last[k] = v
-                self._put((_IN, k, t_ns - self.dt_ns, v))
+                self._put((_IN, k, t_ns, v))
         if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
             self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 

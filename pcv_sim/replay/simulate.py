@@ -298,7 +298,6 @@ def _run_stepper(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[
     i_guess = st._i  # noqa: SLF001 - the stepper's last current: a good Newton start
     k_cmd = 0
     n_cmd = len(tl)
-    limiter_rate = params.command.duty_fall_rate_limit
     for step in needed.tolist():
         # Apply every command due up to this step, advancing between them.
         while k_cmd < n_cmd and cmd_step[k_cmd] <= step:
@@ -311,11 +310,9 @@ def _run_stepper(params: ValveParams, tl: InputTimeline, sample_ns: npt.NDArray[
             k_cmd += 1
         if step > st.steps:
             st.advance(step - st.steps)
-        duty = st.command
-        if limiter_rate is not None and st.command < st.limiter.value:
-            duty = st.limiter.value  # a falling command is still being limited: continuous
         lam, x, _, p = st.state
-        i_guess = model.current(lam, x, model.coil_voltage(duty, st.time), i_guess)
+        # The duty in force from this step on (after the limiter): outputs are right-continuous.
+        i_guess = model.current(lam, x, model.coil_voltage(st.duty, st.time), i_guess)
         values[step] = (p, i_guess, x)
     p_out = np.empty(len(sample_ns))
     i_out = np.empty(len(sample_ns))

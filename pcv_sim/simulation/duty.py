@@ -36,11 +36,14 @@ class FallRateLimiter:
         self.rate = rate
         self.value = initial
 
-    def update(self, command: float, dt: float) -> float:
+    def peek(self, command: float, dt: float) -> float:
+        """The duty for the next step of length dt toward `command`, from the last step's `value`."""
         if self.rate is None or command >= self.value:
-            self.value = command
-        else:
-            self.value = max(command, self.value - self.rate * dt)
+            return command
+        return max(command, self.value - self.rate * dt)
+
+    def update(self, command: float, dt: float) -> float:
+        self.value = self.peek(command, dt)
         return self.value
 
 

@@ -7,6 +7,7 @@ config), with each power spelled out rather than through Horner's scheme.
 from __future__ import annotations
 
 import math
+import numpy as np
 
 import pytest
 
@@ -62,7 +63,7 @@ def test_restoring_coefficients_hand_evaluated() -> None:
 
 def test_poly_is_highest_power_first() -> None:
     assert sol.poly((2.0, 3.0, 5.0), 10.0) == 235.0   # 2*100 + 3*10 + 5
-    assert sol.poly((), 3.0) == 0.0
+    assert sol.poly(np.array([2.0, 3.0, 5.0]), 10.0) == 235.0   # arrays too (the compiled core passes arrays)
 
 
 @pytest.mark.parametrize("core_mm", [1.0, 1.15, 1.7, 2.2, 2.55])

@@ -29,9 +29,12 @@ def ros(tmp_path, monkeypatch):
     env.close()
 
 
-def test_emulator_bag_replays_with_a_fit_of_at_least_99_percent(ros):
+def test_emulator_bag_replays_with_a_fit_of_at_least_99_percent(ros, cpu_load):
+    """Under CPU load (two busy processes): late wakes must change nothing in what the bag says."""
     emu = ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.0, 'max_catchup': 10.0,
-                            'record.enabled': True, 'record.directory': str(ros.tmp_path), 'record.name': 'steps'})
+                            'record.enabled': True, 'record.directory': str(ros.tmp_path), 'record.name': 'steps',
+                            # every 0.1 ms step: each duty change lands on an output sample
+                            'record.rate_hz': 10000.0})
     c = ros.client()
     assert c.wait_for_emulator(START), emu.output()
     c.spin_for(0.1)
@@ -51,5 +54,8 @@ def test_emulator_bag_replays_with_a_fit_of_at_least_99_percent(ros):
     # Tighter than the proof asks: the replay does the emulator's arithmetic on the same input
     # timeline, so anything but rounding (< 0.01 bar) means a wrong stamp or a lost command.
     assert fit.max_error < 1e3, fit
+    # Samples show the inputs in force at their stamp, in the node as in the replay: the coil
+    # current (algebraic in the coil voltage) agrees at duty changes too, to the solver's rounding.
+    assert result.signals['current'].fit.max_error < 1e-6, result.signals['current'].fit
     for role in ('current', 'spool_position'):
-        assert result.signals[role].fit.nrmse_fit_percent >= 99.0, (role, result.signals[role].fit)
+        assert result.signals[role].fit.nrmse_fit_percent >= 99.99, (role, result.signals[role].fit)
