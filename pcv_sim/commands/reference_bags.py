@@ -1,7 +1,9 @@
 """Write the reference bags (bags/README.md): the paper's dynamic test (Sec. 3.2: zero load
 flow, duty steps at several levels and amplitudes, falls rate-limited to 2 /s) simulated on the
 full model and written as the emulator records them. With the default parameters the bytes are
-the same on every run (bit for bit): test/replay/test_reproducible.py checks the committed ones."""
+the same on every run on one machine (bit for bit; on another processor the stiff solver's last
+bits can move an output sample by one quantum): test/replay/test_reproducible.py checks the
+committed ones."""
 
 from __future__ import annotations
 
