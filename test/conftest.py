@@ -15,7 +15,7 @@ def clean_child_env(**extra):
     """Environment for a child process: no inherited ros_wheels_bootstrapper mark.
 
     The child then bootstraps itself (re-exec with LD_LIBRARY_PATH), whatever
-    interpreter it is; see DESIGN.md section 6.
+    interpreter it is; see docs/ros_wheels.md.
     """
     env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
     env.update(extra)

@@ -34,9 +34,11 @@ def check_load_flow(value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise CommandError(f"load flow {value!r}: accepted is a finite number in m^3/s")
     if abs(value) > MAX_LOAD_FLOW:
+        # Name L/min only when the number read as L/min is a flow this valve can see.
+        looks_lpm = abs(value) / 60000.0 <= MAX_LOAD_FLOW
+        hint = f"; the unit is m^3/s, not L/min: {value:g} L/min is {value / 60000.0:.4g} m^3/s" if looks_lpm else ""
         raise CommandError(
-            f"load flow {value:g} m^3/s is beyond +-{MAX_LOAD_FLOW:.4g} m^3/s (100 L/min); the unit is m^3/s, "
-            "not L/min"
+            f"load flow {value:g} m^3/s is beyond +-{MAX_LOAD_FLOW:.4g} m^3/s (100 L/min){hint}"
         )
     return float(value)
 
@@ -45,11 +47,12 @@ def check_supply_pressure(value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise CommandError(f"supply pressure {value!r}: accepted is a finite number in Pa")
     if not MIN_SUPPLY_PRESSURE <= value <= MAX_SUPPLY_PRESSURE:
+        # Name bar only when the number read as bar is in range (200 -> 200 bar), not for 5e8.
         looks_bar = MIN_SUPPLY_PRESSURE <= value * 1e5 <= MAX_SUPPLY_PRESSURE
-        hint = f": {value:g} bar is {value * 1e5:.4g} Pa" if looks_bar else ""
+        hint = f" (the unit is Pa, not bar: {value:g} bar is {value * 1e5:.4g} Pa)" if looks_bar else ""
         raise CommandError(
             f"supply pressure {value:g} Pa: accepted is {MIN_SUPPLY_PRESSURE:.4g} .. {MAX_SUPPLY_PRESSURE:.4g} Pa "
-            f"(the unit is Pa, not bar{hint})"
+            f"({MIN_SUPPLY_PRESSURE / 1e5:g} .. {MAX_SUPPLY_PRESSURE / 1e5:g} bar){hint}"
         )
     return float(value)
 

@@ -45,7 +45,7 @@ def test_solenoid_force_matches_hand_evaluated_eqs_9_to_13() -> None:
     got = sol.solenoid_force(i, z, PFS)
     # Horner vs expanded powers differ only by rounding: rel 1e-12.
     assert got == pytest.approx(expected, rel=1e-12)
-    # Plausibility (DESIGN.md R1): the static balance at 120 bar needs ~37-39 N from the solenoid.
+    # Plausibility (docs/model.md R1): the static balance at 120 bar needs ~37-39 N from the solenoid.
     assert 30.0 < got < 45.0
     # Eq. 9 has no i^1 or i^0 term: no force without current.
     assert sol.solenoid_force(0.0, z, PFS) == 0.0

@@ -22,11 +22,11 @@ REFERENCE_BAGS = ("pcv_step_levels", "pcv_step_amplitudes")
 
 @pytest.fixture(scope="session", autouse=True)
 def regeneration(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
-    """`python -m pcv_sim.replay.reference_bags --out TMP` running in a child process."""
+    """`pcv-sim reference-bags --out TMP` running in a child process."""
     out = tmp_path_factory.mktemp("regenerated")
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pcv_sim.replay.reference_bags", "--out", str(out)],
+        [sys.executable, "-m", "pcv_sim", "reference-bags", "--out", str(out)],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
     handle = SimpleNamespace(out=out, proc=proc)
