@@ -85,3 +85,18 @@ def cpu_load():
             h.kill()
         for h in hogs:
             h.wait(5)
+
+
+@pytest.fixture(scope='session', autouse=True)
+def compiled_kernels():
+    """Compile the core's kernels (both valve models) once, before any test starts an emulator
+    process: the processes then load them from the disk cache (~1 s) instead of each compiling
+    them (several seconds, more on a busy machine), which would eat into their start timeouts."""
+    from pcv_sim.params import default_params
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    for kind in ('simplified', 'full'):
+        st = RealTimeStepper(default_params(), duty=0.5, kind=kind)
+        st.set_duty(0.6)
+        st.advance(2)
+        st.current

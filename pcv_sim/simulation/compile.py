@@ -183,11 +183,16 @@ def generate_source(plant: Composite) -> str:
     lines.append(f"LAM = np.array([{lam}], dtype=np.float64)")
     lines.append(f"STIFF = {bool(np.any(plant.rates > 0.0))}")
 
+    single = len(plant.systems) == 1 and not plant.connections
+
     def view(name: str, off: list[int], k: int) -> str:
+        # One system: the whole arrays (a view costs reference counting on every call).
+        if single:
+            return "u" if name == "U" else name
         return f"{name}[{off[k]}:{off[k + 1]}]"
 
     ext = {name: j for j, name in enumerate(plant.inputs)}
-    wiring = []
+    wiring: list[str] = []
     for k, s in enumerate(plant.systems):
         for j, name in enumerate(s.inputs):
             full = f"{s.name}.{name}"
@@ -195,6 +200,8 @@ def generate_source(plant: Composite) -> str:
                 wiring.append(f"    U[{us[k] + j}] = u[{ext[full]}]")
     for (ka, oa), (kb, ib) in plant.connections:
         wiring.append(f"    U[{us[kb] + ib}] = Y[{ys[ka] + oa}]")
+    if single:
+        wiring = []                         # the system reads the external inputs directly
     state_outputs = [f"    so_{k}(t, {view('x', xs, k)}, {view('P', ps, k)}, F[{k}], {view('Y', ys, k)})"
                      for k in range(len(plant.systems))]
     body = ["", "", "@jit", "def derivs(t, x, u, P, F, W, Y, U, dx):",
