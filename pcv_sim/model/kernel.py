@@ -30,7 +30,7 @@ from pcv_sim.units import MM_PER_M
 
 __all__ = [
     "STATES", "INPUTS", "OUTPUTS", "STATE_OUTPUTS", "pack", "edges", "rhs", "state_output", "output",
-    "project", "coil_current", "chamber_rate",
+    "project", "coil_current", "chamber_rate", "static_force",
 ]
 
 STATES = {
@@ -150,6 +150,18 @@ def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
                                                  f[T_FORCE])
     return sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, p[R_COIL], f[T_PD], i_guess,
                                 p[V_LO], p[V_HI])
+
+
+@jit
+def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
+    """Eq. 14 at rest (v = 0, p_c = p): the net force on the spool (N, + toward +x) with coil
+    current i at spool x (m), load and supply pressure (Pa): what the static characteristic and
+    the rest states solve (pcv_sim.model.statics)."""
+    x_mm = x * MM_PER_M
+    _, _, _, k1, k2, k3, k4 = sol.coefficients_at(x_mm + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3], f[T_FORCE])
+    _, _, f_p, f_t = edges(x, x_mm, p_load, p_s, p, f)
+    return (sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * p_load + p[A_CC] * p_load
+            - p[K_SPRING] * x - (f_p - f_t) - p[F0])
 
 
 @jit

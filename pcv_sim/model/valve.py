@@ -143,7 +143,7 @@ class ValveModel:
 
     def static_force(self, i: float, x: float, p: float, p_s: float) -> float:
         """Eq. 14 at rest (v = 0, p_c = p): the force balance the static characteristic solves."""
-        return self.spool_force(i, x, 0.0, p, p, self.hydraulics(x, p, p_s))
+        return float(kernel.static_force(i, x, p, p_s, self.p, self.f))
 
     # --- the right-hand side -----------------------------------------------------------------
 

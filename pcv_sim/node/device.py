@@ -322,10 +322,8 @@ def rest_stepper(params: ValveParams, duty: float, load_flow: float = 0.0, suppl
                  *, integrator: str | None = None) -> RealTimeStepper:
     """A stepper at rest for these inputs (`pcv_sim.simulation.rest.rest_state`: the static
     equilibrium, or where the model settles when none exists, e.g. on the end stop at low duty)."""
-    stepper = RealTimeStepper(params, integrator=integrator, duty=duty)
-    if load_flow != 0.0 or supply_pressure is not None:
-        stepper.reset(duty, load_flow, supply_pressure)
-    return stepper
+    return RealTimeStepper(params, integrator=integrator, duty=duty, load_flow=load_flow,
+                           supply_pressure=supply_pressure)
 
 
 def _positive_int(value: int, name: str) -> int:

@@ -207,8 +207,8 @@ def _run_radau(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt
 
 def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt.NDArray[np.int64]) -> ModelRun:
     try:
-        st = RealTimeStepper(params, duty=float(tl.duty[0]), kind=kind)
-        st.reset(float(tl.duty[0]), float(tl.load_flow[0]), float(tl.supply_pressure[0]))
+        st = RealTimeStepper(params, duty=float(tl.duty[0]), kind=kind, load_flow=float(tl.load_flow[0]),
+                             supply_pressure=float(tl.supply_pressure[0]))
     except EquilibriumError as exc:
         msg = f"no rest point for the first inputs (duty {tl.duty[0]:g}, load flow {tl.load_flow[0]:g} m^3/s): {exc}"
         raise ReplayError(msg) from exc

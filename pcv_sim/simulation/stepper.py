@@ -66,7 +66,7 @@ class RealTimeStepper:
     """
 
     def __init__(self, params: ValveParams, *, integrator: str | None = None, duty: float = 0.0,
-                 kind: str | None = None) -> None:
+                 kind: str | None = None, load_flow: float = 0.0, supply_pressure: float | None = None) -> None:
         self.params = params
         self.kind = kind or params.simulation.model
         if self.kind not in KINDS:
@@ -79,7 +79,7 @@ class RealTimeStepper:
             raise ValueError(f"integrator {name!r}: accepted are {', '.join(INTEGRATORS)}")
         self.integrator = name
         self.sim = Simulator(valve_system(params, self.kind), self.dt, name)
-        self.reset(duty)
+        self.reset(duty, load_flow, supply_pressure)
 
     # --- state -------------------------------------------------------------------------------
 
