@@ -9,4 +9,5 @@ COMMANDS = [
     "pcv_sim.commands.linearize",
     "pcv_sim.commands.replay",
     "pcv_sim.commands.import_csv",
+    "pcv_sim.commands.calibrate",
 ]

@@ -1,0 +1,152 @@
+"""Calibration against synthetic rig recordings made with the model itself: a known parameter
+perturbation, sensor lag, noise and offset, DAQ units and broken rows through import-csv. The
+fit must recover the perturbation within the interval it reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pcv_sim.calibration import CalibrationError, calibrate, fit_parameter, noise_level, write_rig_csv
+from pcv_sim.calibration.report import fitted_yaml
+from pcv_sim.io.csv_import import import_csv
+from pcv_sim.params import DEFAULT_CONFIG, default_params, load_params, params_from_mapping, replace_param
+from pcv_sim.replay import load_recording
+
+# Sensor of the synthetic rig (SI): lag, noise (1 sigma) and offset per signal.
+LAG = {"pressure": 0.003, "current": 0.0005, "spool_position": 0.001}
+NOISE = {"pressure": 0.3e5, "current": 0.005, "spool_position": 0.003e-3}
+OFFSET = {"pressure": 0.5e5, "current": 0.01, "spool_position": 0.005e-3}
+DUTIES = [0.3, 0.6, 0.9, 0.5]
+
+
+def _rig_bag(tmp: Path, truth, name: str = "rig", seed: int = 1, duties=DUTIES, hold_s: float = 0.3) -> Path:  # noqa: ANN001
+    csv = write_rig_csv(tmp / f"{name}.csv", truth, duties, hold_s=hold_s, lag_s=LAG, noise=NOISE,
+                        offset=OFFSET, seed=seed)
+    res = import_csv(csv, tmp / name, skip_bad_rows=True)
+    assert len(res.skipped) == 3 and res.units["pressure"] == "bar"   # broken rows named, DAQ units read
+    return tmp / name
+
+
+@pytest.fixture(scope="module")
+def preload_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    # A valve whose spring preload is 2.6 N, not Table 1's 2.0 N.
+    truth = replace_param(default_params(), "spool.spring_preload", 2.6)
+    return _rig_bag(tmp_path_factory.mktemp("preload"), truth)
+
+
+@pytest.fixture(scope="module")
+def preload_fit(preload_bag: Path):  # noqa: ANN201
+    p0 = default_params()
+    return calibrate([load_recording(preload_bag)], p0, [fit_parameter(p0, "spool.spring_preload")])
+
+
+def test_recovers_the_perturbation_within_its_interval(preload_fit) -> None:  # noqa: ANN001
+    (est,) = preload_fit.parameters
+    assert est.name == "spool.spring_preload" and est.initial == 2.0
+    assert abs(est.value - 2.6) <= est.half_width_95
+    # The interval is informative: much narrower than the perturbation it found.
+    assert est.half_width_95 < 0.2 * abs(est.value - est.initial)
+    assert preload_fit.status_code > 0 and not preload_fit.warnings
+
+
+def test_sensor_lag_and_offset_are_estimated(preload_fit) -> None:  # noqa: ANN001
+    lags = {e.name: e for e in preload_fit.lags}
+    # The pressure lag is a sample-grid interpolation away from the truth at most (1 kHz: < 0.5 ms).
+    assert lags["lag.pressure"].value == pytest.approx(LAG["pressure"], abs=5e-4)
+    assert lags["lag.spool_position"].value == pytest.approx(LAG["spool_position"], abs=5e-4)
+    offsets = {e.name: e for e in preload_fit.offsets}
+    for role in ("pressure", "current", "spool_position"):
+        e = offsets[f"offset.{role}[0]"]
+        # Within the reported interval, widened by 50 % for the lag's interpolation error.
+        assert abs(e.value - OFFSET[role]) <= 1.5 * e.half_width_95, role
+
+
+def test_fit_improves_every_signal(preload_fit) -> None:  # noqa: ANN001
+    for s in preload_fit.signals:
+        assert s.fit_after_percent > s.fit_before_percent, s.role
+        assert s.rmse_after < s.rmse_before, s.role
+        # After the fit what remains is the noise: RMSE within 20 % of the sensor's sigma.
+        assert s.rmse_after == pytest.approx(NOISE[s.role], rel=0.2), s.role
+    assert preload_fit.cost_after < preload_fit.cost_before
+
+
+def test_inseparable_parameters_are_warned_about(preload_bag: Path) -> None:
+    # The simplified model's load volume and bulk modulus act only through beta / V (Eq. 15):
+    # no recording can separate them.
+    p0 = default_params()
+    res = calibrate([load_recording(preload_bag)], p0,
+                    [fit_parameter(p0, "fluid.bulk_modulus"), fit_parameter(p0, "circuit.load_volume")],
+                    lag_bounds=None, fit_offsets=False, max_evaluations=6, solver="fast")
+    assert abs(res.correlation[0, 1]) > 0.95
+    assert any("fluid.bulk_modulus and circuit.load_volume are correlated" in w
+               and "cannot separate" in w for w in res.warnings)
+
+
+def test_two_bags_and_the_written_yaml(tmp_path: Path) -> None:
+    truth = replace_param(default_params(), "calibration.net_area", 2.95e-6)
+    bags = [_rig_bag(tmp_path, truth, "a", seed=3, duties=[0.4, 0.8], hold_s=0.25),
+            _rig_bag(tmp_path, truth, "b", seed=4, duties=[0.7, 0.3], hold_s=0.25)]
+    p0 = default_params()
+    res = calibrate([load_recording(b) for b in bags], p0, [fit_parameter(p0, "calibration.net_area")])
+    (est,) = res.parameters
+    assert abs(est.value - 2.95e-6) <= est.half_width_95
+    assert len(res.offsets) == 6 and {s.bag for s in res.signals} == {str(b) for b in bags}
+    text = fitted_yaml(DEFAULT_CONFIG.read_text("utf-8"), res, [str(b) for b in bags])
+    out = tmp_path / "fitted.yaml"
+    out.write_text(text)
+    fitted = load_params(out)
+    assert fitted.calibration.net_area == pytest.approx(est.value, rel=1e-5)
+    # Everything else as in the source, comments kept.
+    assert fitted.spool == default_params().spool and fitted.solenoid == default_params().solenoid
+    assert "# fitted by pcv-sim calibrate" in text and "# kg, m (T1)" in text
+
+
+@pytest.mark.parametrize(("spec", "match"), [
+    ("solenoid.force", r"--fit 'solenoid.force': not a scalar parameter .*accepted are scalar keys"),
+    ("spool.mas", r"not a scalar parameter.*in 'spool': spool.mass, spool.pressure_area"),
+    ("spool.mass=1:", r"bounds are KEY=LOW:HIGH with finite LOW < HIGH"),
+    ("spool.mass=0.5:1", r"the start value 0.04 \(from the config\) lies outside 0.5..1"),
+    ("command.duty_fall_rate_limit", r"the config has null \(off\) here"),
+])
+def test_fit_keys_are_checked(spec: str, match: str) -> None:
+    with pytest.raises(CalibrationError, match=match):
+        fit_parameter(default_params(), spec)
+
+
+def test_fit_parameter_defaults() -> None:
+    p = default_params()
+    mass = fit_parameter(p, "spool.mass")
+    assert (mass.initial, mass.lower, mass.upper, mass.unit) == (0.04, 0.01, 0.16, "kg")
+    pre = fit_parameter(p, "spool.spring_preload=0:5")
+    assert (pre.lower, pre.upper) == (0.0, 5.0)
+    damp = fit_parameter(p, "spool.viscous_friction_simplified")
+    assert damp.initial == pytest.approx(p.equivalent_damping)
+    area = fit_parameter(replace_param(p, "calibration.net_area", None), "calibration.net_area")
+    assert area.initial == pytest.approx(3.1e-6) and area.upper < p.spool.pressure_area
+
+
+def test_noise_level_ignores_steps() -> None:
+    rng = np.random.default_rng(0)
+    y = np.repeat([0.0, 50.0, 20.0, 80.0], 500) + rng.normal(0.0, 0.3, 2000)
+    assert noise_level(y) == pytest.approx(0.3, rel=0.1)
+
+
+def test_bad_setups_are_refused(preload_bag: Path) -> None:
+    p0 = default_params()
+    rec = load_recording(preload_bag)
+    with pytest.raises(CalibrationError, match=r"nothing to fit"):
+        calibrate([rec], p0, [])
+    with pytest.raises(CalibrationError, match=r"no recording"):
+        calibrate([], p0, [fit_parameter(p0, "spool.mass")])
+    with pytest.raises(CalibrationError, match=r"names a parameter twice"):
+        calibrate([rec], p0, [fit_parameter(p0, "spool.mass")] * 2)
+
+
+def test_written_yaml_is_the_valve_format() -> None:
+    # fitted_yaml's output loads with the same loader --config and valve_config use.
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text("utf-8"))
+    assert params_from_mapping(data) == default_params()
