@@ -115,7 +115,25 @@ def test_working_points_json(capsys: pytest.CaptureFixture[str]) -> None:
 def test_working_points_text(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["working-points"]) == 0
     out = capsys.readouterr().out
-    assert "As printed (net area 3.1e-06 m^2)" in out and "Calibrated (net area 2.859e-06 m^2)" in out
+    assert "As printed (net area 3.1e-06 m^2, preload 2 N)" in out
+    assert "Calibrated: damping: equivalent (B + A_cc^2/K_d, R20) 302.0 Ns/m; calibration: net_area (net area 2.859e-06 m^2)" in out
+    assert "P2 (1.490 A): force offset" in out
+
+
+def test_working_points_fit_and_write(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "v.yaml"
+    path.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8"), encoding="utf-8")
+    data = run_json(capsys, "--config", str(path), "working-points", "--fit", "--kind", "both", "--write")
+    fitted = data["fit"]["values"]
+    cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+    assert cfg["calibration"]["net_area"] == pytest.approx(fitted["calibration.net_area"], rel=1e-5)
+    assert cfg["spool"]["spring_preload"] == pytest.approx(fitted["spool.spring_preload"], rel=1e-5)
+    # Read back: the written config is in force, named "both".
+    again = run_json(capsys, "--config", str(path), "working-points")
+    assert again["in_force"]["calibration_kind"] == "both"
+    assert all(abs(p["pressure_error"]) < 0.05 * BAR for p in again["calibrated"]["points"])
+    assert main(["working-points", "--write"]) == 2
+    assert "--write needs --fit" in capsys.readouterr().err
 
 
 def test_linearize_json(capsys: pytest.CaptureFixture[str]) -> None:
