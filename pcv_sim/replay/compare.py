@@ -17,6 +17,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from pcv_sim.analysis.in_force import InForce, in_force
 from pcv_sim.analysis.metrics import FitMetrics, StepMetrics, fit_metrics, step_metrics
 from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, SPOOL_POSITION
 from pcv_sim.params import ValveParams
@@ -139,6 +140,7 @@ class ReplayResult:
     elapsed_s: float
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    in_force: InForce | None = None    # the damping and calibration the model ran with
 
     @property
     def real_time_factor(self) -> float:
@@ -199,6 +201,7 @@ class ReplayResult:
                       "metrics": "as named: bar, a (A), mm, ms, percent"},
             "warnings": list(self.warnings),
             "notes": list(self.notes),
+            "in_force": self.in_force.as_dict() if self.in_force is not None else None,
         }
 
 
@@ -298,6 +301,7 @@ def replay(
         elapsed_s=elapsed,
         warnings=recording.warnings,
         notes=recording.notes + tuple(tl_notes) + run.notes + tuple(step_notes),
+        in_force=in_force(params, model),
     )
 
 
