@@ -40,11 +40,13 @@ def write_rig_csv(
     broken_rows: int = 3,
     seed: int = 0,
     model: Literal["full", "simplified"] = "simplified",
+    load_flows_lpm: Sequence[float] | None = None,
 ) -> Path:
     """Write a CSV of the model driven by ``duties`` (each held ``hold_s``), as a rig logs it.
 
     ``lag_s``, ``noise`` (standard deviation) and ``offset`` per output role, SI units: the
-    logged value at t is y(t - lag) + offset + noise. Returns the path.
+    logged value at t is y(t - lag) + offset + noise. ``load_flows_lpm`` (one per duty, L/min)
+    adds a load-flow column: static pressure-flow points where the inputs hold. Returns the path.
     """
     lag_s = dict(lag_s or {})
     noise = dict(noise or {})
@@ -55,18 +57,23 @@ def write_rig_csv(
     t_ns = np.arange(n, dtype=np.int64) * period_ns
     hold_ns = int(round(hold_s * _NS))
     change_ns = np.arange(len(duties), dtype=np.int64) * hold_ns
-    tl = InputTimeline(change_ns, np.asarray(duties, float), np.zeros(len(duties)),
+    flows = np.zeros(len(duties)) if load_flows_lpm is None else np.asarray(load_flows_lpm, float) * 1e-3 / 60.0
+    tl = InputTimeline(change_ns, np.asarray(duties, float), flows,
                        np.full(len(duties), params.circuit.supply_pressure))
     # The model at every sample time and at every lagged one (before 0 it rests).
     lag_ns = {r: int(round(lag_s.get(r, 0.0) * _NS)) for r in _DISPLAY}
     want = np.unique(np.concatenate([np.clip(t_ns - lag_ns[r], 0, None) for r in _DISPLAY]))
     run = run_model(params, model, tl, want)
-    duty_now = np.asarray(duties, float)[np.searchsorted(change_ns, t_ns, side="right") - 1]
-    cols = [t_ns / _NS + time_origin_s, duty_now * 100.0]
+    segment = np.searchsorted(change_ns, t_ns, side="right") - 1
+    cols = [t_ns / _NS + time_origin_s, np.asarray(duties, float)[segment] * 100.0]
     for role, scale in _DISPLAY.items():
         y = run.outputs[role][np.searchsorted(want, np.clip(t_ns - lag_ns[role], 0, None))]
         y = y + offset.get(role, 0.0) + rng.normal(0.0, noise.get(role, 0.0), n)
         cols.append(y * scale)
+    header = RIG_HEADER
+    if load_flows_lpm is not None:
+        cols.append(flows[segment] * 60e3)
+        header += ",load_flow[l/min]"
     rows = [",".join(f"{v:.9g}" for v in row) for row in np.column_stack(cols)]
     # A few broken rows, as a DAQ writes them: a dropped field, a text glitch, an empty value.
     glitches = ["{t},{d}", "{t},{d},ERR,,", "{t},{d},,1.0,0.0"]
@@ -74,5 +81,5 @@ def write_rig_csv(
         t_text, d_text = rows[at].split(",")[:2]
         rows[at] = glitches[k % len(glitches)].format(t=t_text, d=d_text)
     out = Path(path)
-    out.write_text(RIG_HEADER + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    out.write_text(header + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
     return out

@@ -150,3 +150,19 @@ def test_written_yaml_is_the_valve_format() -> None:
     # fitted_yaml's output loads with the same loader --config and valve_config use.
     data = yaml.safe_load(DEFAULT_CONFIG.read_text("utf-8"))
     assert params_from_mapping(data) == default_params()
+
+
+def test_static_points_from_load_flow_steps(tmp_path: Path) -> None:
+    """Pressure-flow points: 70 % duty held, the load flow stepped through the reducing range
+    (Fig. 10's curve); the fit recovers a perturbed flow-force cap, which acts only with flow."""
+    truth = replace_param(default_params(), "fits.pump_jet_cap", 0.6)
+    csv = write_rig_csv(tmp_path / "pq.csv", truth, [0.7] * 4, hold_s=0.2, lag_s=LAG, noise=NOISE, offset=OFFSET,
+                        seed=5, load_flows_lpm=[0.0, 4.0, 8.0, 12.0])
+    import_csv(csv, tmp_path / "pq", skip_bad_rows=True)
+    rec = load_recording(tmp_path / "pq")
+    assert "load_flow" in rec.inputs
+    p0 = default_params()
+    res = calibrate([rec], p0, [fit_parameter(p0, "fits.pump_jet_cap")])
+    (est,) = res.parameters
+    assert est.initial == 0.7 and (est.lower, est.upper) == (0.0, 1.0)
+    assert abs(est.value - 0.6) <= est.half_width_95 < 0.05
