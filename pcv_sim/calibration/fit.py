@@ -268,14 +268,15 @@ def calibrate(
     lag_bounds: tuple[float, float] | None = LAG_BOUNDS,
     fit_offsets: bool = True,
     max_evaluations: int = 40,
-    grid_step: float = 2e-4,
+    grid_step: float = 1e-4,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> CalibrationResult:
     """Fit ``fit`` (and each signal's sensor lag and offset) to ``recordings``; see the module doc.
 
     ``roles``: the outputs to fit (default: every output the bags have). ``lag_bounds=None``
     fixes the lags at 0, ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
-    sampled on this grid (and at every measured sample) for the lagged comparison. ``progress(evaluation, cost,
+    also sampled on this grid from 0.5 ms before to 1.5 ms after each input change, for the lagged
+    comparison. ``progress(evaluation, cost,
     elapsed_s)`` is called after each model evaluation.
     """
     if not recordings:
@@ -296,17 +297,23 @@ def calibrate(
                 data.append(_Data(b, role, s.t_ns, s.value, sigma))
     if not data:
         raise CalibrationError(f"the recordings hold none of the signals to fit ({', '.join(wanted)})")
-    # The model on a grid of grid_step (and at every sample): y(t - lag) is interpolated from it,
-    # so a lag between two samples (the current's jump at a duty step, R27) is not smeared.
+    # The model at every sample, and on a grid of grid_step around each input change: y(t - lag)
+    # is interpolated from these, so a lag between two samples of the current's jump at a duty
+    # step (R27) is not smeared; elsewhere the response is smooth at the sample spacing.
     step_ns = int(round(grid_step * _NS))
+    around = np.arange(-5, 16, dtype=np.int64) * step_ns
     sample_ns = []
-    for b in range(len(recordings)):
+    for b, rec in enumerate(recordings):
         times = [d.t_ns for d in data if d.bag == b]
         if not times:
             sample_ns.append(np.zeros(0, np.int64))
             continue
         end = int(max(int(t[-1]) for t in times))
-        sample_ns.append(np.unique(np.concatenate(times + [np.arange(0, end + 1, step_ns, dtype=np.int64)])))
+        tl = _timeline(rec, params)
+        jumps = tl.t_ns[1:][np.abs(np.diff(tl.duty)) >= 0.005][:1000]   # steps, not a noisy command's jitter
+        dense = (jumps[:, None] + around[None, :]).ravel()
+        dense = dense[(dense >= 0) & (dense <= end)]
+        sample_ns.append(np.unique(np.concatenate(times + [dense])))
     lag_roles = sorted({d.role for d in data}, key=OUTPUT_ROLES.index) if lag_bounds is not None else []
     n_theta, n_lag = len(fit), len(lag_roles)
     n_off = len(data) if fit_offsets else 0
