@@ -29,9 +29,9 @@ class StepMetrics:
 
 #: Noise above this fraction of the change switches step_metrics to its noise-robust reading.
 NOISE_FRACTION = 1e-3
-#: The settling band is at least this many noise standard deviations: white noise leaves a 4 sigma
-#: band with probability 6e-5 per sample (one stray sample in ~16000), so it does not set the
-#: settling time.
+#: The settling band is at least this many standard deviations of the smoothed noise: white noise
+#: leaves a 4 sigma band with probability 6e-5 per sample (one stray sample in ~16000), so it does
+#: not set the settling time.
 NOISE_BAND_SIGMAS = 4.0
 #: Samples of the centred moving average that rise time and peak are read from on noisy data.
 SMOOTH_SAMPLES = 5
@@ -58,10 +58,10 @@ def step_metrics(
 
     Noise (``robust``): the noise level sigma is read from the window's sample-to-sample
     differences. When it exceeds NOISE_FRACTION of the change (measured data; a model's trace
-    has none), the band widens to at least NOISE_BAND_SIGMAS sigma, `initial` is the mean of
-    the last 20 samples before the step, and rise time and peak are read from a centred moving
-    average of SMOOTH_SAMPLES samples; an overshoot within NOISE_BAND_SIGMAS of the average's
-    sigma (sigma / sqrt(5)) is noise and reported as 0.
+    has none), rise time, peak and settling are read from a centred moving average of
+    SMOOTH_SAMPLES samples (noise sigma / sqrt(5)), the band widens to at least
+    NOISE_BAND_SIGMAS of that sigma, an overshoot within it is noise and reported as 0, and
+    `initial` is the mean of the last 20 samples before the step.
     """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -78,7 +78,8 @@ def step_metrics(
         initial = float(np.mean(y[before][-20:]))
     change = final - initial
     sign = 1.0 if change >= 0 else -1.0
-    band = max(band_fraction * abs(change), band_min, NOISE_BAND_SIGMAS * sigma if noisy else 0.0)
+    sigma_smooth = sigma / math.sqrt(SMOOTH_SAMPLES)
+    band = max(band_fraction * abs(change), band_min, NOISE_BAND_SIGMAS * sigma_smooth if noisy else 0.0)
     if abs(change) == 0.0:
         return StepMetrics(initial, final, math.nan, 0.0, 0.0, float(yw.max()), band, sigma)
     ys = yw
@@ -102,10 +103,10 @@ def step_metrics(
     rise = first_cross(0.9) - first_cross(0.1)
     peak = float(ys.max() if sign > 0 else ys.min())
     excess = (peak - final) * sign
-    if noisy and excess <= NOISE_BAND_SIGMAS * sigma / math.sqrt(SMOOTH_SAMPLES):
+    if noisy and excess <= NOISE_BAND_SIGMAS * sigma_smooth:
         excess = 0.0
     overshoot = max(0.0, excess / abs(change) * 100.0)
-    outside = np.nonzero(np.abs(yw - final) > band)[0]
+    outside = np.nonzero(np.abs(ys - final) > band)[0]
     if not outside.size:
         settling = 0.0
     elif outside[-1] == len(yw) - 1:

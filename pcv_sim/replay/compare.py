@@ -280,7 +280,8 @@ def replay(
                 continue
             band = DISPLAY[role].band_min
             meas[role] = step_metrics(t, y_meas, st.t_start, st.t_end, band_min=band)
-            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=band)
+            # The model is judged in the measured band (widened by the sensor's noise): same gate.
+            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=max(band, meas[role].band))
         if meas:
             comparisons.append(StepComparison(st, meas, mod))
         else:
