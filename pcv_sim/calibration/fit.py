@@ -7,7 +7,8 @@ tau_r (per signal, shared by the bags: one rig) and an offset c_br (per signal a
     y_m(t) = y(t - tau_r) + c_br + noise,      residual = (y(t - tau_r) + c_br - y_m(t)) / sigma_br
 
 sigma_br is the noise level of the recording, estimated from its sample-to-sample differences
-(:func:`noise_level`), so every signal counts by what it can tell. The valve parameters theta
+(:func:`noise_level`; at least 1e-3 of the signal's span, so a noiseless or quantised signal does
+not outweigh the others), so every signal counts by what it can tell. The valve parameters theta
 (any scalar key of the valve YAML) and the nuisance parameters (tau, c) are found by
 ``scipy.optimize.least_squares`` (trust region reflective, bounds, the ``soft_l1`` robust loss
 with f_scale = 3 sigma, so broken samples and spikes do not pull the fit).

@@ -32,15 +32,22 @@ def _yaml_float(v: float) -> str:
     return mant + (e + exp if e else "")
 
 
-def fitted_yaml(source: str, result: CalibrationResult, origin: Sequence[str]) -> str:
+def fitted_yaml(source: str, result: CalibrationResult, origin: Sequence[str],
+                overrides: Mapping[str, float | str] | None = None) -> str:
     """The valve YAML ``source`` with each fitted key's value replaced (comments kept), a note
-    with the interval beside it, and a header naming the recordings. Checked by loading it."""
+    with the interval beside it, and a header naming the recordings; ``overrides`` (key -> value,
+    e.g. the damping the fit ran with) are written too. Checked by loading it."""
     lines = source.splitlines()
-    for est in result.parameters:
-        section, _, name = est.name.partition(".")
+    edits = [(e.name, _yaml_float(e.value), f"# fitted by pcv-sim calibrate: +-{e.half_width_95:.2g} (95 %), was "
+                                             f"{e.initial:.6g}") for e in result.parameters]
+    fitted_keys = {e.name for e in result.parameters}
+    edits += [(k, v if isinstance(v, str) else _yaml_float(v), "# set for pcv-sim calibrate")
+              for k, v in (overrides or {}).items() if k not in fitted_keys]
+    for key, text_value, note in edits:
+        section, _, name = key.partition(".")
         start = next((k for k, line in enumerate(lines) if re.match(rf"^{re.escape(section)}:\s*(#.*)?$", line)), None)
         if start is None:
-            msg = f"cannot find section {section!r} in the source YAML to write {est.name}"
+            msg = f"cannot find section {section!r} in the source YAML to write {key}"
             raise CalibrationError(msg)
         for k in range(start + 1, len(lines)):
             line = lines[k]
@@ -49,14 +56,12 @@ def fitted_yaml(source: str, result: CalibrationResult, origin: Sequence[str]) -
                 break
             m = re.match(rf"^(\s+{re.escape(name)}:\s*)(\S[^#]*?|)(\s*)(#.*)?$", line)
             if m:
-                note = (f"# fitted by pcv-sim calibrate: +-{est.half_width_95:.2g} (95 %), was "
-                        f"{est.initial:.6g}")
-                lines[k] = f"{m.group(1)}{_yaml_float(est.value)}   {note}"
+                lines[k] = f"{m.group(1)}{text_value}   {note}"
                 break
         else:
             k = -1
         if k < 0:
-            msg = f"cannot find {est.name} in the source YAML's section {section!r}"
+            msg = f"cannot find {key} in the source YAML's section {section!r}"
             raise CalibrationError(msg)
     header = [f"# Calibrated with pcv-sim calibrate ({result.model} model) from: {', '.join(origin)}",
               "# " + "; ".join(f"{e.name} = {e.value:.6g} +- {e.half_width_95:.2g} {e.unit}" for e in result.parameters)]

@@ -11,12 +11,14 @@ import argparse
 import sys
 from pathlib import Path
 
+import yaml
+
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.calibration import CalibrationError, calibrate, corrected_recording, fit_parameter
 from pcv_sim.calibration.report import fitted_yaml, plot_fit, render_html, render_markdown, render_text, step_rows
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
-from pcv_sim.params import _installed_default
+from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
 from pcv_sim.replay import load_recording, parse_topic_map, replay
 
 NAME = "calibrate"
@@ -28,6 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fit", action="append", required=True, metavar="KEY[=LO:HI][,KEY...]",
                    help="valve parameters to fit, by their path in the valve YAML, e.g. "
                         "spool.spring_preload,calibration.net_area or fluid.bulk_modulus=5e8:2e9 (bounds optional)")
+    p.add_argument("--config", type=Path, default=argparse.SUPPRESS, metavar="FILE",
+                   help="valve YAML to start from (as pcv-sim --config; default: the shipped config/valve.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FITTED.yaml", help="fitted valve YAML to write")
     p.add_argument("--model", choices=("simplified", "full"), default="simplified",
                    help="simplified: the emulator's model (default); full: with damping chamber (slower)")
@@ -75,8 +79,14 @@ def run(args: argparse.Namespace) -> int:
                        max_evaluations=args.max_evaluations, progress=_progress if tty else None)
     if tty:
         sys.stderr.write("\n")
-    source = Path(args.config) if args.config is not None else _installed_default()
-    text = fitted_yaml(source.read_text("utf-8"), result, [str(b) for b in args.bags])
+    source = Path(args.config) if args.config is not None else DEFAULT_CONFIG
+    if source.is_file():
+        source_text = source.read_text("utf-8")
+    else:  # an ament install without the source tree: the loaded values, without comments
+        source_text = yaml.safe_dump(params_to_mapping(params_from(args)), sort_keys=False)
+    overrides = {} if args.damping is None else \
+        {"spool.viscous_friction_simplified": params.spool.viscous_friction_simplified}
+    text = fitted_yaml(source_text, result, [str(b) for b in args.bags], overrides)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(text, "utf-8")
     print(f"wrote {args.output}", file=sys.stderr)

@@ -78,3 +78,19 @@ def test_calibrate_not_converged_exits_1(rig_bag: Path, tmp_path: Path, capsys: 
                  "--solver", "fast", "-o", str(tmp_path / "f.yaml")]) == 1
     assert "did not converge" in capsys.readouterr().err
     assert (tmp_path / "f.yaml").exists()
+
+
+def test_calibrate_config_after_the_command_and_damping(rig_bag: Path, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "mine.yaml"
+    src.write_text((Path(__file__).resolve().parents[2] / "config" / "valve.yaml").read_text()
+                   .replace("spring_preload: 2.0 ", "spring_preload: 1.8 "))
+    out = tmp_path / "f.yaml"
+    assert main(["calibrate", str(rig_bag), "--config", str(src), "--fit", "spool.spring_preload", "--damping",
+                 "paper", "--solver", "fast", "--signals", "pressure", "--max-evaluations", "30", "-o", str(out),
+                 "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["parameters"][0]["initial"] == 1.8                     # started from --config
+    fitted = load_params(out)
+    assert fitted.spool.viscous_friction_simplified == 223.6            # the damping it was fitted with
+    assert data["in_force"]["damping_choice"] == "paper"
