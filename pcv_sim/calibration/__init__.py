@@ -9,7 +9,7 @@ from pcv_sim.calibration.fit import (
     FitParameter,
     SignalFit,
     calibrate,
-    corrected_recording,
+    first_order,
     fit_parameter,
     noise_level,
 )
@@ -24,7 +24,7 @@ __all__ = [
     "FitParameter",
     "SignalFit",
     "calibrate",
-    "corrected_recording",
+    "first_order",
     "fit_parameter",
     "noise_level",
     "write_rig_csv",

@@ -1,10 +1,14 @@
 """Fit named valve parameters to recorded bags: bounded, robust nonlinear least squares.
 
 The model (``run_model``, the same engine as ``replay``) is driven by each recording's inputs.
-Each measured output y_m of bag b is compared with the model's y through a sensor with a lag
-tau_r (per signal, shared by the bags: one rig) and an offset c_br (per signal and bag):
+Each measured output y_m of bag b is compared with the model's y through a sensor with a delay
+tau_r and a first-order time constant T_r (per signal, shared by the bags: one rig) and an
+offset c_br (per signal and bag):
 
-    y_m(t) = y(t - tau_r) + c_br + noise,      residual = (y(t - tau_r) + c_br - y_m(t)) / sigma_br
+    y_m(t) = F_T[y](t - tau_r) + c_br + noise,   residual = (F_T[y](t - tau_r) + c_br - y_m(t)) / sigma_br
+
+F_T is the first-order low pass T dy_f/dt = y - y_f (:func:`first_order`; T = 0: none), so a
+sensor that lags by a dead time, by a time constant, or both is described.
 
 sigma_br is the noise level of the recording, estimated from its sample-to-sample differences
 (:func:`noise_level`; at least 1e-3 of the signal's span, so a noiseless or quantised signal does
@@ -15,7 +19,7 @@ with f_scale = 3 sigma, so broken samples and spikes do not pull the fit).
 
 Jacobian: forward differences of the model for theta (one simulation per parameter; the fixed-step
 stepper makes the outputs smooth in theta), analytic for the nuisance parameters
-(d/dtau = -dy/dt, d/dc = 1).
+(d/dtau = -dy/dt, d/dc = 1; d/dT by a forward difference of the filter, which needs no run).
 
 Intervals: cov = s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) of the weighted residuals, inflated
 by (1 + rho) / (1 - rho) where rho > 0 is the lag-1 autocorrelation of the residuals (what is left
@@ -42,7 +46,7 @@ from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.io.topics import OUTPUT_ROLES
 from pcv_sim.params import ValveParams, replace_param
 from pcv_sim.replay.errors import ReplayError
-from pcv_sim.replay.recording import Recording, Series
+from pcv_sim.replay.recording import Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
 
 __all__ = [
@@ -53,15 +57,17 @@ __all__ = [
     "Estimate",
     "SignalFit",
     "calibrate",
-    "corrected_recording",
+    "first_order",
     "fit_parameter",
     "noise_level",
 ]
 
 _NS = 1_000_000_000
 CORRELATION_LIMIT = 0.95
-#: Default sensor-lag bounds (s): a sensor cannot answer before the valve does, by more than a sample.
+#: Default sensor-delay bounds (s): a sensor cannot answer before the valve does, by more than a sample.
 LAG_BOUNDS = (-0.002, 0.05)
+#: Default bounds of the sensor's first-order time constant (s).
+TIME_CONSTANT_BOUNDS = (0.0, 0.03)
 _FD_STEP = 1e-3          # relative forward-difference step of the valve parameters
 _Z95 = 1.959963984540054
 
@@ -147,6 +153,24 @@ def fit_parameter(params: ValveParams, spec: str) -> FitParameter:
     return FitParameter(key, x0, lo, hi, f.metadata["unit"])
 
 
+def first_order(t: npt.NDArray[np.float64], u: npt.NDArray[np.float64], tau: float) -> npt.NDArray[np.float64]:
+    """A first-order sensor, T dy/dt = u - y, started at rest (y(t0) = u(t0)), exact for u
+    piecewise linear between the samples t (s, increasing, any spacing): with a = exp(-h/T) and
+    s the slope over h, y_k = u_k - s T + (y_{k-1} - u_{k-1} + s T) a. T <= 0 returns u."""
+    if tau <= 0.0 or len(u) < 2:
+        return np.asarray(u, dtype=float)
+    h = np.diff(t)
+    a = np.exp(-h / tau)
+    b = np.diff(u) / h * tau * (a - 1.0)     # w_k = y_k - u_k obeys w_k = a w_{k-1} + b
+    w = np.empty(len(u))
+    w[0] = 0.0
+    acc = 0.0
+    for k in range(1, len(u)):
+        acc = a[k - 1] * acc + b[k - 1]
+        w[k] = acc
+    return np.asarray(u, dtype=float) + w
+
+
 def noise_level(values: npt.NDArray[np.float64]) -> float:
     """The white-noise standard deviation of a sampled signal, from its sample-to-sample
     differences: 1.4826 MAD(diff y) / sqrt(2) (robust: steps and slopes barely move it)."""
@@ -201,7 +225,8 @@ class CalibrationResult:
     params: ValveParams
     initial_params: ValveParams
     parameters: tuple[Estimate, ...]
-    lags: tuple[Estimate, ...]
+    lags: tuple[Estimate, ...]               # sensor delays
+    time_constants: tuple[Estimate, ...]     # sensors' first-order time constants
     offsets: tuple[Estimate, ...]
     correlation: npt.NDArray[np.float64]     # among the fitted valve parameters
     signals: tuple[SignalFit, ...]
@@ -226,6 +251,7 @@ class CalibrationResult:
             "residual_autocorrelation": self.autocorrelation,
             "parameters": [e.as_dict() for e in self.parameters],
             "sensor_lags_s": [e.as_dict() for e in self.lags],
+            "sensor_time_constants_s": [e.as_dict() for e in self.time_constants],
             "sensor_offsets": [e.as_dict() for e in self.offsets],
             "correlation": {"keys": [e.name for e in self.parameters], "matrix": self.correlation.tolist()},
             "signals": [dataclasses.asdict(s) for s in self.signals],
@@ -248,16 +274,6 @@ def _timeline(rec: Recording, params: ValveParams) -> InputTimeline:
     return tl
 
 
-def corrected_recording(rec: Recording, lags: Mapping[str, float], offsets: Mapping[str, float]) -> Recording:
-    """The recording with the sensors' lag and offset taken out: y(t - tau) + c -> y(t)."""
-    measured = {}
-    for role, s in rec.measured.items():
-        t = s.t_ns - int(round(lags.get(role, 0.0) * _NS))
-        keep = t >= 0
-        measured[role] = Series(role, s.topic, t[keep].astype(np.int64), s.value[keep] - offsets.get(role, 0.0))
-    return dataclasses.replace(rec, measured=measured)
-
-
 def calibrate(
     recordings: Sequence[Recording],
     params: ValveParams,
@@ -267,6 +283,7 @@ def calibrate(
     solver: Solver = "auto",
     roles: Sequence[str] | None = None,
     lag_bounds: tuple[float, float] | None = LAG_BOUNDS,
+    time_constant_bounds: tuple[float, float] | None = TIME_CONSTANT_BOUNDS,
     fit_offsets: bool = True,
     max_evaluations: int = 40,
     grid_step: float = 1e-4,
@@ -275,7 +292,8 @@ def calibrate(
     """Fit ``fit`` (and each signal's sensor lag and offset) to ``recordings``; see the module doc.
 
     ``roles``: the outputs to fit (default: every output the bags have). ``lag_bounds=None``
-    fixes the lags at 0, ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
+    fixes the delays at 0, ``time_constant_bounds=None`` the sensors' time constants,
+    ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
     also sampled on this grid from 0.5 ms before to 1.5 ms after each input change, for the lagged
     comparison. ``progress(evaluation, cost,
     elapsed_s)`` is called after each model evaluation.
@@ -315,15 +333,19 @@ def calibrate(
         dense = (jumps[:, None] + around[None, :]).ravel()
         dense = dense[(dense >= 0) & (dense <= end)]
         sample_ns.append(np.unique(np.concatenate(times + [dense])))
-    lag_roles = sorted({d.role for d in data}, key=OUTPUT_ROLES.index) if lag_bounds is not None else []
-    n_theta, n_lag = len(fit), len(lag_roles)
+    all_roles = sorted({d.role for d in data}, key=OUTPUT_ROLES.index)
+    lag_roles = all_roles if lag_bounds is not None else []
+    tc_roles = all_roles if time_constant_bounds is not None else []
+    n_theta, n_lag, n_tc = len(fit), len(lag_roles), len(tc_roles)
     n_off = len(data) if fit_offsets else 0
-    # Internal coordinates: theta / scale, lag in ms, offset in sigma.
-    z0 = np.concatenate([[p.initial / p.scale for p in fit], np.zeros(n_lag), np.zeros(n_off)])
-    lo = np.concatenate([[p.lower / p.scale for p in fit],
-                         np.full(n_lag, (lag_bounds or (0, 0))[0] * 1e3), np.full(n_off, -np.inf)])
-    hi = np.concatenate([[p.upper / p.scale for p in fit],
-                         np.full(n_lag, (lag_bounds or (0, 0))[1] * 1e3), np.full(n_off, np.inf)])
+    n_sensor = n_lag + n_tc
+    # Internal coordinates: theta / scale, delay and time constant in ms, offset in sigma.
+    lb, tb = lag_bounds or (0.0, 0.0), time_constant_bounds or (0.0, 0.0)
+    z0 = np.concatenate([[p.initial / p.scale for p in fit], np.zeros(n_sensor), np.zeros(n_off)])
+    lo = np.concatenate([[p.lower / p.scale for p in fit], np.full(n_lag, lb[0] * 1e3),
+                         np.full(n_tc, tb[0] * 1e3), np.full(n_off, -np.inf)])
+    hi = np.concatenate([[p.upper / p.scale for p in fit], np.full(n_lag, lb[1] * 1e3),
+                         np.full(n_tc, tb[1] * 1e3), np.full(n_off, np.inf)])
     z0 = np.clip(z0, lo, hi)
     counts = {"evaluations": 0, "simulations": 0}
     start = time.perf_counter()
@@ -354,20 +376,24 @@ def calibrate(
             outs.append(dict(run.outputs))
         return outs
 
-    def shifted(runs: list[dict[str, npt.NDArray[np.float64]]], d: _Data, lag: float) -> npt.NDArray[np.float64]:
-        grid = sample_ns[d.bag].astype(np.float64) / _NS
-        y = runs[d.bag][d.role]
-        return np.interp(d.t_ns / _NS - lag, grid, y)
+    grids = [ns.astype(np.float64) / _NS for ns in sample_ns]
 
-    def parts(z: npt.NDArray[np.float64]) -> tuple[dict[str, float], list[float]]:
+    def sensed(runs: list[dict[str, npt.NDArray[np.float64]]], d: _Data, lag: float,
+               tc: float) -> npt.NDArray[np.float64]:
+        """The model as the sensor reports it at the measured times (before the offset)."""
+        y = first_order(grids[d.bag], runs[d.bag][d.role], tc)
+        return np.interp(d.t_ns / _NS - lag, grids[d.bag], y)
+
+    def parts(z: npt.NDArray[np.float64]) -> tuple[dict[str, float], dict[str, float], list[float]]:
         lags = {r: float(z[n_theta + k]) * 1e-3 for k, r in enumerate(lag_roles)}
-        offs = [float(z[n_theta + n_lag + k]) * d.sigma if fit_offsets else 0.0 for k, d in enumerate(data)]
-        return lags, offs
+        tcs = {r: float(z[n_theta + n_lag + k]) * 1e-3 for k, r in enumerate(tc_roles)}
+        offs = [float(z[n_theta + n_sensor + k]) * d.sigma if fit_offsets else 0.0 for k, d in enumerate(data)]
+        return lags, tcs, offs
 
     def residuals(z: npt.NDArray[np.float64], runs: list[dict[str, npt.NDArray[np.float64]]]) -> npt.NDArray[np.float64]:
-        lags, offs = parts(z)
-        return np.concatenate([(shifted(runs, d, lags.get(d.role, 0.0)) + offs[k] - d.value) / d.sigma
-                               for k, d in enumerate(data)])
+        lags, tcs, offs = parts(z)
+        return np.concatenate([(sensed(runs, d, lags.get(d.role, 0.0), tcs.get(d.role, 0.0)) + offs[k] - d.value)
+                               / d.sigma for k, d in enumerate(data)])
 
     cache: dict[str, Any] = {}
 
@@ -395,16 +421,28 @@ def calibrate(
             zk = z.copy()
             zk[k] += h
             cols.append((residuals(zk, simulate(valve(zk))) - r0) / h)
-        lags, _ = parts(z)
-        for j, role in enumerate(lag_roles):
+        lags, tcs, _ = parts(z)
+        for role in lag_roles:
             col = np.zeros_like(r0)
             pos = 0
             for d in data:
                 n = len(d.t_ns)
                 if d.role == role:
-                    grid = sample_ns[d.bag].astype(np.float64) / _NS
-                    slope = np.gradient(base_runs[d.bag][d.role], grid)
+                    grid = grids[d.bag]
+                    slope = np.gradient(first_order(grid, base_runs[d.bag][d.role], tcs.get(role, 0.0)), grid)
                     col[pos:pos + n] = -np.interp(d.t_ns / _NS - lags[role], grid, slope) * 1e-3 / d.sigma
+                pos += n
+            cols.append(col)
+        for role in tc_roles:
+            col = np.zeros_like(r0)
+            pos = 0
+            h_ms = 1e-2   # forward step of the time constant, ms
+            for d in data:
+                n = len(d.t_ns)
+                if d.role == role:
+                    lag, tc = lags.get(role, 0.0), tcs[role]
+                    col[pos:pos + n] = (sensed(base_runs, d, lag, tc + h_ms * 1e-3)
+                                        - sensed(base_runs, d, lag, tc)) / h_ms / d.sigma
                 pos += n
             cols.append(col)
         if fit_offsets:
@@ -431,16 +469,19 @@ def calibrate(
     inflation = (1.0 + rho) / (1.0 - rho) if rho > 0 else 1.0
     cov_z = s2 * inflation * np.linalg.pinv(J.T @ J)
     sd_z = np.sqrt(np.clip(np.diag(cov_z), 0.0, None))
-    scales = np.concatenate([[p.scale for p in fit], np.full(n_lag, 1e-3), [d.sigma for d in data][:n_off]])
+    scales = np.concatenate([[p.scale for p in fit], np.full(n_sensor, 1e-3), [d.sigma for d in data][:n_off]])
     sd = sd_z * scales
     estimates = tuple(Estimate(p.key, float(z[k] * p.scale), p.initial, _Z95 * float(sd[k]), p.unit, p.lower, p.upper)
                       for k, p in enumerate(fit))
     lag_est = tuple(Estimate(f"lag.{role}", float(z[n_theta + k]) * 1e-3, 0.0, _Z95 * float(sd[n_theta + k]), "s",
                              lag_bounds[0] if lag_bounds else 0.0, lag_bounds[1] if lag_bounds else 0.0)
                     for k, role in enumerate(lag_roles))
+    tc_est = tuple(Estimate(f"time_constant.{role}", float(z[n_theta + n_lag + k]) * 1e-3, 0.0,
+                            _Z95 * float(sd[n_theta + n_lag + k]), "s", tb[0], tb[1])
+                   for k, role in enumerate(tc_roles))
     units = {"pressure": "Pa", "current": "A", "spool_position": "m"}
-    off_est = tuple(Estimate(f"offset.{d.role}[{d.bag}]", float(z[n_theta + n_lag + k]) * d.sigma, 0.0,
-                             _Z95 * float(sd[n_theta + n_lag + k]), units.get(d.role, "SI"))
+    off_est = tuple(Estimate(f"offset.{d.role}[{d.bag}]", float(z[n_theta + n_sensor + k]) * d.sigma, 0.0,
+                             _Z95 * float(sd[n_theta + n_sensor + k]), units.get(d.role, "SI"))
                     for k, d in enumerate(data)) if fit_offsets else ()
     sd_theta = sd_z[:n_theta]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -450,17 +491,18 @@ def calibrate(
     runs_before = simulate(params)
     signals = []
     traces: dict[tuple[int, str], tuple[npt.NDArray[np.float64], ...]] = {}
-    lags, offs = parts(z)
+    lags, tcs, offs = parts(z)
     for k, d in enumerate(data):
-        before = shifted(runs_before, d, 0.0)
-        after = shifted(runs, d, lags.get(d.role, 0.0)) + offs[k]
+        before = sensed(runs_before, d, 0.0, 0.0)
+        after = sensed(runs, d, lags.get(d.role, 0.0), tcs.get(d.role, 0.0)) + offs[k]
         fb, fa = _fit(d.value, before), _fit(d.value, after)
         signals.append(SignalFit(str(recordings[d.bag].path), d.role, len(d.t_ns), d.sigma, fb[0], fa[0], fb[1], fa[1]))
         traces[(d.bag, d.role)] = (d.t_ns / _NS, d.value, before, after)
 
     warnings = _warnings(estimates, corr, lag_est)
     return CalibrationResult(
-        params=fitted, initial_params=params, parameters=estimates, lags=lag_est, offsets=off_est,
+        params=fitted, initial_params=params, parameters=estimates, lags=lag_est, time_constants=tc_est,
+        offsets=off_est,
         correlation=corr, signals=tuple(signals), model=model,
         solver=solver if solver != "auto" else ("radau" if model == "full" else "stepper"),
         evaluations=counts["evaluations"], simulations=counts["simulations"],

@@ -14,11 +14,13 @@ import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
 import yaml
 
+from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.calibration.fit import CalibrationError, CalibrationResult
 from pcv_sim.params import params_from_mapping
-from pcv_sim.replay.compare import DISPLAY, ReplayResult
+from pcv_sim.replay.compare import DISPLAY, Step
 
 __all__ = ["fitted_yaml", "render_html", "render_markdown", "render_text", "plot_fit", "step_rows"]
 
@@ -97,6 +99,9 @@ def _nuisance_rows(r: CalibrationResult) -> list[list[str]]:
     rows = []
     for e in r.lags:
         rows.append([f"sensor lag, {e.name[4:]}", "ms", _f(e.value * 1e3, 4), f"+-{_f(e.half_width_95 * 1e3, 2)}"])
+    for e in r.time_constants:
+        rows.append([f"sensor time constant, {e.name[14:]}", "ms", _f(e.value * 1e3, 4),
+                     f"+-{_f(e.half_width_95 * 1e3, 2)}"])
     for e in r.offsets:
         role = e.name.split(".")[1].split("[")[0]
         d = DISPLAY.get(role)
@@ -115,21 +120,27 @@ def _signal_rows(r: CalibrationResult) -> list[list[str]]:
     return rows
 
 
-def step_rows(before: ReplayResult, after: ReplayResult) -> list[list[str]]:
-    """Per step and signal: steady state measured / model before / after, and rise times."""
+def step_rows(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[list[str]]:
+    """Per step and signal of bag ``bag``: steady state and rise time, measured / model before /
+    model after (the sensor model applied: what the fit compared), in the measured band."""
     rows = []
-    for sb, sa in zip(before.steps, after.steps):
-        for role in sb.measured:
-            if role not in sa.measured:
+    for st in steps:
+        for role in DISPLAY:
+            if (bag, role) not in r.traces:
+                continue
+            t, meas, before, after = r.traces[(bag, role)]
+            inside = (t >= st.t_start) & (t <= st.t_end)
+            if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
                 continue
             d = DISPLAY[role]
-            mb, pb, pa = sb.measured[role], sb.model[role], sa.model[role]
-            ma = sa.measured[role]
+            m = step_metrics(t, meas, st.t_start, st.t_end, band_min=d.band_min)
+            b, a = (step_metrics(t, y, st.t_start, st.t_end, band_min=max(d.band_min, m.band)) for y in (before, after))
             rows.append([
-                str(sb.step.index), f"{sb.step.duty_from:g} -> {sb.step.duty_to:g}", d.label,
-                f"{_f(mb.final * d.scale, 5)} / {_f(pb.final * d.scale, 5)} / {_f(pa.final * d.scale, 5)}",
-                f"{_f((pb.final - mb.final) * d.scale, 3)} -> {_f((pa.final - ma.final) * d.scale, 3)}",
-                f"{_f(mb.rise_time * 1e3, 3)} / {_f(pb.rise_time * 1e3, 3)} / {_f(pa.rise_time * 1e3, 3)}",
+                str(st.index), f"{st.duty_from:g} -> {st.duty_to:g}", d.label,
+                f"{_f(m.final * d.scale, 5)} / {_f(b.final * d.scale, 5)} / {_f(a.final * d.scale, 5)}",
+                f"{_f((b.final - m.final) * d.scale, 3)} -> {_f((a.final - m.final) * d.scale, 3)}",
+                f"{_f(m.rise_time * 1e3, 3)} / {_f(b.rise_time * 1e3, 3)} / {_f(a.rise_time * 1e3, 3)}",
+                f"{_f(m.settling_time * 1e3, 3)} / {_f(b.settling_time * 1e3, 3)} / {_f(a.settling_time * 1e3, 3)}",
             ])
     return rows
 
@@ -138,7 +149,7 @@ _PARAM_HEAD = ["parameter", "unit", "start", "fitted", "95 % interval", "range",
 _NUIS_HEAD = ["nuisance", "unit", "fitted", "95 % interval"]
 _SIG_HEAD = ["bag", "signal", "noise sigma", "fit % before", "fit % after", "RMSE before", "RMSE after"]
 _STEP_HEAD = ["step", "duty", "signal", "steady state meas / before / after", "steady-state error before -> after",
-              "rise [ms] meas / before / after"]
+              "rise [ms] meas / before / after", "settling [ms] meas / before / after"]
 
 
 def _corr_rows(r: CalibrationResult) -> list[list[str]]:
@@ -181,8 +192,9 @@ def _intro(r: CalibrationResult, damping: str) -> list[str]:
         f"{r.evaluations} evaluations, {r.simulations} simulations, {r.elapsed_s:.1f} s; {r.status}",
         f"Residual lag-1 autocorrelation {r.autocorrelation:.3f}: intervals inflated by "
         f"{(1 + r.autocorrelation) / (1 - r.autocorrelation):.2f} in variance.",
-        "Fit % = NRMSE fit, 100 (1 - ||y_model - y|| / ||y - mean y||). 'after' compares with the sensor lag and "
-        "offset applied to the model; steps: 'after' on the recording with lag and offset taken out.",
+        "Fit % = NRMSE fit, 100 (1 - ||y_model - y|| / ||y - mean y||). 'after' is the fitted model seen "
+        "through the fitted sensor (delay, time constant, offset), as the fit compared it; 'before' the "
+        "starting model without a sensor model, as replay compares it.",
     ]
 
 

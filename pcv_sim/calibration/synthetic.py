@@ -15,6 +15,7 @@ from typing import Literal
 
 import numpy as np
 
+from pcv_sim.calibration.fit import first_order
 from pcv_sim.io.topics import CURRENT, PRESSURE, SPOOL_POSITION
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.simulate import InputTimeline, run_model
@@ -41,11 +42,13 @@ def write_rig_csv(
     seed: int = 0,
     model: Literal["full", "simplified"] = "simplified",
     load_flows_lpm: Sequence[float] | None = None,
+    time_constant_s: Mapping[str, float] | None = None,
 ) -> Path:
     """Write a CSV of the model driven by ``duties`` (each held ``hold_s``), as a rig logs it.
 
     ``lag_s``, ``noise`` (standard deviation) and ``offset`` per output role, SI units: the
-    logged value at t is y(t - lag) + offset + noise. ``load_flows_lpm`` (one per duty, L/min)
+    logged value at t is F[y](t - lag) + offset + noise, F a first-order sensor of
+    ``time_constant_s`` (per role, default none). ``load_flows_lpm`` (one per duty, L/min)
     adds a load-flow column: static pressure-flow points where the inputs hold. Returns the path.
     """
     lag_s = dict(lag_s or {})
@@ -61,13 +64,18 @@ def write_rig_csv(
     tl = InputTimeline(change_ns, np.asarray(duties, float), flows,
                        np.full(len(duties), params.circuit.supply_pressure))
     # The model at every sample time and at every lagged one (before 0 it rests).
+    tcs = dict(time_constant_s or {})
     lag_ns = {r: int(round(lag_s.get(r, 0.0) * _NS)) for r in _DISPLAY}
-    want = np.unique(np.concatenate([np.clip(t_ns - lag_ns[r], 0, None) for r in _DISPLAY]))
+    times = [np.clip(t_ns - lag_ns[r], 0, None) for r in _DISPLAY]
+    if tcs:  # the filter integrates the model exactly only between close samples: a 0.1 ms grid
+        times.append(np.arange(0, int(t_ns[-1]) + 1, 100_000, dtype=np.int64))
+    want = np.unique(np.concatenate(times))
     run = run_model(params, model, tl, want)
     segment = np.searchsorted(change_ns, t_ns, side="right") - 1
     cols = [t_ns / _NS + time_origin_s, np.asarray(duties, float)[segment] * 100.0]
     for role, scale in _DISPLAY.items():
-        y = run.outputs[role][np.searchsorted(want, np.clip(t_ns - lag_ns[role], 0, None))]
+        sensed = first_order(want / _NS, run.outputs[role], tcs.get(role, 0.0))   # 0.1 ms grid when filtered
+        y = sensed[np.searchsorted(want, np.clip(t_ns - lag_ns[role], 0, None))]
         y = y + offset.get(role, 0.0) + rng.normal(0.0, noise.get(role, 0.0), n)
         cols.append(y * scale)
     header = RIG_HEADER

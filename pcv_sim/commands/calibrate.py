@@ -14,12 +14,13 @@ from pathlib import Path
 import yaml
 
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
-from pcv_sim.calibration import CalibrationError, calibrate, corrected_recording, fit_parameter
+from pcv_sim.calibration import CalibrationError, calibrate, fit_parameter
+from pcv_sim.calibration.fit import LAG_BOUNDS, TIME_CONSTANT_BOUNDS
 from pcv_sim.calibration.report import fitted_yaml, plot_fit, render_html, render_markdown, render_text, step_rows
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
 from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
-from pcv_sim.replay import load_recording, parse_topic_map, replay
+from pcv_sim.replay import detect_steps, input_timeline, load_recording, parse_topic_map
 
 NAME = "calibrate"
 HELP = "fit valve parameters (e.g. spool.spring_preload) to recorded bags; write the fitted valve YAML"
@@ -41,7 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="simplified model's damping to start from (default: the config's)")
     p.add_argument("--signals", metavar="ROLES", help="outputs to fit, e.g. pressure,current (default: all recorded)")
     p.add_argument("--topic", action="append", metavar="ROLE=/TOPIC", help="as for replay; repeatable")
-    p.add_argument("--no-lag", action="store_true", help="do not estimate sensor lags (fix them at 0)")
+    p.add_argument("--sensor", choices=("both", "delay", "first-order", "none"), default="both",
+                   help="sensor lag model estimated per signal: a delay, a first-order time constant, both "
+                        "(default) or none")
     p.add_argument("--no-offset", action="store_true", help="do not estimate sensor offsets (fix them at 0)")
     p.add_argument("--max-evaluations", type=int, default=40, metavar="N",
                    help="model evaluations the optimiser may use (default: %(default)s)")
@@ -75,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
     recordings = [load_recording(b, topic_map) for b in args.bags]
     tty = sys.stderr.isatty()
     result = calibrate(recordings, params, fit, model=args.model, solver=args.solver, roles=roles,
-                       lag_bounds=None if args.no_lag else (-0.002, 0.05), fit_offsets=not args.no_offset,
+                       lag_bounds=LAG_BOUNDS if args.sensor in ("both", "delay") else None,
+                       time_constant_bounds=TIME_CONSTANT_BOUNDS if args.sensor in ("both", "first-order") else None,
+                       fit_offsets=not args.no_offset,
                        max_evaluations=args.max_evaluations, progress=_progress if tty else None)
     if tty:
         sys.stderr.write("\n")
@@ -94,12 +99,10 @@ def run(args: argparse.Namespace) -> int:
 
     steps = []
     if args.report is not None or args.json:
-        lags = {e.name[4:]: e.value for e in result.lags}
         for b, rec in enumerate(recordings):
-            offsets = {e.name.split(".")[1].split("[")[0]: e.value for e in result.offsets if e.name.endswith(f"[{b}]")}
-            before = replay(rec, params, model=args.model, solver=args.solver)
-            after = replay(corrected_recording(rec, lags, offsets), result.params, model=args.model, solver=args.solver)
-            steps.append((str(args.bags[b]), step_rows(before, after)))
+            timeline, _ = input_timeline(rec.inputs, 0.0, params.circuit.supply_pressure)
+            found, _ = detect_steps(timeline, rec.end_ns)
+            steps.append((str(args.bags[b]), step_rows(result, b, found)))
     if args.report is not None:
         pngs = plot_fit(result, [str(b) for b in args.bags])
         args.report.parent.mkdir(parents=True, exist_ok=True)

@@ -30,7 +30,7 @@ def test_calibrate_writes_a_config_replay_accepts(rig_bag: Path, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "fitted.yaml"
     report = tmp_path / "report.html"
-    assert main(["calibrate", str(rig_bag), "--fit", "spool.spring_preload", "-o", str(out),
+    assert main(["calibrate", str(rig_bag), "--fit", "spool.spring_preload", "-o", str(out), "--solver", "fast",
                  "--report", str(report), "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     (est,) = data["parameters"]
