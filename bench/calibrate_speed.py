@@ -54,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
             got = "; ".join(f"{e.name} {e.value:.5g} ({TRUTH.get(e.name, float('nan')):.4g}) +- {e.half_width_95:.2g}"
                             for e in res.parameters)
             pres = next(s for s in res.signals if s.role == "pressure")
-            print(f"| {args.model} ({solver}) | {len(fit)} + {len(res.lags)} lags + {len(res.offsets)} offsets | "
+            print(f"| {args.model} ({solver}) | {len(fit)} + {len(res.lags)} delays + {len(res.time_constants)} time "
+                  f"constants + {len(res.offsets)} offsets | "
                   f"{wall:.1f} | {res.evaluations} | {res.simulations} | {got} | "
                   f"{pres.fit_before_percent:.2f} -> {pres.fit_after_percent:.2f} |")
             sys.stdout.flush()

@@ -303,3 +303,12 @@ def test_step_short_duration_warns_and_uses_the_static_solution(capsys: pytest.C
     # The steady state is the static one, not the window's end (the pressure is still rising there).
     assert short["metrics"]["pressure"]["final"] == rest.pressure
     assert short["metrics"]["pressure"]["settling_time"] is None
+
+
+def test_replay_states_damping_and_calibration(capsys: pytest.CaptureFixture[str]) -> None:
+    bag = str(Path(__file__).resolve().parent.parent / "bags" / "pcv_step_levels")
+    assert main(["replay", bag, "--model", "simplified", "--solver", "fast"]) == 0
+    assert "damping: equivalent (B + A_cc^2/K_d, R20)" in capsys.readouterr().out
+    data = run_json(capsys, "replay", bag, "--model", "simplified", "--solver", "fast")
+    assert data["in_force"]["calibration_kind"] == "net_area" and data["in_force"]["net_area_m2"] == 2.859e-6
+    assert all("band" in s["signals"]["pressure"]["measured"] for s in data["steps"])
