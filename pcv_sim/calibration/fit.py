@@ -291,6 +291,9 @@ def calibrate(
 ) -> CalibrationResult:
     """Fit ``fit`` (and each signal's sensor lag and offset) to ``recordings``; see the module doc.
 
+    An empty ``fit`` estimates the sensors only: how well the valve as configured explains the
+    recordings once the rig's lag and offset are taken out (a pass/fail check of a valve).
+
     ``roles``: the outputs to fit (default: every output the bags have). ``lag_bounds=None``
     fixes the delays at 0, ``time_constant_bounds=None`` the sensors' time constants,
     ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
@@ -303,8 +306,6 @@ def calibrate(
     keys = [p.key for p in fit]
     if len(set(keys)) != len(keys):
         raise CalibrationError(f"--fit names a parameter twice: {keys}")
-    if not fit:
-        raise CalibrationError("nothing to fit: name at least one parameter with --fit")
     wanted = tuple(roles) if roles else OUTPUT_ROLES
     data: list[_Data] = []
     for b, rec in enumerate(recordings):
@@ -339,9 +340,14 @@ def calibrate(
     n_theta, n_lag, n_tc = len(fit), len(lag_roles), len(tc_roles)
     n_off = len(data) if fit_offsets else 0
     n_sensor = n_lag + n_tc
+    if not fit and not n_sensor + n_off:
+        raise CalibrationError("nothing to fit: name a parameter with --fit, or estimate the sensors (lag, offset)")
     # Internal coordinates: theta / scale, delay and time constant in ms, offset in sigma.
     lb, tb = lag_bounds or (0.0, 0.0), time_constant_bounds or (0.0, 0.0)
-    z0 = np.concatenate([[p.initial / p.scale for p in fit], np.zeros(n_sensor), np.zeros(n_off)])
+    # The time constants start inside their bounds (0.5 ms): from a start on the bound, the
+    # reflective trust region shrinks every step to the distance to that bound and stops at once.
+    z0 = np.concatenate([[p.initial / p.scale for p in fit], np.zeros(n_lag),
+                         np.full(n_tc, min(0.5, 0.5 * (tb[0] + tb[1]) * 1e3)), np.zeros(n_off)])
     lo = np.concatenate([[p.lower / p.scale for p in fit], np.full(n_lag, lb[0] * 1e3),
                          np.full(n_tc, tb[0] * 1e3), np.full(n_off, -np.inf)])
     hi = np.concatenate([[p.upper / p.scale for p in fit], np.full(n_lag, lb[1] * 1e3),
@@ -456,7 +462,7 @@ def calibrate(
 
     r_start = fun(z0)
     cost_before = 0.5 * float(r_start @ r_start)
-    sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac",
+    sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=1.0,
                         max_nfev=max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8)
     z = sol.x
     fitted = valve(z)
@@ -483,10 +489,11 @@ def calibrate(
     off_est = tuple(Estimate(f"offset.{d.role}[{d.bag}]", float(z[n_theta + n_sensor + k]) * d.sigma, 0.0,
                              _Z95 * float(sd[n_theta + n_sensor + k]), units.get(d.role, "SI"))
                     for k, d in enumerate(data)) if fit_offsets else ()
-    sd_theta = sd_z[:n_theta]
     with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_z[:n_theta, :n_theta] / np.outer(sd_theta, sd_theta)
-    corr = np.nan_to_num(corr, nan=0.0)
+        corr_all = np.nan_to_num(cov_z / np.outer(sd_z, sd_z), nan=0.0)
+    corr = corr_all[:n_theta, :n_theta]
+    nuisance_names = ([f"the sensor delay of {r}" for r in lag_roles] + [f"the sensor time constant of {r}" for r in tc_roles]
+                      + [f"the {d.role} offset of bag {d.bag}" for d in data][:n_off])
 
     runs_before = simulate(params)
     signals = []
@@ -500,6 +507,14 @@ def calibrate(
         traces[(d.bag, d.role)] = (d.t_ns / _NS, d.value, before, after)
 
     warnings = _warnings(estimates, corr, lag_est)
+    for i, e in enumerate(estimates):
+        for j, name in enumerate(nuisance_names):
+            c = corr_all[i, n_theta + j]
+            if abs(c) > CORRELATION_LIMIT:
+                warnings.append(f"{e.name} is correlated with {name} (r = {c:+.3f}): the recordings tell them "
+                                f"apart only through the other signals and the dynamics, and its interval is "
+                                f"mostly that trade; if the sensor is known (e.g. zeroed), fix it (--no-offset, "
+                                f"--sensor) to narrow it")
     return CalibrationResult(
         params=fitted, initial_params=params, parameters=estimates, lags=lag_est, time_constants=tc_est,
         offsets=off_est,

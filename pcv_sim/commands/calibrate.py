@@ -30,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("bags", type=Path, nargs="+", metavar="BAG", help="rosbag2 directories or .mcap files")
     p.add_argument("--fit", action="append", required=True, metavar="KEY[=LO:HI][,KEY...]",
                    help="valve parameters to fit, by their path in the valve YAML, e.g. "
-                        "spool.spring_preload,calibration.net_area or fluid.bulk_modulus=5e8:2e9 (bounds optional)")
+                        "spool.spring_preload,calibration.net_area or fluid.bulk_modulus=5e8:2e9 (bounds optional); "
+                        "none: estimate only the sensors, to check how well the configured valve explains the bags")
     p.add_argument("--config", type=Path, default=argparse.SUPPRESS, metavar="FILE",
                    help="valve YAML to start from (as pcv-sim --config; default: the shipped config/valve.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FITTED.yaml", help="fitted valve YAML to write")
@@ -73,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
                 raise CalibrationError(f"--signals {name!r}: accepted are pressure, current, position (spool_position)")
             roles.append(role)
     params = with_damping(params_from(args), args.damping)
-    fit = [fit_parameter(params, spec) for item in args.fit for spec in item.split(",") if spec.strip()]
+    specs = [spec for item in args.fit for spec in item.split(",") if spec.strip()]
+    if specs == ["none"]:  # the sensors only: does the configured valve explain the recordings?
+        specs = []
+    fit = [fit_parameter(params, spec) for spec in specs]
     topic_map = parse_topic_map(args.topic)
     recordings = [load_recording(b, topic_map) for b in args.bags]
     tty = sys.stderr.isatty()

@@ -50,7 +50,10 @@ def test_recovers_the_perturbation_within_its_interval(preload_fit) -> None:  # 
     assert abs(est.value - 2.6) <= est.half_width_95
     # The interval is informative: much narrower than the perturbation it found.
     assert est.half_width_95 < 0.2 * abs(est.value - est.initial)
-    assert preload_fit.status_code > 0 and not preload_fit.warnings
+    assert preload_fit.status_code > 0
+    # A preload shifts every steady pressure as a sensor offset does (see the test below): the
+    # report says so; nothing is reported as undetermined or inseparable.
+    assert [w for w in preload_fit.warnings if "pressure offset" not in w] == []
 
 
 def test_sensor_lag_and_offset_are_estimated(preload_fit) -> None:  # noqa: ANN001
@@ -141,7 +144,7 @@ def test_bad_setups_are_refused(preload_bag: Path) -> None:
     p0 = default_params()
     rec = load_recording(preload_bag)
     with pytest.raises(CalibrationError, match=r"nothing to fit"):
-        calibrate([rec], p0, [])
+        calibrate([rec], p0, [], lag_bounds=None, time_constant_bounds=None, fit_offsets=False)
     with pytest.raises(CalibrationError, match=r"no recording"):
         calibrate([], p0, [fit_parameter(p0, "spool.mass")])
     with pytest.raises(CalibrationError, match=r"names a parameter twice"):
@@ -197,3 +200,31 @@ def test_first_order_sensor_lag_is_recovered(tmp_path: Path) -> None:
     assert abs(est.value - 2.4) <= est.half_width_95
     tc = {e.name: e for e in res.time_constants}["time_constant.pressure"]
     assert abs(tc.value - 0.002) <= max(tc.half_width_95, 3e-4)
+
+
+def test_sensor_only_fit_separates_the_good_valve_from_the_wrong_one(tmp_path: Path) -> None:
+    """Replayed as recorded, sensor lag and offset hide which valve is right (the issue's 89 % vs
+    88 %). With the sensors estimated and no valve parameter fitted, the right valve's recording is
+    explained down to its noise, the wrong one's (a net area 3 % larger) is not."""
+    good = _rig_bag(tmp_path, default_params(), "good", seed=6)
+    wrong = _rig_bag(tmp_path, replace_param(default_params(), "calibration.net_area", 2.95e-6), "wrong", seed=7)
+    p0 = default_params()
+    fits = {}
+    for name, bag in (("good", good), ("wrong", wrong)):
+        res = calibrate([load_recording(bag)], p0, [], solver="fast")
+        assert res.parameters == () and res.lags
+        fits[name] = {s.role: s for s in res.signals}
+    good_p, wrong_p = fits["good"]["pressure"], fits["wrong"]["pressure"]
+    assert good_p.rmse_after == pytest.approx(NOISE["pressure"], rel=0.25)   # only the noise is left
+    assert wrong_p.rmse_after > 2.0 * good_p.rmse_after
+    assert wrong_p.fit_after_percent < good_p.fit_after_percent - 1.0
+
+
+def test_a_preload_looks_like_a_pressure_offset(preload_bag: Path) -> None:
+    """A spring preload is a constant force: at every steady state it shifts the pressure by
+    dF / A_net, as a pressure sensor's offset does. Fitted with the pressure alone (whose
+    dynamics tell the two apart only weakly), the report must say so."""
+    p0 = default_params()
+    res = calibrate([load_recording(preload_bag)], p0, [fit_parameter(p0, "spool.spring_preload")],
+                    roles=["pressure"], lag_bounds=None, time_constant_bounds=None, solver="fast")
+    assert any("spool.spring_preload is correlated with the pressure offset of bag 0" in w for w in res.warnings)
