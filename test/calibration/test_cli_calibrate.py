@@ -94,3 +94,11 @@ def test_calibrate_config_after_the_command_and_damping(rig_bag: Path, tmp_path:
     fitted = load_params(out)
     assert fitted.spool.viscous_friction_simplified == 223.6            # the damping it was fitted with
     assert data["in_force"]["damping_choice"] == "paper"
+
+
+def test_calibrate_sensors_only(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "same.yaml"
+    assert main(["calibrate", str(rig_bag), "--fit", "none", "--solver", "fast", "-o", str(out), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["parameters"] == [] and len(data["sensor_lags_s"]) == 3
+    assert load_params(out) == default_params()          # nothing fitted: the config as it was
