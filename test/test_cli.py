@@ -73,7 +73,8 @@ def test_step_json(capsys: pytest.CaptureFixture[str], model: ValveModel) -> Non
     m = data["metrics"]
     assert set(m) == {"pressure", "current", "spool_position"}
     for sig in m.values():
-        assert set(sig) == {"initial", "final", "rise_time", "overshoot_percent", "settling_time", "peak"}
+        assert set(sig) == {"initial", "final", "rise_time", "overshoot_percent", "settling_time", "peak", "band",
+                            "noise"}
     p = m["pressure"]
     # From the 50 % to the 70 % zero-flow equilibrium: ~72.7 -> ~122.5 bar (static analysis).
     assert p["initial"] == pytest.approx(zero_flow_equilibrium(model, 0.5).pressure, abs=0.01 * BAR)
@@ -115,12 +116,33 @@ def test_working_points_json(capsys: pytest.CaptureFixture[str]) -> None:
 def test_working_points_text(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["working-points"]) == 0
     out = capsys.readouterr().out
-    assert "As printed (net area 3.1e-06 m^2)" in out and "Calibrated (net area 2.859e-06 m^2)" in out
+    assert "As printed (net area 3.1e-06 m^2, preload 2 N)" in out
+    assert "Calibrated: damping: equivalent (B + A_cc^2/K_d, R20) 302.0 Ns/m; calibration: net_area (net area 2.859e-06 m^2)" in out
+    assert "P2 (1.490 A): force offset" in out
+
+
+def test_working_points_fit_and_write(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "v.yaml"
+    path.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8"), encoding="utf-8")
+    data = run_json(capsys, "--config", str(path), "working-points", "--fit", "--kind", "both", "--write")
+    fitted = data["fit"]["values"]
+    cfg = yaml.safe_load(path.read_text(encoding="utf-8"))
+    assert cfg["calibration"]["net_area"] == pytest.approx(fitted["calibration.net_area"], rel=1e-5)
+    assert cfg["spool"]["spring_preload"] == pytest.approx(fitted["spool.spring_preload"], rel=1e-5)
+    # Read back: the written config is in force, named "both".
+    again = run_json(capsys, "--config", str(path), "working-points")
+    assert again["in_force"]["calibration_kind"] == "both"
+    assert all(abs(p["pressure_error"]) < 0.05 * BAR for p in again["calibrated"]["points"])
+    assert main(["working-points", "--write"]) == 2
+    assert "--write needs --fit" in capsys.readouterr().err
 
 
 def test_linearize_json(capsys: pytest.CaptureFixture[str]) -> None:
     data = run_json(capsys, "linearize")
-    assert set(data) == {"P1", "P2"}
+    assert set(data) == {"P1", "P2", "in_force"}
+    state = data.pop("in_force")
+    assert (state["damping_choice"], state["calibration_kind"], state["coil"]) == ("equivalent", "net_area", "table")
+    assert [data[n]["current_A"] for n in ("P1", "P2")] == pytest.approx([1.5, 1.49], rel=1e-12)  # the table's
     assert data["P1"]["K_e"] > 0.0 > data["P2"]["K_e"]          # Sec. 5
     for point in data.values():
         assert point["stable"] is True
@@ -268,7 +290,8 @@ def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str],
     from pcv_sim.cli import build_parser
     from pcv_sim.commands import COMMANDS
 
-    required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"]}
+    required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"],
+                "calibrate": ["bag", "--fit", "spool.spring_preload", "-o", "out.yaml"]}
     parser = build_parser()
     names = [sys.modules[m].NAME for m in COMMANDS]
     for name in names:                      # every subcommand takes --config after its name
@@ -285,3 +308,45 @@ def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str],
     assert out["calibrated"]["net_area_m2"] == pytest.approx(3.1e-6, rel=1e-9)
     assert main(["linearize", "--config", str(tmp_path / "nope.yaml")]) == 2
     assert "cannot read parameter file" in capsys.readouterr().err
+
+def test_linearize_damping_choice(capsys: pytest.CaptureFixture[str]) -> None:
+    """Sec. 5: "positive, but low, phase margin" at P2: the paper's 223.6 Ns/m leaves a few degrees,
+    the equivalent damping (~300 Ns/m) ~10; the choice in force is named in text and JSON."""
+    paper = run_json(capsys, "linearize", "--damping", "paper")
+    equiv = run_json(capsys, "linearize", "--damping", "equivalent")
+    assert paper["in_force"]["damping_choice"] == "paper" and paper["in_force"]["damping_Ns_per_m"] == 223.6
+    assert equiv["in_force"]["damping_choice"] == "equivalent"
+    assert 0.0 < paper["P2"]["margins"]["phase_margin_deg"] < equiv["P2"]["margins"]["phase_margin_deg"]
+    assert main(["linearize", "--damping", "150"]) == 0
+    out = capsys.readouterr().out
+    assert "damping: custom 150.0 Ns/m" in out and "(UNSTABLE)" in out
+    # The unstable loop's gain margin is a real, negative number (was "inf dB at inf rad/s").
+    assert "gain margin -" in out and "inf dB" not in out
+    with pytest.raises(SystemExit) as info:  # argparse refuses it: exit 2
+        main(["linearize", "--damping", "soft"])
+    assert info.value.code == 2
+    assert "accepted are equivalent, paper or a number in Ns/m" in capsys.readouterr().err
+
+
+def test_step_short_duration_warns_and_uses_the_static_solution(capsys: pytest.CaptureFixture[str]) -> None:
+    full = run_json(capsys, "step", "--from", "0.5", "--to", "0.7")
+    assert full["warnings"] == [] and full["steady_state"] == "static solution"
+    assert full["in_force"]["damping_choice"] == "equivalent"
+    rest = zero_flow_equilibrium(ValveModel(default_params()), 0.7)
+    assert full["metrics"]["pressure"]["final"] == rest.pressure
+    assert main(["step", "--from", "0.5", "--to", "0.7", "--duration", "0.04", "--json"]) == 0
+    cap = capsys.readouterr()
+    short = strict_json(cap.out)
+    assert "ends before the response settles" in cap.err and "lengthen --duration" in cap.err
+    # The steady state is the static one, not the window's end (the pressure is still rising there).
+    assert short["metrics"]["pressure"]["final"] == rest.pressure
+    assert short["metrics"]["pressure"]["settling_time"] is None
+
+
+def test_replay_states_damping_and_calibration(capsys: pytest.CaptureFixture[str]) -> None:
+    bag = str(Path(__file__).resolve().parent.parent / "bags" / "pcv_step_levels")
+    assert main(["replay", bag, "--model", "simplified", "--solver", "fast"]) == 0
+    assert "damping: equivalent (B + A_cc^2/K_d, R20)" in capsys.readouterr().out
+    data = run_json(capsys, "replay", bag, "--model", "simplified", "--solver", "fast")
+    assert data["in_force"]["calibration_kind"] == "net_area" and data["in_force"]["net_area_m2"] == 2.859e-6
+    assert all("band" in s["signals"]["pressure"]["measured"] for s in data["steps"])

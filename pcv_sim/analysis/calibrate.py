@@ -1,43 +1,63 @@
-"""Working points: the model against the paper's table, and the fit of the one calibration constant.
+"""Working points: the model against the paper's table, and the fit of the shipped calibration.
 
-    python -m pcv_sim.analysis.calibrate            # report; fit calibration.net_area
-    python -m pcv_sim.analysis.calibrate --write    # ... and write it into config/valve.yaml
+`pcv-sim working-points` reports; `pcv-sim working-points --fit [--kind ...] [--write]` refits.
 
 The table gives (i, x, p) at two points on the 70 % curve but not their load flows, so each
 point is compared in two ways: the model's pressure with the spool at the table's x, and the
-model's x (on the table point's branch) at the table's pressure. The constant is fitted by
-least squares on the pressure errors at the table's x.
+model's x (on the table point's branch) at the table's pressure.
 
-Which constant: at each point, the imbalance can be expressed as the solenoid-force offset or
-as the net area that would make the table's (i, x, p) an equilibrium. `required_constants`
-computes both per point; the net areas the two points ask for agree to 0.7 %, the force
-offsets differ by 17 %, which is why the net area is the calibration (reading R21).
+Coil current: the table prints 1.50 A at P1 and 1.49 A at P2 at the same 70 % duty, and Sec. 6.1
+says the coil resistance was calculated at the stationary points to compensate for its variation
+(the coil warms). With ``coil="table"`` (the default) each point runs with its own resistance
+R_k = D V / i_k (5.600 ohm at P1, 5.638 ohm at P2), so the model drives the table's current; with
+``coil="config"`` both run at the config's resistance (1.500 A).
+
+Which constant closes the balance (`CalibrationKind`): at each point the imbalance can be
+expressed as a solenoid-force offset or as the net area that would make the table's (i, x, p) an
+equilibrium; `required_constants` computes both per point. ``net_area`` fits
+``calibration.net_area`` (the spring preload stays as printed); ``force_offset`` keeps the net
+area as printed and carries a constant force offset F (toward +x) in the spring preload
+(f_0 - F: Eq. 14's only constant force); ``both`` fits the two, which makes both table pressures
+exact. The fits minimise the squared pressure errors at the table's x.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
-from scipy.optimize import brentq, minimize_scalar
+import numpy as np
+from scipy.optimize import brentq, least_squares
 
+from pcv_sim.analysis.in_force import TABLE1_SPRING_PRELOAD
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS, WorkingPoint
 from pcv_sim.analysis.static import balance_pressure, static_point
+from pcv_sim.errors import ParameterError
 from pcv_sim.model.valve import ValveModel
-from pcv_sim.params import DEFAULT_CONFIG, ValveParams, load_params, replace_param
+from pcv_sim.params import ValveParams, replace_param
 
 __all__ = [
+    "CALIBRATION_KINDS",
+    "CalibrationFit",
+    "CalibrationKind",
+    "CoilMode",
     "WorkingPointResult",
     "compare_working_points",
-    "required_constants",
+    "fit_calibration",
     "fit_net_area",
-    "main",
+    "point_params",
+    "required_constants",
+    "report",
+    "write_calibration",
 ]
+
+CalibrationKind = Literal["net_area", "force_offset", "both"]
+CALIBRATION_KINDS: tuple[str, ...] = ("net_area", "force_offset", "both")
+CoilMode = Literal["table", "config"]
 
 
 @dataclass(frozen=True)
@@ -103,11 +123,23 @@ def _x_at_pressure(model: ValveModel, wp: WorkingPoint) -> float:
     return math.nan
 
 
-def compare_working_points(params: ValveParams) -> list[WorkingPointResult]:
+def point_params(params: ValveParams, wp: WorkingPoint, coil: CoilMode = "table") -> ValveParams:
+    """The parameters at working point ``wp``: with ``coil="table"`` the coil resistance is the
+    one that gives the table's current at the point's duty, R = D V / i (Sec. 6.1)."""
+    if coil == "config":
+        return params
+    if coil != "table":
+        msg = f"coil {coil!r}: accepted are 'table' (R = D V / i per point) and 'config'"
+        raise ParameterError(msg)
+    r = WORKING_POINT_DUTY * params.solenoid.supply_voltage / wp.current
+    return replace_param(params, "solenoid.coil_resistance", r)
+
+
+def compare_working_points(params: ValveParams, coil: CoilMode = "table") -> list[WorkingPointResult]:
     """The model at each of the paper's working points (see the module docstring)."""
-    model = ValveModel(params)
     out = []
     for wp in WORKING_POINTS:
+        model = ValveModel(point_params(params, wp, coil))
         pt = static_point(model, WORKING_POINT_DUTY, wp.spool_position)
         out.append(WorkingPointResult(
             wp.name, wp.current, wp.spool_position, wp.pressure, pt.current, pt.pressure,
@@ -116,46 +148,115 @@ def compare_working_points(params: ValveParams) -> list[WorkingPointResult]:
     return out
 
 
-def required_constants(params: ValveParams) -> list[dict[str, float | str]]:
-    """Per working point: the solenoid-force offset (N) and the net area (m^2) that would each,
-    alone, make the table's (i, x, p) an equilibrium of Eq. 14."""
-    model = ValveModel(params)
+def required_constants(params: ValveParams, coil: CoilMode = "table") -> list[dict[str, float | str]]:
+    """Per working point: the solenoid-force offset (N, toward +x) and the net area (m^2) that
+    would each, alone, make the table's (i, x, p) an equilibrium of Eq. 14."""
     rows: list[dict[str, float | str]] = []
     for wp in WORKING_POINTS:
+        pp = point_params(params, wp, coil)
+        model = ValveModel(pp)
         i = model.steady_current(WORKING_POINT_DUTY)
         offset = -model.static_force(i, wp.spool_position, wp.pressure, model.p_supply)
 
-        def imbalance(area: float, wp: WorkingPoint = wp) -> float:
-            m = ValveModel(replace_param(params, "calibration.net_area", area))
+        def imbalance(area: float, wp: WorkingPoint = wp, pp: ValveParams = pp, i: float = i) -> float:
+            m = ValveModel(replace_param(pp, "calibration.net_area", area))
             return m.static_force(i, wp.spool_position, wp.pressure, m.p_supply)
 
         area = brentq(imbalance, 0.5 * model.a_net, 1.5 * model.a_net, xtol=1e-15)
-        rows.append({"name": wp.name, "force_offset_N": offset, "net_area_m2": area})
+        rows.append({"name": wp.name, "current_A": i, "force_offset_N": offset, "net_area_m2": area})
     return rows
 
 
-def fit_net_area(params: ValveParams) -> tuple[float, list[WorkingPointResult]]:
+@dataclass(frozen=True)
+class CalibrationFit:
+    """A working-point fit: the calibration kind, the fitted values by YAML key, the result."""
+
+    kind: str
+    coil: str
+    values: dict[str, float | None]        # YAML key -> value (None: null, as printed)
+    force_offset_N: float                  # toward +x, 0 unless fitted
+    results: list[WorkingPointResult]
+
+    def as_dict(self) -> dict[str, object]:
+        return {"kind": self.kind, "coil": self.coil, "values": self.values,
+                "force_offset_N": self.force_offset_N, "points": [r.as_dict() for r in self.results]}
+
+
+def _with(params: ValveParams, area: float | None, offset: float) -> ValveParams:
+    p = replace_param(params, "calibration.net_area", area)
+    return replace_param(p, "spool.spring_preload", TABLE1_SPRING_PRELOAD - offset)
+
+
+def fit_calibration(params: ValveParams, kind: CalibrationKind = "net_area", coil: CoilMode = "table") -> CalibrationFit:
+    """Fit the calibration constant(s) of ``kind`` to the working-point table: least squares of
+    the pressure errors at the table's x (both points). Starts from the printed model (net area
+    A_c - A_cc, Table 1's preload); values are rounded to four significant digits, the table's
+    own precision."""
+    if kind not in CALIBRATION_KINDS:
+        msg = f"calibration kind {kind!r}: accepted are {', '.join(CALIBRATION_KINDS)}"
+        raise ParameterError(msg)
+    printed = _with(params, None, 0.0)
+    a0 = printed.net_area
+
+    def residuals(z: np.ndarray) -> np.ndarray:
+        area = a0 * z[0] if kind != "force_offset" else None
+        offset = float(z[-1]) if kind != "net_area" else 0.0
+        p = _with(printed, area, offset)
+        out = []
+        for wp in WORKING_POINTS:
+            m = ValveModel(point_params(p, wp, coil))
+            i = m.steady_current(WORKING_POINT_DUTY)
+            out.append((balance_pressure(m, i, wp.spool_position, m.p_supply) - wp.pressure) / 1e5)
+        return np.array(out)
+
+    z0 = {"net_area": [1.0], "force_offset": [0.0], "both": [1.0, 0.0]}[kind]
+    lo = {"net_area": [0.8], "force_offset": [-10.0], "both": [0.8, -10.0]}[kind]
+    hi = {"net_area": [1.2], "force_offset": [10.0], "both": [1.2, 10.0]}[kind]
+    sol = least_squares(residuals, np.array(z0), bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    area = float(f"{a0 * sol.x[0]:.4g}") if kind != "force_offset" else None
+    offset = float(f"{sol.x[-1]:.4g}") if kind != "net_area" else 0.0
+    fitted = _with(printed, area, offset)
+    values: dict[str, float | None] = {"calibration.net_area": area,
+                                       "spool.spring_preload": fitted.spool.spring_preload}
+    return CalibrationFit(kind, coil, values, offset, compare_working_points(fitted, coil))
+
+
+def fit_net_area(params: ValveParams, coil: CoilMode = "table") -> tuple[float, list[WorkingPointResult]]:
     """Least-squares net area over both points' pressure errors at the table's x."""
-    def cost(area: float) -> float:
-        m = ValveModel(replace_param(params, "calibration.net_area", area))
-        i = m.steady_current(WORKING_POINT_DUTY)
-        return sum((balance_pressure(m, i, wp.spool_position, m.p_supply) - wp.pressure) ** 2 for wp in WORKING_POINTS)
-
-    a0 = params.spool.pressure_area - params.spool.chamber_area
-    res = minimize_scalar(cost, bounds=(0.8 * a0, 1.2 * a0), method="bounded", options={"xatol": 1e-13})
-    area = float(f"{res.x:.4g}")  # four significant digits: the table's own precision
-    return area, compare_working_points(replace_param(params, "calibration.net_area", area))
+    fit = fit_calibration(params, "net_area", coil)
+    area = fit.values["calibration.net_area"]
+    assert area is not None
+    return area, fit.results
 
 
-def _write_net_area(path: Path, area: float) -> None:
+def _yaml_value(v: float | None) -> str:
+    if v is None:
+        return "null"
+    s = f"{v:.6g}"
+    mant, e, exp = s.partition("e")
+    return (mant if "." in mant else mant + ".0") + (e + exp if e else "")
+
+
+def write_calibration(path: Path, values: dict[str, float | None]) -> None:
+    """Write ``values`` (YAML key -> value) into the valve YAML at ``path``, keeping its comments."""
     text = path.read_text(encoding="utf-8")
-    new, n = re.subn(r"(?m)^(\s*net_area:\s*)\S+", lambda m: f"{m.group(1)}{area:.4g}", text)
-    if n != 1:
-        raise SystemExit(f"{path}: expected one 'net_area:' line under calibration, found {n}")
-    path.write_text(new, encoding="utf-8")
+    for key, value in values.items():
+        section, _, name = key.partition(".")
+        m = re.search(rf"(?ms)^{re.escape(section)}:\s*\n(.*?)(?=^\S|\Z)", text)
+        if m is None:
+            msg = f"{path}: no section {section!r} to write {key} into"
+            raise ParameterError(msg)
+        block, n = re.subn(rf"(?m)^(\s+{re.escape(name)}:[ \t]*)[^#\n]*?([ \t]*(#.*)?)$",
+                           lambda mm: f"{mm.group(1)}{_yaml_value(value)}{mm.group(2)}", m.group(1), count=1)
+        if n != 1:
+            msg = f"{path}: expected one '{name}:' line under {section}, found none"
+            raise ParameterError(msg)
+        text = text[:m.start(1)] + block + text[m.end(1):]
+    path.write_text(text, encoding="utf-8")
 
 
-def _report(title: str, results: list[WorkingPointResult]) -> str:
+def report(title: str, results: list[WorkingPointResult]) -> str:
+    """The working-point comparison as text lines (bar, mm, L/min)."""
     lines = [title, "  point  i model/table [A]   p at table x: model/table [bar]   x at table p: model/table [mm]   q_l [L/min]  branch"]
     for r in results:
         lines.append(
@@ -165,26 +266,3 @@ def _report(title: str, results: list[WorkingPointResult]) -> str:
             f"{r.load_flow_at_table_x * 6e4:7.3f}     {r.branch}"
         )
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pcv_sim.analysis.calibrate", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="valve YAML (default: %(default)s)")
-    ap.add_argument("--write", action="store_true", help="write the fitted calibration.net_area into --config")
-    args = ap.parse_args(argv)
-    params = load_params(args.config)
-    printed = replace_param(params, "calibration.net_area", None)
-    print(_report("As printed (net area A_c - A_cc = %.4g m^2):" % printed.net_area, compare_working_points(printed)))
-    print("Constant that alone balances each table point:")
-    for row in required_constants(printed):
-        print(f"  {row['name']}: solenoid-force offset {row['force_offset_N']:+.3f} N, or net area {row['net_area_m2']:.5g} m^2")
-    area, results = fit_net_area(printed)
-    print(_report(f"Calibrated (net area {area:.4g} m^2):", results))
-    if args.write:
-        _write_net_area(args.config, area)
-        print(f"wrote calibration.net_area: {area:.4g} to {args.config}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

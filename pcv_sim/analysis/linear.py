@@ -27,10 +27,20 @@ __all__ = ["LinearModel", "linearize", "loop_gain", "margins", "Margins"]
 
 @dataclass(frozen=True)
 class Margins:
-    gain_margin_db: float          # at the phase crossover (-180 deg); inf if none
-    phase_crossover: float         # rad/s
+    """Stability margins of the loop gain L(jw).
+
+    The gain margin is taken at the phase crossover (-180 deg, mod 360) nearest to instability,
+    i.e. with the smallest |gain margin| in dB, searched over all frequencies, including w = 0
+    when L(0) is negative real (K_e < 0, the open loop has a pole in the right half plane). A
+    crossover where |L| > 1 gives a negative margin: the loop gain must fall by that much for
+    the Nyquist plot to pass -1 there. inf (at inf rad/s) only when the phase never reaches -180.
+    """
+
+    gain_margin_db: float          # at the phase crossover nearest to instability; inf if none
+    phase_crossover: float         # rad/s (0 = DC, inf if none)
     phase_margin_deg: float        # 180 + phase at the gain crossover (|L| = 1); nan if none
     gain_crossover: float          # rad/s
+    phase_crossovers: tuple[tuple[float, float], ...] = ()   # every (w rad/s, gain margin dB) found
 
 
 @dataclass(frozen=True)
@@ -92,15 +102,19 @@ def margins(lin: LinearModel, w: np.ndarray | None = None) -> Margins:
         w_gc, pm = math.nan, math.nan
     shifted = ((phase + 180.0 + 180.0) % 360.0) - 180.0  # 0 at -180 deg (mod 360)
     pc = np.nonzero((np.abs(np.diff(shifted)) < 180.0) & (np.diff(np.sign(shifted)) != 0))[0]
-    pc = [int(k) for k in pc if w[k] > (w_gc if math.isfinite(w_gc) else 0.0)]
-    if pc:
-        k = pc[0]
+    crossings: list[tuple[float, float]] = []
+    dc = complex(loop_gain(lin, np.array([0.0 + 0.0j]))[0])
+    if dc.real < 0.0 and abs(dc.imag) <= 1e-9 * abs(dc):  # L(0) negative real: -180 deg at DC
+        crossings.append((0.0, -20.0 * math.log10(abs(dc))))
+    for k in (int(k) for k in pc):
         f = -shifted[k] / (shifted[k + 1] - shifted[k])
-        w_pc = float(w[k] + f * (w[k + 1] - w[k]))
-        gm = -20.0 * math.log10(float(np.interp(w_pc, w[k : k + 2], mag[k : k + 2])))
+        w_k = float(w[k] + f * (w[k + 1] - w[k]))
+        crossings.append((w_k, -20.0 * math.log10(float(np.interp(w_k, w[k : k + 2], mag[k : k + 2])))))
+    if crossings:
+        w_pc, gm = min(crossings, key=lambda c: abs(c[1]))
     else:
         w_pc, gm = math.inf, math.inf
-    return Margins(gm, w_pc, pm, w_gc)
+    return Margins(gm, w_pc, pm, w_gc, tuple(crossings))
 
 
 def linearize(model: ValveModel, duty: float, x0: float, supply_pressure: float | None = None) -> LinearModel:

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["StepMetrics", "step_metrics", "FitMetrics", "fit_metrics"]
+__all__ = ["NOISE_BAND_SIGMAS", "NOISE_FRACTION", "SMOOTH_SAMPLES", "StepMetrics", "step_metrics", "FitMetrics", "fit_metrics"]
 
 
 @dataclass(frozen=True)
@@ -15,39 +15,80 @@ class StepMetrics:
     """One step response. Times in s from the step instant; values in the signal's unit."""
 
     initial: float
-    final: float                 # steady state: mean over the last `tail` of the window
+    final: float                 # steady state: mean over the last `tail` of the window, or as given
     rise_time: float             # 10 % -> 90 % of the change (nan if never reached)
-    overshoot_percent: float     # peak beyond final, % of the change (0 if none)
+    overshoot_percent: float     # peak beyond final, % of the change (0 if none or within the noise)
     settling_time: float         # last exit from the band final +- band (nan if never settled)
     peak: float
+    band: float = math.nan       # the settling band used (half-width, signal unit)
+    noise: float = 0.0           # the noise level found (standard deviation, signal unit)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
 
+#: Noise above this fraction of the change switches step_metrics to its noise-robust reading.
+NOISE_FRACTION = 1e-3
+#: The settling band is at least this many standard deviations of the smoothed noise: white noise
+#: leaves a 4 sigma band with probability 6e-5 per sample (one stray sample in ~16000), so it does
+#: not set the settling time.
+NOISE_BAND_SIGMAS = 4.0
+#: Samples of the centred moving average that rise time and peak are read from on noisy data.
+SMOOTH_SAMPLES = 5
+
+
+def _noise(y: np.ndarray) -> float:
+    """White-noise standard deviation from sample-to-sample differences: 1.4826 MAD(diff)/sqrt 2."""
+    d = np.diff(y)
+    if d.size < 2:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+
+
 def step_metrics(
     t: np.ndarray, y: np.ndarray, t_step: float, t_end: float | None = None, *,
-    band_fraction: float = 0.02, band_min: float = 0.0, tail: float = 0.1,
+    band_fraction: float = 0.02, band_min: float = 0.0, tail: float = 0.1, final: float | None = None,
+    robust: bool = True,
 ) -> StepMetrics:
     """Metrics of the response y(t) to a step at t_step, within [t_step, t_end].
 
-    The settling band is max(band_fraction * |change|, band_min), so a tiny step is not
-    judged by noise. `initial` is the last sample before the step.
+    The settling band is max(band_fraction * |change|, band_min), so a tiny step is not judged
+    by noise. `initial` is the last sample before the step. `final` (e.g. the static solution)
+    replaces the window's tail mean as the steady state.
+
+    Noise (``robust``): the noise level sigma is read from the window's sample-to-sample
+    differences. When it exceeds NOISE_FRACTION of the change (measured data; a model's trace
+    has none), rise time, peak and settling are read from a centred moving average of
+    SMOOTH_SAMPLES samples (noise sigma / sqrt(5)), the band widens to at least
+    NOISE_BAND_SIGMAS of that sigma, an overshoot within it is noise and reported as 0, and
+    `initial` is the mean of the last 20 samples before the step.
     """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     t_end = float(t[-1]) if t_end is None else t_end
     before = t < t_step
-    initial = float(y[before][-1]) if before.any() else float(y[0])
     win = (t >= t_step) & (t <= t_end)
     tw, yw = t[win] - t_step, y[win]
     n_tail = max(1, int(round(tail * len(yw))))
-    final = float(np.mean(yw[-n_tail:]))
+    final = float(np.mean(yw[-n_tail:])) if final is None else float(final)
+    initial = float(y[before][-1]) if before.any() else float(y[0])
+    sigma = _noise(yw) if robust else 0.0
+    noisy = sigma > NOISE_FRACTION * abs(final - initial)
+    if noisy and before.any():
+        initial = float(np.mean(y[before][-20:]))
     change = final - initial
     sign = 1.0 if change >= 0 else -1.0
+    sigma_smooth = sigma / math.sqrt(SMOOTH_SAMPLES)
+    band = max(band_fraction * abs(change), band_min, NOISE_BAND_SIGMAS * sigma_smooth if noisy else 0.0)
     if abs(change) == 0.0:
-        return StepMetrics(initial, final, math.nan, 0.0, 0.0, float(yw.max()))
-    rel = (yw - initial) / change
+        return StepMetrics(initial, final, math.nan, 0.0, 0.0, float(yw.max()), band, sigma)
+    ys = yw
+    if noisy and len(yw) >= SMOOTH_SAMPLES:
+        k = SMOOTH_SAMPLES // 2
+        padded = np.concatenate([np.full(k, yw[0]), yw, np.full(k, yw[-1])])
+        ys = np.convolve(padded, np.ones(SMOOTH_SAMPLES) / SMOOTH_SAMPLES, mode="valid")
+    rel = (ys - initial) / change
+
     def first_cross(level: float) -> float:
         idx = np.nonzero(rel >= level)[0]
         if not idx.size:
@@ -58,18 +99,21 @@ def step_metrics(
         # Linear interpolation between the samples around the crossing.
         r0, r1 = rel[k - 1], rel[k]
         return float(tw[k - 1] + (level - r0) / (r1 - r0) * (tw[k] - tw[k - 1]))
+
     rise = first_cross(0.9) - first_cross(0.1)
-    peak = float(yw.max() if sign > 0 else yw.min())
-    overshoot = max(0.0, (peak - final) * sign / abs(change) * 100.0)
-    band = max(band_fraction * abs(change), band_min)
-    outside = np.nonzero(np.abs(yw - final) > band)[0]
+    peak = float(ys.max() if sign > 0 else ys.min())
+    excess = (peak - final) * sign
+    if noisy and excess <= NOISE_BAND_SIGMAS * sigma_smooth:
+        excess = 0.0
+    overshoot = max(0.0, excess / abs(change) * 100.0)
+    outside = np.nonzero(np.abs(ys - final) > band)[0]
     if not outside.size:
         settling = 0.0
     elif outside[-1] == len(yw) - 1:
         settling = math.nan
     else:
         settling = float(tw[outside[-1] + 1])
-    return StepMetrics(initial, final, rise, overshoot, settling, peak)
+    return StepMetrics(initial, final, rise, overshoot, settling, peak, band, sigma)
 
 
 @dataclass(frozen=True)

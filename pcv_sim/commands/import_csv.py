@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delimiter", metavar="CHAR", help="field separator (default: guessed from the first line)")
     p.add_argument("--start-time", type=float, default=0.0, metavar="EPOCH_S",
                    help="bag time of CSV time 0, in s since the epoch (default: 0)")
+    p.add_argument("--no-range-check", action="store_true",
+                   help="import signals outside their physical range (by default refused: a unit left out)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -37,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     delimiter = {"tab": "\t", "\\t": "\t"}.get(args.delimiter, args.delimiter) if args.delimiter else None
     result = import_csv(args.csv, args.out, columns=columns, units=parse_units(args.units),
                         skip_bad_rows=args.skip_bad_rows, delimiter=delimiter,
-                        start_ns=round(args.start_time * 1e9))
+                        start_ns=round(args.start_time * 1e9), check_ranges=not args.no_range_check)
     if args.json:
         emit_json({"bag": str(result.bag), "rows": result.rows, "columns": list(result.columns),
                    "units": dict(result.units), "topics": dict(result.topics),

@@ -1,6 +1,10 @@
 """Linear analysis (Sec. 5, appendix A.1) at the paper's two working points: K_e = K - K_fx +
 K_ff, the flow gains, eigenvalues, and the gain and phase margins of the hydro-mechanical loop
-gain (Fig. 7), with its Bode plot."""
+gain (Fig. 7), with its Bode plot. Each point runs with the coil resistance that gives the table's
+current (1.50 A, 1.49 A; Sec. 6.1) unless --coil config; --damping names the simplified model's
+damping (equivalent: B + A_cc^2/K_d, the default; paper: Table 1's 223.6 Ns/m; or a number).
+The gain margin is the one nearest to instability over all phase crossovers (negative when the
+loop is unstable)."""
 
 from __future__ import annotations
 
@@ -8,6 +12,8 @@ import argparse
 
 import numpy as np
 
+from pcv_sim.analysis.calibrate import point_params
+from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.linear import linearize
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS
 from pcv_sim.commands.common import add_output_options, emit_json, params_from, pyplot, save
@@ -18,30 +24,42 @@ HELP = "Sec. 5 linear model at both working points, margins, Bode plot of the lo
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--damping", type=damping_option, default=None, metavar="equivalent|paper|NS_PER_M",
+                   help="the simplified model's damping (default: the config's)")
+    p.add_argument("--coil", choices=("table", "config"), default="table",
+                   help="table: each point's coil resistance gives the table's current; config: the config's "
+                        "(default: %(default)s)")
     add_output_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    model = ValveModel(params_from(args))
-    lins = {wp.name: linearize(model, WORKING_POINT_DUTY, wp.spool_position) for wp in WORKING_POINTS}
+    params = with_damping(params_from(args), args.damping)
+    state = in_force(params)
+    lins = {wp.name: linearize(ValveModel(point_params(params, wp, args.coil)), WORKING_POINT_DUTY, wp.spool_position)
+            for wp in WORKING_POINTS}
     keys = ("K_fi", "K_fx", "K_ff", "K", "K_e", "K_q", "K_c", "K_cps", "inductance")
     if args.json:
-        emit_json({name: {**{k: getattr(lin, k) for k in keys},
-                          "pressure_Pa": lin.point.pressure, "spool_position_m": lin.point.spool_position,
-                          "eigenvalues": [[e.real, e.imag] for e in lin.eigenvalues],
-                          "stable": bool(np.all(lin.eigenvalues.real < 0)),
-                          "margins": lin.margins.__dict__}
-                   for name, lin in lins.items()})
+        data = {name: {**{k: getattr(lin, k) for k in keys},
+                       "pressure_Pa": lin.point.pressure, "spool_position_m": lin.point.spool_position,
+                       "current_A": lin.point.current,
+                       "eigenvalues": [[e.real, e.imag] for e in lin.eigenvalues],
+                       "stable": bool(np.all(lin.eigenvalues.real < 0)),
+                       "margins": lin.margins.__dict__}
+                for name, lin in lins.items()}
+        emit_json({**data, "in_force": {**state.as_dict(), "coil": args.coil}})
     else:
+        print(f"In force: {state.text()}; coil: {'the table current per point' if args.coil == 'table' else 'config'}")
         for name, lin in lins.items():
             m = lin.margins
-            print(f"{name}: x = {lin.point.spool_position * 1e3:+.4f} mm, p = {lin.point.pressure / 1e5:.2f} bar")
+            print(f"{name}: x = {lin.point.spool_position * 1e3:+.4f} mm, p = {lin.point.pressure / 1e5:.2f} bar, "
+                  f"i = {lin.point.current:.3f} A")
             print(f"  K_e = K - K_fx + K_ff = {lin.K:.0f} - ({lin.K_fx:.0f}) + ({lin.K_ff:.0f}) = {lin.K_e:.0f} N/m")
             print(f"  K_fi = {lin.K_fi:.2f} N/A, K_q = {lin.K_q:.4g} m^2/s, K_c = {lin.K_c:.4g} m^3/(s Pa), "
                   f"K_cps = {lin.K_cps:.4g} m^3/(s Pa), L = {lin.inductance * 1e3:.1f} mH")
             print("  eigenvalues [1/s]: " + ", ".join(f"{e.real:.1f}{e.imag:+.1f}j" for e in lin.eigenvalues)
                   + ("  (stable)" if np.all(lin.eigenvalues.real < 0) else "  (UNSTABLE)"))
-            print(f"  loop gain: gain margin {m.gain_margin_db:.1f} dB at {m.phase_crossover:.0f} rad/s, "
+            at = "DC" if m.phase_crossover == 0.0 else f"{m.phase_crossover:.0f} rad/s"
+            print(f"  loop gain: gain margin {m.gain_margin_db:.1f} dB at {at}, "
                   f"phase margin {m.phase_margin_deg:.1f} deg at {m.gain_crossover:.0f} rad/s")
     if args.plot:
         plt = pyplot()

@@ -1,13 +1,20 @@
 """A duty step at zero load flow (the paper's dynamic test, Sec. 3.2): pressure, current and
 spool position over time (Fig. 11 style) with rise time, overshoot, settling time and steady
 state. `--model simplified` runs the real-time stepper the emulator uses; `--model full` runs
-the full model (with damping chamber) on scipy's stiff Radau solver."""
+the full model (with damping chamber) on scipy's stiff Radau solver. The steady state is the
+static solution at the final duty (the zero-flow equilibrium), not the window's end: a --duration
+shorter than the settling is warned about. --damping names the simplified model's damping
+(equivalent, the default; paper: Table 1's 223.6 Ns/m; or a number)."""
 
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 
+from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
+from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
 from pcv_sim.errors import UsageError
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, pyplot, save
 from pcv_sim.model.valve import ValveModel
@@ -32,11 +39,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="simplified: the real-time stepper; full: stiff reference with chamber (default: %(default)s)")
     p.add_argument("--fall-rate", type=positive, default=None, metavar="PER_S",
                    help="rate-limit decreasing duty to this many duty units per second (default: the config's)")
+    p.add_argument("--damping", type=damping_option, default=None, metavar="equivalent|paper|NS_PER_M",
+                   help="the simplified model's damping (default: the config's)")
     add_output_options(p)
 
 
+def step_params(args: argparse.Namespace):  # noqa: ANN201 - ValveParams
+    return with_damping(params_from(args), getattr(args, "damping", None))
+
+
 def simulate_step(args: argparse.Namespace) -> Trajectory:
-    params = params_from(args)
+    params = step_params(args)
     rate = args.fall_rate if args.fall_rate is not None else params.command.duty_fall_rate_limit
     if args.at >= args.duration:
         raise UsageError(f"--at {args.at:g} s is not before --duration {args.duration:g} s")
@@ -49,16 +62,46 @@ def simulate_step(args: argparse.Namespace) -> Trajectory:
     return stepper.run(profile, args.duration)
 
 
+def steady_state(args: argparse.Namespace) -> dict[str, float] | None:
+    """The static solution at the final duty, zero load flow: pressure, current, spool position."""
+    try:
+        eq = zero_flow_equilibrium(ValveModel(step_params(args), args.model), args.end)
+    except EquilibriumError:
+        return None
+    return {"pressure": eq.pressure, "current": eq.current, "spool_position": eq.spool_position}
+
+
 def run(args: argparse.Namespace) -> int:
     traj = simulate_step(args)
-    metrics = {name: step_metrics(traj.t, getattr(traj, name), args.at, band_min=band)
+    static = steady_state(args)
+    window = {name: step_metrics(traj.t, getattr(traj, name), args.at, band_min=band) for name, _, _, band in SIGNALS}
+    metrics = {name: step_metrics(traj.t, getattr(traj, name), args.at, band_min=band,
+                                  final=static[name] if static else None)
                for name, _, _, band in SIGNALS}
+    unsettled = [name for name, _, _, _ in SIGNALS
+                 if math.isnan(metrics[name].settling_time)
+                 or abs(window[name].final - metrics[name].final) > metrics[name].band]
+    warnings = []
+    if static is None:
+        warnings.append(f"no static solution at duty {args.end:g}: the steady state is the window's end")
+    elif unsettled:
+        warnings.append(
+            f"--duration {args.duration:g} s ends before the response settles ({', '.join(unsettled)} outside "
+            f"its band at the end); the steady state is the static solution at duty {args.end:g}; "
+            f"settling times past the window are n/a: lengthen --duration")
+    state = in_force(step_params(args), args.model)
+    for w in warnings:
+        print(f"pcv-sim step: warning: {w}", file=sys.stderr)
     if args.json:
         emit_json({"model": args.model, "from": args.start, "to": args.end, "step_time_s": args.at,
-                   "metrics": {k: v.as_dict() for k, v in metrics.items()},
+                   "in_force": state.as_dict(),
+                   "steady_state": "static solution" if static else "window end",
+                   "metrics": {k: v.as_dict() for k, v in metrics.items()}, "warnings": warnings,
                    "units": {"pressure": "Pa", "current": "A", "spool_position": "m", "times": "s"}})
     else:
         print(f"Duty step {args.start:g} -> {args.end:g} at {args.at:g} s, {args.model} model")
+        print(f"  in force: {state.text()}")
+        print(f"  steady state: {'the static solution at the final duty' if static else 'the window end'}")
         print("  signal                 initial      final   rise [ms]   overshoot [%]   settling [ms]")
         for name, label, scale, _ in SIGNALS:
             m = metrics[name]

@@ -35,7 +35,7 @@ from pcv_sim.io.topics import (
     role_of,
 )
 
-__all__ = ["UNITS", "BadRow", "CsvImportError", "CsvImportResult", "import_csv", "parse_units"]
+__all__ = ["RANGES", "UNITS", "BadRow", "Range", "CsvImportError", "CsvImportResult", "import_csv", "parse_units"]
 
 TIME: Final = "time"
 _PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": 1e5, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
@@ -116,6 +116,60 @@ def _check_unit(role: str, unit: str) -> str:
     return u
 
 
+@dataclass(frozen=True)
+class Range:
+    """The physical range of a converted signal (SI), what it means, and the unit tried first."""
+
+    low: float
+    high: float
+    meaning: str
+    typical: float            # a typical largest |value| (SI): the suggested unit comes nearest it
+    min_peak: float = 0.0     # the largest |value| must reach this (when the duty reaches 0.3)
+
+
+#: Plausible ranges after conversion to SI, for a valve of this class (the shipped one holds
+#: up to ~200 bar, strokes -0.55..+0.85 mm, draws up to ~2.1 A at 12 V / 5.6 ohm). Generous
+#: so that offsets, noise and other valves of the class pass, tight enough that a unit left
+#: out (a factor of 1e3 or 1e5) does not.
+RANGES: Final[Mapping[str, Range]] = {
+    PRESSURE: Range(-5e5, 1e8, "-5 .. 1000 bar", 100e5, 1e4),
+    SUPPLY_PRESSURE: Range(0.0, 1e8, "0 .. 1000 bar", 200e5, 1e5),
+    SPOOL_POSITION: Range(-5e-3, 5e-3, "within +-5 mm (the stroke is about -0.55 .. +0.85 mm)", 0.5e-3),
+    CURRENT: Range(-1.0, 10.0, "-1 .. 10 A", 1.5, 0.05),
+    LOAD_FLOW: Range(-100e-3 / 60.0, 100e-3 / 60.0, "+-100 L/min", 10e-3 / 60.0),
+}
+
+
+def _check_ranges(path: Path, values: Mapping[str, Sequence[float]], unit_of: Mapping[str, str]) -> None:
+    """Refuse a signal whose converted values leave its physical range, suggesting the unit that
+    would bring them into it (the usual cause: a unit left out)."""
+    duty_reaches = max(values.get(DUTY_CYCLE, [0.0]), default=0.0) >= 0.3
+    for role, rng in RANGES.items():
+        if role not in values or not values[role]:
+            continue
+        lo, hi = min(values[role]), max(values[role])
+        peak = max(abs(lo), abs(hi))
+        too_small = duty_reaches and peak < rng.min_peak
+        if rng.low <= lo and hi <= rng.high and not too_small:
+            continue
+        raw = peak / UNITS[role][unit_of[role]]
+        fits = [u for u, f in UNITS[role].items() if rng.low <= lo / UNITS[role][unit_of[role]] * f
+                and hi / UNITS[role][unit_of[role]] * f <= rng.high and raw * f >= rng.min_peak
+                and u != unit_of[role]]
+        fits.sort(key=lambda u: abs(math.log(max(raw * UNITS[role][u], 1e-300) / rng.typical)))
+        name = "position" if role == SPOOL_POSITION else role
+        hint = (f": looks like {fits[0]}: add --units {name}={fits[0]} (or a unit in the header, "
+                f"{name}[{fits[0]}])") if fits else ""
+        si = {"pa": "Pa", "a": "A"}.get(_SI[role], _SI[role])
+        if too_small:
+            what = (f"reaches at most {peak:.6g} {si} (read as {unit_of[role]}), below the {rng.min_peak:g} {si} "
+                    f"that a valve driven to 30 % duty or more holds (range {rng.meaning})")
+        else:
+            what = f"spans {lo:.6g} .. {hi:.6g} {si} (read as {unit_of[role]}), outside the physical range {rng.meaning}"
+        msg = f"{str(path)!r}: {role} {what}{hint}; --no-range-check imports it as it is"
+        raise CsvImportError(msg)
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -134,15 +188,19 @@ def import_csv(
     delimiter: str | None = None,
     start_ns: int = 0,
     namespace: str = "/",
+    check_ranges: bool = True,
 ) -> CsvImportResult:
     """Convert ``csv_path`` to a bag at ``bag_path`` (which must not exist).
 
+    With ``check_ranges`` every signal is checked against its physical range after conversion
+    (:data:`RANGES`): a unit left out (bar read as Pa, mm read as m) is refused with a hint.
     Times become bag timestamps ``start_ns + round(time_s * 1e9)``; a FluidPressure's header
     stamp is the same time. Lines starting with ``#`` are comments; blank lines are ignored.
 
     Raises:
         CsvImportError: unknown columns or units, no time or duty or output column, bad rows
-            (listed by line number) unless ``skip_bad_rows``, or no good row at all.
+            (listed by line number) unless ``skip_bad_rows``, no good row at all, or a signal
+            outside its physical range.
         BagError: the bag cannot be written.
     """
     path = Path(csv_path)
@@ -209,10 +267,21 @@ def import_csv(
         msg = f"column(s) {dups} appear more than once"
         raise CsvImportError(msg)
     if TIME not in named or DUTY_CYCLE not in named:
-        msg = f"columns {roles}: a time and a duty column are needed; accepted: {_accepted_columns()}"
+        if columns is None and header_roles is not None:
+            seen = [f for f in first]
+            understood = [f"{f!r} -> {r}" for f, r in zip(seen, header_roles) if r != "-"]
+            msg = (
+                f"the header names {seen} give no {' and no '.join(n for n in ('time', 'duty') if n not in named)} "
+                f"column (a time and a duty column are needed); understood: {', '.join(understood) or 'none'}; accepted names: "
+                f"{_accepted_columns()}, each with an optional unit in brackets (pressure[bar]); or name "
+                f"the columns in order with --columns, e.g. --columns time,duty,pressure,current,position"
+            )
+        else:
+            msg = f"columns {roles}: a time and a duty column are needed; accepted: {_accepted_columns()}"
         raise CsvImportError(msg)
     if not any(r in OUTPUT_ROLES for r in named):
-        msg = f"columns {roles}: at least one of pressure, current, position is needed to compare"
+        seen = f" (header names seen: {first}, understood: {named})" if columns is None and header_roles else ""
+        msg = f"columns {roles}: at least one of pressure, current, position is needed to compare{seen}"
         raise CsvImportError(msg)
     unit_of = {r: _SI[r] for r in named}
     unit_of.update({r: u for r, u in header_units.items() if r in unit_of})
@@ -276,6 +345,8 @@ def import_csv(
         raise CsvImportError(msg)
 
     order = [r for _, r in idx]
+    if check_ranges:
+        _check_ranges(path, {r: [v[k] for _, v in good] for k, r in enumerate(order)}, unit_of)
     topics = {r: bag_topic(r, namespace) for r in order if r != TIME}
     types = {topics[r]: ROLE_TYPES[r] for r in topics}
     t_col = order.index(TIME)

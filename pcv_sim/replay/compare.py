@@ -30,6 +30,7 @@ from typing import Any, Final, Literal
 import numpy as np
 import numpy.typing as npt
 
+from pcv_sim.analysis.in_force import InForce, in_force
 from pcv_sim.analysis.metrics import FitMetrics, StepMetrics, fit_metrics, step_metrics
 from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, SPOOL_POSITION
 from pcv_sim.params import ValveParams
@@ -164,6 +165,7 @@ class ReplayResult:
     def excluded_intervals(self) -> list[tuple[float, float]]:
         """(start, end) in s of each skipped interval: the gap and its re-synchronisation."""
         return [(g.start, g.end + self.resync_s) for g in self.gaps]
+    in_force: InForce | None = None    # the damping and calibration the model ran with
 
     @property
     def real_time_factor(self) -> float:
@@ -235,6 +237,7 @@ class ReplayResult:
                       "metrics": "as named: bar, a (A), mm, ms, percent"},
             "warnings": list(self.warnings),
             "notes": list(self.notes),
+            "in_force": self.in_force.as_dict() if self.in_force is not None else None,
         }
 
 
@@ -338,7 +341,8 @@ def replay(
                 continue
             band = DISPLAY[role].band_min
             meas[role] = step_metrics(t, y_meas, st.t_start, st.t_end, band_min=band)
-            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=band)
+            # The model is judged in the measured band (widened by the sensor's noise): same gate.
+            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=max(band, meas[role].band))
         if meas:
             comparisons.append(StepComparison(st, meas, mod))
         else:
@@ -361,6 +365,7 @@ def replay(
         notes=recording.notes + tuple(tl_notes) + run.notes + tuple(gap_notes) + tuple(step_notes),
         gaps=recording.gaps,
         resync_s=float(resync),
+        in_force=in_force(params, model),
     )
 
 

@@ -82,6 +82,7 @@ def _header_lines(r: ReplayResult) -> list[tuple[str, str]]:
     return [
         ("bag", r.bag),
         ("model", f"{r.model} ({r.solver})"),
+        ("in force", r.in_force.text() if r.in_force is not None else "n/a"),
         ("duration", f"{r.duration_s:.3f} s, {r.input_changes} input changes, {len(r.steps)} steps"),
         ("topics", ", ".join(f"{k}={v}" for k, v in r.topics.items())),
         ("bag closed properly", "yes" if r.closed_cleanly else "NO: the writer did not finish; "
@@ -94,6 +95,8 @@ def _header_lines(r: ReplayResult) -> list[tuple[str, str]]:
 def render_text(r: ReplayResult, failures: list[ThresholdFailure] | None = None) -> str:
     lines = [f"Replay of {r.bag}: {r.model} model ({r.solver}), {r.duration_s:.3f} s, "
              f"{len(r.steps)} steps, {r.real_time_factor:.1f}x real time"]
+    if r.in_force is not None:
+        lines.append(f"  {r.in_force.text()}")
     if not r.closed_cleanly:
         lines.append("  the bag was NOT closed properly: only its readable part was replayed")
     if r.gaps:
@@ -225,6 +228,12 @@ def plot_signals(r: ReplayResult) -> dict[str, bytes]:
                                          gridspec_kw={"height_ratios": [3, 1]})
         ax.plot(t, meas * d.scale, "-", lw=1.4, label="measured (bag)")
         ax.plot(t, mod * d.scale, "--", lw=1.1, label=f"model ({r.model})")
+        for k, sc in enumerate(r.steps):  # the settling band of the measured response (noise-aware)
+            if role in sc.measured:
+                m = sc.measured[role]
+                ax.fill_between([sc.step.t_start, sc.step.t_end], (m.final - m.band) * d.scale,
+                                (m.final + m.band) * d.scale, color="C2", alpha=0.15, lw=0,
+                                label="settling band (measured)" if k == 0 else None)
         ax.set_ylabel(f"{d.label} [{d.unit}]")
         ax.grid(True, alpha=0.3)
         ax.set_title(f"{Path(r.bag).name}: {d.label}, measured vs {r.model} model")

@@ -186,3 +186,35 @@ def test_gain_margin_of_a_known_loop() -> None:
     assert m.phase_crossover == pytest.approx(w_pc, rel=1e-4)
     assert m.gain_margin_db == pytest.approx(gm, abs=0.01)
     assert m.gain_margin_db > 0.0 and m.phase_margin_deg > 0.0
+
+
+@pytest.mark.parametrize("damping", [180.0, 150.0])
+def test_unstable_loop_reports_negative_gain_margin(damping: float) -> None:
+    """With too little damping P2's loop is unstable (phase margin < 0, eigenvalues in the right
+    half plane); the gain margin must then be a finite negative number at a real phase crossover,
+    not "inf dB at inf rad/s" (crossovers were once only searched above the gain crossover)."""
+    from pcv_sim.params import replace_param
+
+    params = replace_param(default_params(), "spool.viscous_friction_simplified", damping)
+    lin = linearize(ValveModel(params, "simplified"), WORKING_POINT_DUTY, WORKING_POINTS[1].spool_position)
+    m = lin.margins
+    assert np.any(lin.eigenvalues.real > 0.0)
+    assert m.phase_margin_deg < 0.0
+    assert np.isfinite(m.gain_margin_db) and m.gain_margin_db < 0.0
+    assert m.phase_crossover < m.gain_crossover
+    # The reported crossover is a real one: the phase is -180 deg there (mod 360) and the margin
+    # is -20 log10 |L| there.
+    l_pc = lin.loop_gain(np.array([max(m.phase_crossover, 1e-3)]))[0]
+    assert abs(((np.degrees(np.angle(l_pc)) + 360.0) % 360.0) - 180.0) < 0.5
+    assert -20.0 * np.log10(abs(l_pc)) == pytest.approx(m.gain_margin_db, abs=0.05)
+
+
+def test_stable_p2_keeps_its_upper_gain_margin(lins: dict[str, LinearModel]) -> None:
+    # P2's open loop has a right-half-plane pole (K_e < 0): L(0) is negative real, a -180 deg
+    # crossover at DC with |L(0)| > 1 (a lower gain margin); the margin reported is the one
+    # nearest to instability, the upper one at the high-frequency crossover.
+    m = lins["P2"].margins
+    assert [w for w, _ in m.phase_crossovers][0] == 0.0
+    assert m.phase_crossovers[0][1] < 0.0
+    assert m.gain_margin_db == min((gm for _, gm in m.phase_crossovers), key=abs)
+    assert m.phase_crossover > m.gain_crossover

@@ -107,3 +107,54 @@ def test_fit_metrics() -> None:
     assert fit_metrics(np.ones(3), np.ones(3)).nrmse_fit_percent == 100.0
     assert fit_metrics(np.ones(3), np.ones(3) * 1.1).nrmse_fit_percent == -math.inf
     assert set(off.as_dict()) == {"rmse", "max_error", "nrmse_fit_percent"}
+
+
+def test_noise_does_not_set_the_settling_time() -> None:
+    """A first-order 70 -> 120 bar step (tau = 19.7 ms: 2 % settling at tau ln 50 = 77 ms) seen by a
+    1 kHz sensor with 1 bar of white noise: read naively, noise keeps leaving the 1 bar (2 %) band
+    until late in the window. The robust reading smooths over 5 samples (sigma 0.45 bar), widens
+    the band to 4 of that sigma (1.8 bar) and settles where the noiseless response enters it,
+    tau ln(50 bar / band), plus the time the smoothed noise needs to stop crossing the band's
+    edge (while the response is within ~2.5 of its sigma of it)."""
+    rng = np.random.default_rng(7)
+    tau, t_step = 0.0197, 0.05
+    t = np.arange(0.0, 0.55, 1e-3)
+    clean = 70e5 + 50e5 * np.where(t >= t_step, 1.0 - np.exp(-(t - t_step) / tau), 0.0)
+    noisy = clean + rng.normal(0.0, 1e5, t.size)
+    naive = step_metrics(t, noisy, t_step, robust=False)
+    m = step_metrics(t, noisy, t_step)
+    assert m.noise == pytest.approx(1e5, rel=0.15)
+    sigma_smooth = m.noise / math.sqrt(5)
+    assert m.band == pytest.approx(4.0 * sigma_smooth, rel=1e-12)
+    expected = tau * math.log(50e5 / m.band)
+    late = tau * math.log(m.band / (m.band - 2.5 * sigma_smooth))
+    assert expected - 0.002 <= m.settling_time <= expected + late
+    assert naive.settling_time > 0.15 or math.isnan(naive.settling_time)
+    # No overshoot in a first-order response: the noisy peak is not taken for one.
+    assert naive.overshoot_percent > 1.0
+    assert m.overshoot_percent == 0.0
+    # The 10-90 % rise time (tau ln 9 = 43 ms) from the smoothed trace, within 3 samples.
+    assert m.rise_time == pytest.approx(tau * math.log(9.0), abs=3e-3)
+    assert m.initial == pytest.approx(70e5, abs=0.6e5)
+
+
+def test_noise_keeps_a_real_overshoot() -> None:
+    # An underdamped response (zeta 0.3: 37 % overshoot) with noise at 1 % of the change.
+    rng = np.random.default_rng(3)
+    zeta, wn, t_step = 0.3, 200.0, 0.02
+    t = np.arange(0.0, 0.4, 1e-3)
+    s = np.clip(t - t_step, 0.0, None)
+    wd = wn * math.sqrt(1 - zeta**2)
+    clean = 1.0 - np.exp(-zeta * wn * s) * (np.cos(wd * s) + zeta / math.sqrt(1 - zeta**2) * np.sin(wd * s))
+    m = step_metrics(t, clean + rng.normal(0.0, 0.01, t.size), t_step)
+    truth = 100.0 * math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))
+    assert m.overshoot_percent == pytest.approx(truth, abs=3.0)   # the 5-sample average trims the peak a little
+
+
+def test_given_final_replaces_the_window_end() -> None:
+    # A window that ends before the response settles: the tail mean is short of the steady state.
+    t, y = first_order(0.05, 0.0, 0.13, gain=1.0)
+    short = step_metrics(t, y, 0.0)
+    given = step_metrics(t, y, 0.0, final=1.0)
+    assert short.final < 0.95 and given.final == 1.0
+    assert math.isnan(given.settling_time) and given.rise_time == pytest.approx(0.05 * math.log(9.0), abs=DT)

@@ -156,3 +156,49 @@ def test_output_bag_must_be_new_and_file_must_exist(tmp_path):  # noqa: ANN001
         import_csv(csv, tmp_path / "exists")
     with pytest.raises(CsvImportError, match=r"does not exist"):
         import_csv(tmp_path / "missing.csv", tmp_path / "b")
+
+
+RIG = "0,50,70.1,1.02,0.01\n1,50,120.3,1.05,-0.02\n2,90,150.2,1.9,0.2\n"
+
+
+@pytest.mark.parametrize(("header", "match"), [
+    # bar read as Pa: the replay printed a fit of -22 million %; now refused with the unit to add.
+    ("time[ms],duty[%],pressure,current[A],position[mm]",
+     r"pressure reaches at most 150.2 Pa \(read as pa\), below .*looks like bar: add --units pressure=bar"),
+    # mm read as m: 0.2 m is far outside the stroke.
+    ("time[ms],duty[%],pressure[bar],current[A],position",
+     r"spool_position spans -0.02 .. 0.2 m \(read as m\), outside .*looks like mm: add --units position=mm"),
+    ("time[ms],duty[%],pressure[bar],current[mA],position[mm]",
+     r"current reaches at most 0.0019 A \(read as ma\), .*looks like a: add --units current=a"),
+])
+def test_a_unit_left_out_is_refused_with_a_hint(tmp_path, header, match):  # noqa: ANN001
+    csv = tmp_path / "rig.csv"
+    csv.write_text(header + "\n" + RIG)
+    with pytest.raises(CsvImportError, match=match):
+        import_csv(csv, tmp_path / "b")
+    assert not (tmp_path / "b").exists()
+    # Refused by the CLI with exit 2; --no-range-check imports it as it is.
+    assert main(["import-csv", str(csv), str(tmp_path / "c")]) == 2
+    assert main(["import-csv", str(csv), str(tmp_path / "d"), "--no-range-check"]) == 0
+
+
+def test_in_range_units_import(tmp_path):  # noqa: ANN001
+    csv = tmp_path / "rig.csv"
+    csv.write_text("time[ms],duty[%],pressure[bar],current[A],position[mm]\n" + RIG)
+    res = import_csv(csv, tmp_path / "b")
+    assert res.rows == 3
+    # A valve at 0 % duty holds no pressure: small pressures are not refused there.
+    low = tmp_path / "low.csv"
+    low.write_text("time,duty,pressure\n0,0,1.0\n0.001,0.1,300.0\n")
+    assert import_csv(low, tmp_path / "low_bag").rows == 2
+
+
+def test_unknown_header_names_are_listed(tmp_path, capsys):  # noqa: ANN001
+    csv = tmp_path / "rig.csv"
+    csv.write_text("Zeit,PWM,pressure[bar],I,x\n" + RIG)
+    with pytest.raises(CsvImportError, match=(
+            r"the header names \['Zeit', 'PWM', 'pressure\[bar\]', 'I', 'x'\] give no time and no duty "
+            r"column \(a time and a duty column are needed\); understood: 'pressure\[bar\]' -> pressure; accepted names: time, duty .*--columns")):
+        import_csv(csv, tmp_path / "b")
+    assert main(["import-csv", str(csv), str(tmp_path / "c")]) == 2
+    assert "['-', '-'" not in capsys.readouterr().err
