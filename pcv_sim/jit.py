@@ -80,8 +80,17 @@ def backend() -> str:
     return f"numba {_NUMBA.__version__}" if _NUMBA is not None else "python"
 
 
-def jit(fn: F) -> F:
-    """Compile `fn` with numba (nopython, cached, releasing the GIL) or return it unchanged."""
+def jit(fn: F | None = None, *, inline: bool = False) -> Any:
+    """Compile `fn` with numba (nopython, cached, releasing the GIL) or return it unchanged.
+
+    `@jit(inline=True)` for the physics the integrator loops call: numba then inlines the function
+    into its caller, which saves the call's argument passing (a tuple of a dozen arrays and their
+    reference counts per call: ~60 % of a step's cost otherwise) at the price of a longer first
+    compilation (BENCHMARKS.md, Model).
+    """
+    if fn is None:
+        return lambda f: jit(f, inline=inline)
     if _NUMBA is None:
         return fn
-    return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH)(fn)  # type: ignore[no-any-return]
+    return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
+                       inline="always" if inline else "never")(fn)

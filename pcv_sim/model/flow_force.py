@@ -14,7 +14,7 @@ from pcv_sim.jit import jit
 __all__ = ["jet_cosine", "flow_force"]
 
 
-@jit
+@jit(inline=True)
 def jet_cosine(s_mm: float, fit: tuple[tuple[float, ...], ...], cap: float) -> float:
     """Eqs. 31-32 (readings R8, R9): cos(delta) = min(cap, sum a exp(-((s - b)/c)^2)).
 
@@ -28,7 +28,7 @@ def jet_cosine(s_mm: float, fit: tuple[tuple[float, ...], ...], cap: float) -> f
     return total if total < cap else cap
 
 
-@jit
+@jit(inline=True)
 def flow_force(cq: float, area: float, dp: float, cos_delta: float) -> float:
     """Eq. 30: F_f = 2 C_q A |dp| cos(delta) (N), the steady jet force of one orifice (>= 0)."""
     return 2.0 * cq * area * abs(dp) * cos_delta

@@ -98,7 +98,7 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
     return p, f
 
 
-@jit
+@jit(inline=True)
 def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
     """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform."""
     if p[SWITCHED] != 0.0:
@@ -109,7 +109,7 @@ def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
     return duty * p[V_SUPPLY]
 
 
-@jit
+@jit(inline=True)
 def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
     """Eqs. 16-27 and 30-32 at spool x (m and mm), load pressure and supply pressure (Pa):
     (pump flow + pump -> load, tank flow + load -> tank, pump flow force, tank flow force)."""
@@ -143,7 +143,7 @@ def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
     return q_p, q_t, f_p, f_t
 
 
-@jit
+@jit(inline=True)
 def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
     """Eqs. 1-8: the coil current for flux linkage lam at spool x (m) and coil voltage v_s."""
     c1, c2, c3, _, _, _, _ = sol.coefficients_at(x * MM_PER_M + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
@@ -152,7 +152,7 @@ def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
                                 p[V_LO], p[V_HI])
 
 
-@jit
+@jit(inline=True)
 def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
     """Eq. 14 at rest (v = 0, p_c = p): the net force on the spool (N, + toward +x) with coil
     current i at spool x (m), load and supply pressure (Pa): what the static characteristic and
@@ -164,7 +164,7 @@ def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
             - p[K_SPRING] * x - (f_p - f_t) - p[F0])
 
 
-@jit
+@jit(inline=True)
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     """d(state)/dt into dx; the coil current into w[0]. Eqs. 1-3 (solenoid), 14 (spool), 15 and
     28-29 (continuity, chamber).
@@ -207,21 +207,21 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
         dx[2] = force / p[MASS]
 
 
-@jit
+@jit(inline=True)
 def chamber_rate(p):  # noqa: ANN001, ANN201
     """The damping chamber's pole K_d beta / V_c (1/s, ~2.6e8): the exact linear decay of p_c in
     Eq. 29, which the exponential integrator treats exactly (0 for the simplified model)."""
     return p[K_D] * p[BETA] / p[V_C] if p[FULL] != 0.0 else 0.0
 
 
-@jit
+@jit(inline=True)
 def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
     """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
     y[0] = x[3]
     y[2] = x[1]
 
 
-@jit
+@jit(inline=True)
 def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
@@ -230,7 +230,7 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
     y[2] = x[1]
 
 
-@jit
+@jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2)."""
     if x[1] < p[X_MIN]:

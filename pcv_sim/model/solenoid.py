@@ -29,7 +29,7 @@ __all__ = [
 ]
 
 
-@jit
+@jit(inline=True)
 def poly(coeffs, z):  # noqa: ANN001, ANN201 - tuples or arrays (compiled per type)
     """Horner evaluation, highest power first (the order of Table 1)."""
     acc = 0.0
@@ -38,7 +38,7 @@ def poly(coeffs, z):  # noqa: ANN001, ANN201 - tuples or arrays (compiled per ty
     return acc
 
 
-@jit
+@jit(inline=True)
 def coefficients_at(core_mm, f1, f2, f3, force):  # noqa: ANN001, ANN201
     """Eqs. 5-7 and 10-13 at one core position (mm): (f_1, f_2, f_3, p_fs1, p_fs2, p_fs3, p_fs4).
 
@@ -56,7 +56,7 @@ def coefficients_at(core_mm, f1, f2, f3, force):  # noqa: ANN001, ANN201
     return c1, c2, c3, k1, k2, k3, k4
 
 
-@jit
+@jit(inline=True)
 def force_from_coefficients(i: float, k1: float, k2: float, k3: float, k4: float) -> float:
     """Eq. 9: F_s = p_fs1 i^5 + p_fs2 i^4 + p_fs3 i^3 + p_fs4 i^2 (N)."""
     return (((k1 * i + k2) * i + k3) * i + k4) * i * i
@@ -69,13 +69,13 @@ def restoring_coefficients(
     return poly(f1, core_mm), poly(f2, core_mm), poly(f3, core_mm)
 
 
-@jit
+@jit(inline=True)
 def restoring_current(lam: float, c1: float, c2: float, c3: float) -> float:
     """Eq. 4: energy-restoring current i_R = f_1 lam^3 + f_2 lam^2 + f_3 lam (A); lam in Wb."""
     return ((c1 * lam + c2) * lam + c3) * lam
 
 
-@jit
+@jit(inline=True)
 def dissipating_current(v_l, pd):  # noqa: ANN001, ANN201
     """Eq. 8: energy-dissipating current i_d(V_L) = p_d1 V_L^3 + ... + p_d4 (A); V_L in V.
 
@@ -125,7 +125,7 @@ def solve_current(
         raise ArithmeticError(f"no coil current solves Eq. 2 for i_R={i_r!r} A, V_s={v_s!r} V ({err})") from None
 
 
-@jit
+@jit(inline=True)
 def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):  # noqa: ANN001, ANN201
     """`solve_current` with the clamp interval given (the compiled kernel's form)."""
     p1, p2, p3, p4 = pd[0], pd[1], pd[2], pd[3]
@@ -146,13 +146,13 @@ def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):  # noqa: AN
     return _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi)
 
 
-@jit
+@jit(inline=True)
 def _current_residual(i, i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
     v_l = min(max(v_s - i * resistance, v_lo), v_hi)
     return i - i_r - dissipating_current(v_l, pd)
 
 
-@jit
+@jit(inline=True)
 def _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
     lo = i_r + dissipating_current(v_lo, pd) - 1e-9
     hi = i_r + dissipating_current(v_hi, pd) + 1e-9
@@ -172,7 +172,7 @@ def _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN2
     return 0.5 * (lo + hi)
 
 
-@jit
+@jit(inline=True)
 def flux_linkage_derivative(v_s: float, i: float, resistance: float) -> float:
     """Eq. 3: d lambda / dt = V_L = V_s - i R (V = Wb/s)."""
     return v_s - i * resistance

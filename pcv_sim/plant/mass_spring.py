@@ -25,7 +25,7 @@ __all__ = ["mass_spring"]
 AREA, MASS, STIFFNESS, DAMPING, X_MIN, X_MAX = 0, 1, 2, 3, 4, 5
 
 
-@jit
+@jit(inline=True)
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     force = p[AREA] * (u[0] - u[1]) - p[STIFFNESS] * x[0] - p[DAMPING] * x[1]
     if (x[0] <= p[X_MIN] and x[1] <= 0.0 and force <= 0.0) or (x[0] >= p[X_MAX] and x[1] >= 0.0 and force >= 0.0):
@@ -36,7 +36,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
         dx[1] = force / p[MASS]
 
 
-@jit
+@jit(inline=True)
 def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
     y[0] = p[AREA] * x[1]
     y[1] = -p[AREA] * x[1]
@@ -44,12 +44,12 @@ def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
     y[3] = x[1]
 
 
-@jit
+@jit(inline=True)
 def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
     state_output(t, x, p, f, y)
 
 
-@jit
+@jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
     if x[0] < p[X_MIN]:
         x[0] = p[X_MIN]

@@ -109,7 +109,7 @@ def advance_erk2(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
         project(x, P)
 
 
-@jit
+@jit(inline=True)
 def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
     # The stiff states of y once more, with their forcing N at y itself (exponential Euler from
     # y0 with end-point forcing): a state slaved to the others (the chamber pressure to the spool
