@@ -247,6 +247,6 @@ def compiled_module(plant: Composite) -> ModuleType:
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
-    module.JIT = enabled()
+    module.JIT = enabled()  # type: ignore[attr-defined]  # for diagnostics: compiled or Python
     _LOADED[name] = module
     return module

@@ -86,9 +86,13 @@ def integrate_reference(
         last = k == len(bps) - 2
         t = t0
         while t < t1 - eps:
-            own = np.nonzero((sample_times >= t - eps) & ((sample_times < t1 - eps) | (last & (sample_times <= t1 + eps))))[0]
+            inside = (sample_times < t1 - eps) | (last & (sample_times <= t1 + eps))
+            own = np.nonzero((sample_times >= t - eps) & inside)[0]
             t_eval = np.unique(np.clip(np.append(sample_times[own], t1), t, t1))
-            fun = (lambda tt, yy: rhs(tt, yy, np.asarray(inputs(tt), float))) if kinked else (lambda tt, yy: rhs(tt, yy, u))
+
+            def fun(tt: float, yy: np.ndarray, u: np.ndarray = u, kinked: bool = kinked) -> np.ndarray:
+                return rhs(tt, yy, np.asarray(inputs(tt), float) if kinked else u)
+
             sol = solve_ivp(fun, (t, t1), y, method=method, t_eval=t_eval, rtol=rtol, atol=atol,
                             events=[e for e, _, _ in events] or None, max_step=max_step)
             if sol.status < 0:
