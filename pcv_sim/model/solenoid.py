@@ -8,7 +8,7 @@ reading R2). The paper's fits take the core position in mm; that is the only non
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from typing import Any
 
 from pcv_sim.jit import jit
 
@@ -63,9 +63,10 @@ def force_from_coefficients(i: float, k1: float, k2: float, k3: float, k4: float
     return (((k1 * i + k2) * i + k3) * i + k4) * i * i
 
 
-def restoring_coefficients(core_mm: float, f1: Sequence[float], f2: Sequence[float],
-                           f3: Sequence[float]) -> tuple[float, float, float]:
-    """Eqs. 5-7: f_1(x), f_2(x), f_3(x) of the restoring current, x = core position in mm."""
+def restoring_coefficients(core_mm: float, f1: Any, f2: Any,
+                           f3: Any) -> tuple[float, float, float]:
+    """Eqs. 5-7: f_1(x), f_2(x), f_3(x) of the restoring current, x = core position in mm (fits as
+    tuples or arrays)."""
     return poly(f1, core_mm), poly(f2, core_mm), poly(f3, core_mm)
 
 
