@@ -6,7 +6,9 @@ State, inputs and outputs are float arrays (SI units):
 
     x  simplified (Sec. 4.3): lambda (Wb), x (m), v (m/s), p (Pa)
        full (Sec. 4.2):       lambda, x, v, p, p_c (Pa): with the damping chamber
-    u  duty (0..1), load flow q_l (m^3/s, + drawn from the load port), supply pressure p_s (Pa)
+    u  duty (0..1), load flow q_l (m^3/s, + drawn from the load port), supply pressure p_s (Pa),
+       load volume V (m^3): the oil volume at the load port (Eq. 15's V; a single valve is fed
+       `circuit.load_volume`, a valve on a cylinder the chamber's volume V0 + A x + hose)
     y  pressure (Pa), current (A), spool position (m)
     w  workspace: the last coil current (A), the Newton start of the next Eq. 2 solve
 
@@ -37,7 +39,7 @@ STATES = {
     "simplified": ("flux_linkage", "spool_position", "spool_velocity", "pressure"),
     "full": ("flux_linkage", "spool_position", "spool_velocity", "pressure", "chamber_pressure"),
 }
-INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
+INPUTS = ("duty_cycle", "load_flow", "supply_pressure", "load_volume")
 OUTPUTS = ("pressure", "current", "spool_position")
 #: Outputs that depend on the state alone (no direct feedthrough): the ones a composition may
 #: route into another system's input. The current is algebraic in the coil voltage (Eq. 2).
@@ -176,7 +178,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     # Eq. 14 without the chamber and damping terms, which differ per variant.
     force = sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * pl - p[K_SPRING] * xs - (f_p - f_t) - p[F0]
     dx[0] = sol.flux_linkage_derivative(v_s, i, p[R_COIL])                               # Eq. 3
-    c_load = p[BETA] / p[VOLUME]
+    c_load = p[BETA] / u[3]                 # Eq. 15: beta / V, V the load port's volume (an input)
     if p[FULL] != 0.0:
         p_c = x[4]
         q_c = p[K_D] * (pl - p_c)                                                         # Eq. 28
