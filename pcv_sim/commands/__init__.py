@@ -10,4 +10,5 @@ COMMANDS = [
     "pcv_sim.commands.replay",
     "pcv_sim.commands.import_csv",
     "pcv_sim.commands.reference_bags",
+    "pcv_sim.commands.scenario",
 ]

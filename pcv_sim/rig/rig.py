@@ -91,6 +91,10 @@ class Rig:
         self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
         self.reset()
+        # Compile (or load from the cache) the composite's functions now, not in the first run.
+        self.sim.outputs()
+        self.sim.advance(1)
+        self.reset()
 
     # --- state -------------------------------------------------------------------------------
 
