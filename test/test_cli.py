@@ -268,7 +268,8 @@ def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str],
     from pcv_sim.cli import build_parser
     from pcv_sim.commands import COMMANDS
 
-    required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"]}
+    required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"],
+                "scenario": ["run", "s.yaml"]}
     parser = build_parser()
     names = [sys.modules[m].NAME for m in COMMANDS]
     for name in names:                      # every subcommand takes --config after its name

@@ -24,9 +24,8 @@ HELP = "run rig scenarios (valves + steering cylinder + controller) and check th
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    run = sub.add_parser("run", help="run a scenario file or every *.yaml in a directory",
-                         description=__doc__)
+    run = p
+    run.add_argument("action", choices=("run",), help="run: a scenario file, or every *.yaml in a directory")
     run.add_argument("path", type=Path, metavar="FILE.yaml|DIR")
     run.add_argument("--json", action="store_true", help="print every assertion's outcome and the real-time factor as JSON")
     run.add_argument("--report", type=Path, metavar="OUT.html", help="write an HTML report with plots (a directory for DIR)")
@@ -72,6 +71,9 @@ def _text(r: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "config", None) is not None:
+        raise UsageError("--config: a scenario takes each valve's YAML from its rig file (valves.<name>.config); "
+                         "accepted is no --config")
     path: Path = args.path
     if path.is_dir():
         files = sorted(path.glob("*.yaml"))

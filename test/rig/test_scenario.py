@@ -124,3 +124,10 @@ def test_command_runs_a_directory_in_parallel_with_one_summary(tmp_path, capsys)
     assert code == 2
     assert "3 scenarios: 1 passed, 1 failed, 1 bad files" in out
     assert "broken: BAD FILE" in out and "not valid YAML" in out
+
+
+def test_command_refuses_a_valve_config_and_a_missing_path(tmp_path, capsys):
+    assert main(["scenario", "run", str(EXAMPLES / "step.yaml"), "--config", "valve.yaml"]) == 2
+    assert "valves.<name>.config" in capsys.readouterr().err
+    assert main(["scenario", "run", str(tmp_path / "nope.yaml")]) == 2
+    assert "no such scenario file or directory" in capsys.readouterr().err
