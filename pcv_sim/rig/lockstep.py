@@ -111,7 +111,9 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                 for key, value in commands.items():
                     if key == "flags":
                         for fname, fv in dict(value).items():
-                            arr = flags.setdefault(f"controller.{fname}", np.full(n + 1, np.nan))
+                            arr = flags.get(f"controller.{fname}")
+                            if arr is None:
+                                arr = flags[f"controller.{fname}"] = np.full(n + 1, np.nan)
                             arr[k] = float(fv)
                     elif key in valves:
                         try:
@@ -123,7 +125,8 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                                               f"valves {', '.join(valves)} and 'flags'")
         elif setpoint is not None:
             sp[k] = setpoint(t)
-        duties[k] = [rig.duties[v] for v in valves]
+        for j, v in enumerate(valves):
+            duties[k, j] = rig.duties[v]
     wall = time.perf_counter() - wall0
     times = (k0 + np.arange(n + 1) * per) * rig.dt
     return RigRun(times, names, true, meas, duties, valves, sp, flags, list(rig.log), list(rig.rejected), wall)

@@ -254,9 +254,11 @@ class Rig:
                 for name in self.valve_names:
                     if not self.watchdog_fired[name]:
                         deadline = self._last_cmd[name] + self._wd_steps
-                        nxt = min(nxt, max(deadline, sim.steps + 1))
+                        if deadline < nxt:
+                            nxt = max(deadline, sim.steps + 1)
             sim.advance(nxt - sim.steps)
-            if not sim.finite():
+            x = sim.x
+            if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
                 raise RigError(f"the model state ran away (non-finite) before t = {sim.time:.6g} s; "
                                f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
 
