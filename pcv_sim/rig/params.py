@@ -135,9 +135,21 @@ def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None
     return RigParams(timing, valves, cylinder)
 
 
+def _installed_default() -> Path:
+    """The shipped rig YAML, from the source tree or an ament install (share/pcv_sim/config)."""
+    if DEFAULT_RIG.is_file():
+        return DEFAULT_RIG
+    try:
+        from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+
+        return Path(get_package_share_directory("pcv_sim")) / "config" / "rig.yaml"
+    except Exception:  # noqa: BLE001 - not installed through ament: report the source path
+        return DEFAULT_RIG
+
+
 def load_rig(path: str | Path | None = None) -> RigParams:
     """Load and validate a rig YAML file (default: config/rig.yaml)."""
-    p = Path(path) if path is not None else DEFAULT_RIG
+    p = Path(path) if path is not None else _installed_default()
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as err:

@@ -44,7 +44,7 @@ import yaml
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.faults import FaultError, parse_fault
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
-from pcv_sim.rig.params import DEFAULT_RIG, RigParams, load_rig
+from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.rig import Rig, RigError
 
 __all__ = ["Scenario", "ScenarioError", "Outcome", "ScenarioResult", "load_scenario", "run_scenario",
@@ -279,7 +279,7 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
         if rig_file is not None and not isinstance(rig_file, str):
             raise ScenarioError(f"rig: got {rig_file!r}; accepted is the path of a rig YAML (relative to the scenario)")
         try:
-            rig = load_rig(base / rig_file if rig_file else DEFAULT_RIG)
+            rig = load_rig(base / rig_file if rig_file else None)
         except PcvSimError as err:
             raise ScenarioError(f"rig: {err}") from None
         if "duration" not in data:
