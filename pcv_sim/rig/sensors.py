@@ -73,8 +73,11 @@ class Sensors:
                 n = self.delay_periods(kinds["delay"][0].values["delay"])
                 v = float(self._history[max(0, len(self._history) - 1 - n)][j])
             if "freeze" in kinds:
-                _, _, start = kinds["freeze"]
-                v = start if math.isfinite(start) else v
+                fault, t0, start = kinds["freeze"]
+                if not math.isfinite(start):       # injected before any sample: freeze the first one seen
+                    kinds["freeze"] = (fault, t0, v)
+                    start = v
+                v = start
             if "bias" in kinds:
                 v += kinds["bias"][0].values["value"]
             if "drift" in kinds:

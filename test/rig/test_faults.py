@@ -176,3 +176,11 @@ def test_sensor_faults_change_what_the_controller_sees_not_the_physics(rig):
     j = sig["left.spool_position"]
     assert np.array_equal(m[k + 3:, j], tr[k:-3, j])
     assert all(math.isfinite(v) for s in seen for v in s.values())
+
+
+def test_a_sensor_frozen_before_the_first_sample_holds_the_first_sample(rig):
+    rig.inject(fault(rig, "freeze", "cylinder.position"))
+    run = run_lockstep(rig, lambda t, m: {"left": 0.7, "right": 0.5}, 0.2)
+    j = rig.signals.index("cylinder.position")
+    assert run.true[-1, j] > 1e-3
+    assert np.all(run.measured[:, j] == run.true[0, j])
