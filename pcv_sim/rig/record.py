@@ -35,10 +35,6 @@ STRING = "std_msgs/msg/String"
 _NS = 1_000_000_000
 
 
-def _chamber(run: RigRun, valve: str, chambers: dict[str, str]) -> str:
-    return chambers.get(valve, "")
-
-
 def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None = None) -> Path:
     """Write `run` as a rosbag2/MCAP bag at `path` (must not exist); `chambers` maps valve -> a|b."""
     chambers = chambers or {}

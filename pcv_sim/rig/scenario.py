@@ -30,6 +30,7 @@ naming the key and what is accepted (the CLI exits 2).
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import inspect
 import math
 import sys
@@ -322,20 +323,26 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path | None) -> Controller:
-    """The controller named `module:callable` (module.py in `base` first, then importable)."""
+    """The controller named `module:callable`: module.py beside the scenario (loaded from that
+    file, so two folders' `steering.py` never mix), else an importable module."""
     module_name, attr = spec.split(":")
-    added = False
-    if base is not None and str(base) not in sys.path:
-        sys.path.insert(0, str(base))
-        added = True
+    beside = base / f"{module_name.replace('.', '/')}.py" if base is not None else None
     try:
-        module = importlib.import_module(module_name)
+        if beside is not None and beside.is_file():
+            unique = f"pcv_sim_scenario_{abs(hash(str(beside.resolve())))}_{module_name.replace('.', '_')}"
+            loader_spec = importlib.util.spec_from_file_location(unique, beside)
+            assert loader_spec is not None and loader_spec.loader is not None
+            module = importlib.util.module_from_spec(loader_spec)
+            sys.path.insert(0, str(base))            # the module may import its own siblings
+            try:
+                loader_spec.loader.exec_module(module)
+            finally:
+                sys.path.remove(str(base))
+        else:
+            module = importlib.import_module(module_name)
     except ImportError as err:
         raise ScenarioError(f"controller: cannot import {module_name!r} ({err}); accepted is a module.py beside the "
                             "scenario or an importable module") from None
-    finally:
-        if added:
-            sys.path.remove(str(base))
     obj = getattr(module, attr, None)
     if obj is None or not callable(obj):
         raise ScenarioError(f"controller: {module_name} has no callable {attr!r}")

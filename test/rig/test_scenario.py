@@ -131,3 +131,17 @@ def test_command_refuses_a_valve_config_and_a_missing_path(tmp_path, capsys):
     assert "valves.<name>.config" in capsys.readouterr().err
     assert main(["scenario", "run", str(tmp_path / "nope.yaml")]) == 2
     assert "no such scenario file or directory" in capsys.readouterr().err
+
+
+def test_controller_module_beside_the_file_and_import_errors(tmp_path, capsys):
+    (tmp_path / "mine.py").write_text("def ctrl(t, m):\n    return {'left': 0.6, 'right': 0.6}\n")
+    data = {"rig": str(REPO / "config" / "rig.yaml"), "duration": 0.05, "controller": "mine:ctrl",
+            "assertions": [{"type": "never_below", "signal": "left.duty", "min": 0.6, "after": 0.001}]}
+    (tmp_path / "ok.yaml").write_text(yaml.safe_dump(data))
+    assert main(["scenario", "run", str(tmp_path / "ok.yaml")]) == 0
+    (tmp_path / "missing.yaml").write_text(yaml.safe_dump({**data, "controller": "nosuchmodule:ctrl"}))
+    assert main(["scenario", "run", str(tmp_path / "missing.yaml")]) == 2
+    assert "cannot import 'nosuchmodule'" in capsys.readouterr().err
+    (tmp_path / "noattr.yaml").write_text(yaml.safe_dump({**data, "controller": "mine:nothing"}))
+    assert main(["scenario", "run", str(tmp_path / "noattr.yaml")]) == 2
+    assert "mine has no callable 'nothing'" in capsys.readouterr().err
