@@ -3,7 +3,9 @@ and the steering cylinder, validated on load like the valve YAML.
 
     rig:       time_step (s), control_period (s), watchdog_timeout (s, 0 = off), safe_duty (0..1)
     valves:    name -> {config: valve YAML (relative to the rig file; '' = the shipped one),
-                        chamber: a | b, initial_duty: 0..1}
+                        chamber: a | b | none, initial_duty: 0..1}
+               exactly one valve per cylinder chamber; any number with `chamber: none` (a valve
+               on its own dead-ended load volume, circuit.load_volume, no load flow)
     cylinder:  `pcv_sim.plant.params.CylinderParams`
 
 Unknown keys, wrong types and values outside their range are refused with a `ParameterError`
@@ -26,6 +28,7 @@ __all__ = ["RigParams", "TimingParams", "ValveSlot", "load_rig", "rig_from_mappi
 
 DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "rig.yaml"
 CHAMBERS = ("a", "b")
+NO_CHAMBER = "none"
 
 
 @dataclass(frozen=True)
@@ -86,9 +89,9 @@ def _slot(name: Any, raw: Any, base: Path) -> ValveSlot:
         raise ParameterError(f"{path}.config: {config or 'the valve YAML'} sets command.duty_fall_rate_limit; "
                              "the rig applies each duty command at its step: accepted is null")
     chamber = raw.get("chamber")
-    if chamber not in CHAMBERS:
+    if chamber not in (*CHAMBERS, NO_CHAMBER):
         raise ParameterError(f"{path}.chamber: got {chamber!r}; accepted is 'a' or 'b' (the cylinder chamber "
-                             "its load port feeds)")
+                             "its load port feeds) or 'none' (its own dead-ended load volume)")
     duty = raw.get("initial_duty", 0.0)
     if isinstance(duty, bool) or not isinstance(duty, (int, float)) or not 0.0 <= duty <= 1.0:
         raise ParameterError(f"{path}.initial_duty: got {duty!r}; accepted is a fraction 0..1")

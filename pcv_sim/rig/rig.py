@@ -72,6 +72,8 @@ class Rig:
         wires = []
         for v in valves:
             c = v.chamber
+            if c not in ("a", "b"):
+                continue                    # on its own load volume: load_flow and load_volume stay inputs
             wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
                       (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
         self.plant = compose(systems, wires)
@@ -81,6 +83,9 @@ class Rig:
         self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in self.valve_names]
         self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in self.valve_names]
         self._force_i = plant.index("input", "cylinder.external_force")
+        #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
+        self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
+                             v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
         self.signals = tuple(f"{n}.{s}" for n in self.valve_names for s in VALVE_SIGNALS) + tuple(
             f"cylinder.{s}" for s in CYLINDER_SIGNALS)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
@@ -120,6 +125,8 @@ class Rig:
             sim.u[self._duty_i[k]] = v.initial_duty
             sim.u[self._supply_i[k]] = self._supply0[k]
         sim.u[self._force_i] = 0.0
+        for i_flow, i_volume, volume in self._own_volume:
+            sim.u[i_flow], sim.u[i_volume] = 0.0, volume
         self._last_cmd = dict.fromkeys(self.valve_names, 0)
         self.watchdog_fired = dict.fromkeys(self.valve_names, False)
         self.rejected: list[tuple[float, str]] = []

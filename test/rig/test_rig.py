@@ -128,3 +128,27 @@ def test_watchdog_falls_to_safe_duty_and_a_valid_command_resumes(rig):
     assert fired == pytest.approx(0.049 + t_wd, abs=1e-9)
     assert d[-1] == 0.6
     assert any("watchdog fired" in text for _, text in run.log)
+
+
+def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_params, tmp_path):
+    """A third valve with chamber: none sits on its own dead-ended load volume: the same
+    arithmetic as the emulator's stepper, so the same numbers bit for bit."""
+    import yaml
+
+    from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    data = yaml.safe_load(DEFAULT_RIG.read_text())
+    data["valves"]["pilot"] = {"config": "valve.yaml", "chamber": "none", "initial_duty": 0.5}
+    rig = Rig(rig_from_mapping(data, base=DEFAULT_RIG.parent))
+    assert rig.valve_names == ("left", "right", "pilot")
+    run = run_lockstep(rig, lambda t, m: {"pilot": 0.7 if t >= 0.01 else 0.5, "left": 0.6}, 0.1)
+    st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
+    pressures = []
+    for k in range(len(run.times)):
+        if k == 10:
+            st.set_duty(0.7)
+        pressures.append(st.pressure)
+        st.advance(10)
+    assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
+    assert run.signal("pilot.pressure")[-1] > 110 * BAR
