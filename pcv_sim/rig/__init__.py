@@ -4,9 +4,9 @@ and a lockstep runner for a controller (`pcv_sim.rig.lockstep`)."""
 from pcv_sim.rig.faults import SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.rig.lockstep import ControllerError, RigRun, run_lockstep
 from pcv_sim.rig.params import DEFAULT_RIG, RigParams, load_rig, rig_from_mapping
-from pcv_sim.rig.rig import Rig, RigError
+from pcv_sim.rig.rig import Rig, RigError, RigStatus
 
 __all__ = [
-    "Rig", "RigError", "RigParams", "load_rig", "rig_from_mapping", "DEFAULT_RIG", "run_lockstep", "RigRun",
+    "Rig", "RigError", "RigStatus", "RigParams", "load_rig", "rig_from_mapping", "DEFAULT_RIG", "run_lockstep", "RigRun",
     "ControllerError", "Fault", "FaultError", "parse_fault", "VALVE_FAULTS", "SENSOR_FAULTS",
 ]

@@ -39,7 +39,7 @@ from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["Rig", "RigError", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE"]
+__all__ = ["Rig", "RigError", "RigStatus", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE"]
 
 VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
@@ -49,6 +49,18 @@ MAX_EXTERNAL_FORCE = 1.0e6
 
 class RigError(PcvSimError, RuntimeError):
     """The rig cannot go on: the model state ran away (non-finite), as the emulator's fault state."""
+
+
+@dataclass(frozen=True)
+class RigStatus:
+    """What diagnostics show of the rig at one instant (model time `time`, s)."""
+
+    time: float
+    commands: dict[str, float]            # the last valid duty command per valve
+    duties: dict[str, float]              # the duty in force (the safe duty after the watchdog)
+    watchdog_fired: dict[str, bool]
+    faults: tuple[str, ...]               # active faults, "kind@target"
+    rejected: int                         # commands refused since reset
 
 
 @dataclass(order=True)
@@ -143,6 +155,10 @@ class Rig:
     @property
     def time(self) -> float:
         return self.sim.time
+
+    def status(self) -> RigStatus:
+        return RigStatus(self.time, dict(self.commands), dict(self.duties), dict(self.watchdog_fired),
+                         tuple(f"{kind}@{target}" for target, kind in self.faults), len(self.rejected))
 
     def sample(self) -> np.ndarray:
         """The true values of `signals` now (SI: Pa, A, m per valve; m, m/s, N for the cylinder),

@@ -118,8 +118,9 @@ def test_a_cleared_fault_returns_to_normal(rig):
     rig.schedule(0.1, lambda: rig.clear("left", "internal_leakage"))
     fresh = {}
     rig.schedule(0.2, lambda: fresh.update(p=rig.sim.P.copy(), u=rig.sim.u.copy()))
+    assert rig.status().faults == ("contamination@left", "internal_leakage@left")
     run = run_lockstep(rig, hold(0.7), 0.6)
-    assert not rig.faults
+    assert not rig.faults and rig.status().faults == ()
     # The device is the healthy one again: the same parameters and inputs, bit for bit ...
     rig.reset()
     supplies = [rig.plant.index("input", f"{v}.supply_pressure") for v in rig.valve_names]

@@ -128,6 +128,8 @@ def test_watchdog_falls_to_safe_duty_and_a_valid_command_resumes(rig):
     assert fired == pytest.approx(0.049 + t_wd, abs=1e-9)
     assert d[-1] == 0.6
     assert any("watchdog fired" in text for _, text in run.log)
+    status = rig.status()
+    assert status.watchdog_fired == {"left": False, "right": False} and status.duties["left"] == 0.6
 
 
 def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_params, tmp_path):
