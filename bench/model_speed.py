@@ -69,12 +69,12 @@ def _composite(steps: int) -> float:
     sim = Simulator(plant, 1e-4, "rk2")
     sim.x[:] = np.concatenate([rest.state, rest.state, [0.0, 0.0]])
     sim.W[:] = (rest.current, rest.current, 0.0)
-    sim.u[:] = (0.5, 200e5, 0.5, 200e5)
+    sim.u[:] = (0.5, 200e5, params.circuit.load_volume, 0.5, 200e5, params.circuit.load_volume)
     sim.advance(10)
     chunk = max(1, steps // 4)
     t0 = CLOCK()
     for left, right in ((0.9, 0.4), (0.4, 0.9), (0.7, 0.5), (0.5, 0.5)):
-        sim.u[0], sim.u[2] = left, right
+        sim.u[0], sim.u[3] = left, right
         sim.advance(chunk)
     return (CLOCK() - t0) / (4 * chunk) * 1e6
 

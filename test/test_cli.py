@@ -291,7 +291,8 @@ def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str],
     from pcv_sim.commands import COMMANDS
 
     required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"],
-                "calibrate": ["bag", "--fit", "spool.spring_preload", "-o", "out.yaml"]}
+                "calibrate": ["bag", "--fit", "spool.spring_preload", "-o", "out.yaml"],
+                "scenario": ["run", "s.yaml"]}
     parser = build_parser()
     names = [sys.modules[m].NAME for m in COMMANDS]
     for name in names:                      # every subcommand takes --config after its name

@@ -11,4 +11,5 @@ COMMANDS = [
     "pcv_sim.commands.import_csv",
     "pcv_sim.commands.reference_bags",
     "pcv_sim.commands.calibrate",
+    "pcv_sim.commands.scenario",
 ]

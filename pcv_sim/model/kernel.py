@@ -6,7 +6,9 @@ State, inputs and outputs are float arrays (SI units):
 
     x  simplified (Sec. 4.3): lambda (Wb), x (m), v (m/s), p (Pa)
        full (Sec. 4.2):       lambda, x, v, p, p_c (Pa): with the damping chamber
-    u  duty (0..1), load flow q_l (m^3/s, + drawn from the load port), supply pressure p_s (Pa)
+    u  duty (0..1), load flow q_l (m^3/s, + drawn from the load port), supply pressure p_s (Pa),
+       load volume V (m^3): the oil volume at the load port (Eq. 15's V; a single valve is fed
+       `circuit.load_volume`, a valve on a cylinder the chamber's volume V0 + A x + hose)
     y  pressure (Pa), current (A), spool position (m)
     w  workspace: the last coil current (A), the Newton start of the next Eq. 2 solve
 
@@ -37,7 +39,7 @@ STATES = {
     "simplified": ("flux_linkage", "spool_position", "spool_velocity", "pressure"),
     "full": ("flux_linkage", "spool_position", "spool_velocity", "pressure", "chamber_pressure"),
 }
-INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
+INPUTS = ("duty_cycle", "load_flow", "supply_pressure", "load_volume")
 OUTPUTS = ("pressure", "current", "spool_position")
 #: Outputs that depend on the state alone (no direct feedthrough): the ones a composition may
 #: route into another system's input. The current is algebraic in the coil voltage (Eq. 2).
@@ -49,7 +51,15 @@ MASS, A_C, A_CC, A_NET, K_SPRING, F0, DAMPING, X_MIN, X_MAX = 7, 8, 9, 10, 11, 1
 R_HOLE, N_HOLES, H_GAP, R_PILOT, TANK_OFFSET, BLEND_K, GAP_PERIMETER = 16, 17, 18, 19, 20, 21, 22
 RHO, BETA, NU, VOLUME, P_TANK, K_D, V_C, FULL = 23, 24, 25, 26, 27, 28, 29, 30
 PUMP_JET_CAP, TANK_JET_CAP, G_CLOSED, GAMMA_CLOSED, COS_CLOSED, A_CLOSED = 31, 32, 33, 34, 35, 36
-N_PARAMS = 37
+# Faults (a healthy valve: 1, 1, 0, 1e-3, 0, 0; each is a no-op at its healthy value, so the healthy
+# model's arithmetic is untouched). R_COIL above carries a partial short (a lower resistance).
+#   VOLTAGE_FACTOR  coil voltage factor: 0 = open circuit (no drive; the flux decays through R)
+#   AREA_FACTOR     both metering edges' flow and flow force scaled (contamination: < 1)
+#   SPOOL_FRICTION  extra Coulomb friction on the spool (N), smoothed over SPOOL_FRICTION_V (m/s)
+#   STUCK           1 = the spool is held where it is (seized)
+#   LEAK            internal leakage load -> tank, laminar conductance (m^3/(s Pa))
+VOLTAGE_FACTOR, AREA_FACTOR, SPOOL_FRICTION, SPOOL_FRICTION_V, STUCK, LEAK = 37, 38, 39, 40, 41, 42
+N_PARAMS = 43
 
 # --- the tables f ---------------------------------------------------------------------------
 T_F1, T_F2, T_F3, T_PD, T_FORCE, T_GAP, T_HOLE, T_HOLE_EXP, T_TANK, T_TANK_EXP, T_PUMP_JET, T_TANK_JET = range(12)
@@ -95,18 +105,24 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
     p[COS_CLOSED] = ff.jet_cosine(0.0, f[T_TANK_JET], fit.tank_jet_cap)
     p[A_CLOSED] = orf.tank_area(0.0, o.hole_radius, o.hole_count, o.gap_height, o.tank_pilot_hole_radius,
                                 o.tank_hole_offset)
+    p[VOLTAGE_FACTOR], p[AREA_FACTOR], p[SPOOL_FRICTION_V] = 1.0, 1.0, 1e-3
     return p, f
 
 
 @jit(inline=True)
 def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
-    """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform."""
+    """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform, times the
+    fault factor VOLTAGE_FACTOR (0: coil open circuit, the driver no longer drives it)."""
     if p[SWITCHED] != 0.0:
         # Phase in periods; edges fall on sample instants, so round away float noise there.
         phase = t / p[PWM_PERIOD]
         phase -= math.floor(phase + 1e-9)
-        return p[V_SUPPLY] if phase < duty - 1e-9 else 0.0
-    return duty * p[V_SUPPLY]
+        v = p[V_SUPPLY] if phase < duty - 1e-9 else 0.0
+    else:
+        v = duty * p[V_SUPPLY]
+    if p[VOLTAGE_FACTOR] != 1.0:
+        v *= p[VOLTAGE_FACTOR]
+    return v
 
 
 @jit(inline=True)
@@ -140,6 +156,11 @@ def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
         a_t = p[A_CLOSED]
     q_t = orf.orifice_flow(cq_t, a_t, dp_t, rho)
     f_t = ff.flow_force(cq_t, a_t, dp_t, cos_t)
+    if p[AREA_FACTOR] != 1.0:
+        # Contamination: silt narrows both edges. Flow (Eq. 16) and flow force (Eq. 30) are both
+        # proportional to the area at a given C_q and dp; C_q is kept (the fits know no silt).
+        k = p[AREA_FACTOR]
+        q_p, q_t, f_p, f_t = k * q_p, k * q_t, k * f_p, k * f_t
     return q_p, q_t, f_p, f_t
 
 
@@ -188,7 +209,13 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     # Eq. 14 without the chamber and damping terms, which differ per variant.
     force = sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * pl - p[K_SPRING] * xs - (f_p - f_t) - p[F0]
     dx[0] = sol.flux_linkage_derivative(v_s, i, p[R_COIL])                               # Eq. 3
-    c_load = p[BETA] / p[VOLUME]
+    c_load = p[BETA] / u[3]                 # Eq. 15: beta / V, V the load port's volume (an input)
+    if p[LEAK] != 0.0:
+        # Internal leakage fault: a laminar path load -> tank, q = G (p - p_t), drawn like a load flow.
+        q_l = q_l + p[LEAK] * (pl - p[P_TANK])
+    if p[SPOOL_FRICTION] != 0.0:
+        # Sticking spool fault: Coulomb friction F tanh(v / v_s) against the motion (N).
+        force -= p[SPOOL_FRICTION] * math.tanh(v / p[SPOOL_FRICTION_V])
     if p[FULL] != 0.0:
         p_c = x[4]
         q_c = p[K_D] * (pl - p_c)                                                         # Eq. 28
@@ -198,8 +225,12 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     else:
         force += p[A_CC] * pl - p[DAMPING] * v                                            # Eq. 14, p_c = p
         dx[3] = c_load * (q_p - q_t - q_l + p[A_NET] * v)                                 # Eq. 15
-    # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop.
-    if (xs <= p[X_MIN] and v <= 0.0 and force <= 0.0) or (xs >= p[X_MAX] and v >= 0.0 and force >= 0.0):
+    # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop. A stuck spool
+    # (fault) is held anywhere; the rig zeroes its velocity when the fault is set.
+    if p[STUCK] != 0.0:
+        dx[1] = 0.0
+        dx[2] = 0.0
+    elif (xs <= p[X_MIN] and v <= 0.0 and force <= 0.0) or (xs >= p[X_MAX] and v >= 0.0 and force >= 0.0):
         dx[1] = 0.0
         dx[2] = 0.0
     else:

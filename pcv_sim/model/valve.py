@@ -93,7 +93,7 @@ class ValveModel:
         self.k_d = params.damping.restrictor_conductance
         self.v_c = params.damping.chamber_volume
         n = len(kernel.STATES[kind])
-        self._x, self._u, self._w, self._dx = np.zeros(n), np.zeros(3), np.zeros(1), np.zeros(n)
+        self._x, self._u, self._w, self._dx = np.zeros(n), np.zeros(4), np.zeros(1), np.zeros(n)
 
     # --- building blocks ---------------------------------------------------------------------
 
@@ -161,6 +161,7 @@ class ValveModel:
         x, u, w, dx = self._x, self._u, self._w, self._dx
         x[:] = state
         u[0], u[1], u[2] = duty, load_flow, supply_pressure
+        u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
         w[0] = i_guess
         kernel.rhs(t, x, u, self.p, self.f, w, dx)
         return tuple(float(v) for v in dx), float(w[0])

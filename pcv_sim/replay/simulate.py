@@ -186,7 +186,8 @@ def _run_radau(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt
 
     def inputs(t: float) -> np.ndarray:
         k = max(int(np.searchsorted(changes, t + 1e-12, side="right")) - 1, 0)
-        return np.array([tl.duty[k], tl.load_flow[k], tl.supply_pressure[k]], dtype=np.float64)
+        return np.array([tl.duty[k], tl.load_flow[k], tl.supply_pressure[k], params.circuit.load_volume],
+                        dtype=np.float64)
 
     times = sample_ns.astype(np.float64) / _NS
     if times.size == 0 or times[0] > 0.0:
@@ -226,7 +227,8 @@ def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: n
     values: dict[int, tuple[float, float, float]] = {}
     if params.command.duty_fall_rate_limit is None:
         # The whole run in compiled code: the emulator's steps, its inputs at their steps.
-        rows = st.sim.run(cmd_step, np.stack([tl.duty, tl.load_flow, tl.supply_pressure], axis=1), needed)
+        volume = np.full(len(tl.duty), params.circuit.load_volume)
+        rows = st.sim.run(cmd_step, np.stack([tl.duty, tl.load_flow, tl.supply_pressure, volume], axis=1), needed)
         for step, (p, i, x) in zip(needed.tolist(), rows.tolist()):
             values[step] = (p, i, x)
     else:   # the limiter ramps the duty step by step (RealTimeStepper.advance)

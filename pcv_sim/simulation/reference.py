@@ -155,7 +155,7 @@ def simulate_reference(
         max_step = model.pwm_period / 20
 
     def inputs(t: float) -> np.ndarray:
-        return np.array([profile.effective(t), load_flow, ps])
+        return np.array([profile.effective(t), load_flow, ps, model.params.circuit.load_volume])
 
     xs, ys = integrate_reference(valve_system(model.params, model.kind), x0, inputs, bps, t_samples,
                                  atol=np.array(VALVE_ATOL[:len(x0)]), rtol=rtol, method=method, max_step=max_step,

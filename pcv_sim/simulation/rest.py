@@ -63,7 +63,7 @@ def rest_state(params: ValveParams, kind: str, duty: float, load_flow: float = 0
     sim = Simulator(valve_system(params, kind), params.simulation.time_step, integrator)
     sim.x[:] = start.state
     sim.W[0] = start.current
-    sim.u[:] = (duty, load_flow, ps)
+    sim.u[:] = (duty, load_flow, ps, params.circuit.load_volume)
     for _ in range(int(_SETTLE_MAX / (_SETTLE_CHUNK * sim.dt))):
         before = sim.x.copy()
         i_before = float(sim.outputs()[1])

@@ -103,6 +103,7 @@ class RealTimeStepper:
     def _inputs(self) -> None:
         u = self.sim.u
         u[0], u[1], u[2] = self.duty, self.load_flow, self.supply_pressure
+        u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
 
     @property
     def steps(self) -> int:

@@ -1,7 +1,8 @@
 """The valve as a `System` of the simulation core (equations: `pcv_sim.model.kernel`).
 
 Signals (SI): inputs duty_cycle (0..1), load_flow (m^3/s, + drawn from the load port),
-supply_pressure (Pa); outputs pressure (Pa), current (A), spool_position (m); pressure and
+supply_pressure (Pa), load_volume (m^3: the oil volume at the load port, Eq. 15's V; a single
+valve is fed `circuit.load_volume`, a valve on a cylinder its chamber's volume); outputs pressure (Pa), current (A), spool_position (m); pressure and
 spool position depend on the state alone and can be connected to other systems.
 """
 

@@ -45,7 +45,8 @@ def two_valves_and_a_piston():
 
 def test_composite_signals_are_named_and_wired():
     plant, _, _ = two_valves_and_a_piston()
-    assert plant.inputs == ("left.duty_cycle", "left.supply_pressure", "right.duty_cycle", "right.supply_pressure")
+    assert plant.inputs == ("left.duty_cycle", "left.supply_pressure", "left.load_volume",
+                            "right.duty_cycle", "right.supply_pressure", "right.load_volume")
     assert plant.states[:4] == ("left.flux_linkage", "left.spool_position", "left.spool_velocity", "left.pressure")
     assert plant.states[-2:] == ("piston.position", "piston.velocity")
     assert plant.index("output", "right.current") == 4
@@ -73,7 +74,8 @@ def test_two_valves_and_a_piston_at_the_fixed_step_agree_with_radau():
     plant, x0, w0 = two_valves_and_a_piston()
     sim = Simulator(plant, 1e-4, "rk2")
     sim.x[:], sim.W[:] = x0, w0
-    u_step = np.array([0.7, PS, 0.5, PS])
+    v = default_params().circuit.load_volume
+    u_step = np.array([0.7, PS, v, 0.5, PS, v])
     n = 1500
     out = sim.run(np.array([0]), u_step[None, :], np.arange(0, n + 1, 10))
     times = np.arange(0, n + 1, 10) * 1e-4
@@ -147,7 +149,8 @@ x0 = np.concatenate([rest.state, rest.state, [0.0, 0.0]])
 w0 = np.array([rest.current, rest.current, 0.0])
 sim = Simulator(plant, 1e-4, "rk4")
 sim.x[:], sim.W[:] = x0, w0
-sim.u[:] = (0.7, 200e5, 0.5, 200e5)
+v = params.circuit.load_volume
+sim.u[:] = (0.7, 200e5, v, 0.5, 200e5, v)
 sim.advance(300)
 out["composite"] = sim.x.tolist() + sim.outputs().tolist()
 print(json.dumps(out))

@@ -1,0 +1,132 @@
+"""The lockstep runner: a controller called every control period on that period's samples.
+
+    controller(t, measurements) -> commands
+
+At each control instant t_k = k T the rig's signals are sampled (true values; the measured ones
+after the sensor faults), the controller is called with the measurements (a dict `signal ->
+value`, SI; a dropped sample is absent; `setpoint` holds the scenario's setpoint when there is
+one) and returns a mapping `valve -> duty` (a valve left out keeps its command, and its watchdog
+runs) and, optionally, `flags: {name: number}` which are recorded as `controller.<name>` (e.g.
+`fault_detected`). The commands act from step k N on (the next step computed), the rig runs N
+steps, and so on: deterministic bit for bit, as fast as the machine allows.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.rig.rig import Rig
+
+__all__ = ["Controller", "RigRun", "run_lockstep", "ControllerError"]
+
+Controller = Callable[[float, Mapping[str, float]], Any]
+
+
+class ControllerError(PcvSimError, TypeError):
+    """The controller returned something that is not a mapping of valve duties."""
+
+
+@dataclass
+class RigRun:
+    """The samples of a lockstep run, one row per control instant (SI units)."""
+
+    times: np.ndarray                       # s, k T
+    signals: tuple[str, ...]
+    true: np.ndarray                        # (n, signals): the physics
+    measured: np.ndarray                    # (n, signals): what the controller saw (NaN: dropped)
+    duties: np.ndarray                      # (n, valves): the duty in force from each instant on
+    valves: tuple[str, ...]
+    setpoint: np.ndarray                    # (n,) NaN where none
+    flags: dict[str, np.ndarray] = field(default_factory=dict)
+    log: list[tuple[float, str]] = field(default_factory=list)
+    rejected: list[tuple[float, str]] = field(default_factory=list)
+    wall_time: float = 0.0
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0]) if len(self.times) > 1 else 0.0
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.duration / self.wall_time if self.wall_time > 0 else math.inf
+
+    def signal(self, name: str, *, measured: bool = False) -> np.ndarray:
+        if name in self.flags:
+            return self.flags[name]
+        if name.endswith(".duty") and name[:-5] in self.valves:
+            return self.duties[:, self.valves.index(name[:-5])]
+        if name == "setpoint":
+            return self.setpoint
+        try:
+            j = self.signals.index(name)
+        except ValueError:
+            names = [*self.signals, *(f"{v}.duty" for v in self.valves), "setpoint", *self.flags]
+            raise KeyError(f"no signal {name!r}; signals: {', '.join(names)}") from None
+        return (self.measured if measured else self.true)[:, j]
+
+
+def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
+                 setpoint: Callable[[float], float] | None = None) -> RigRun:
+    """Run `rig` from its present state for `duration` s in lockstep with `controller` (None:
+    the duties come from the rig's schedule alone). Returns every control instant's samples."""
+    T = rig.params.timing.control_period
+    per = rig.params.steps_per_period
+    n = int(round(duration / T))
+    k0 = rig.steps
+    names = rig.signals
+    valves = rig.valve_names
+    true = np.empty((n + 1, len(names)))
+    meas = np.empty((n + 1, len(names)))
+    duties = np.empty((n + 1, len(valves)))
+    sp = np.full(n + 1, np.nan)
+    flags: dict[str, np.ndarray] = {}
+    sensors = rig.sensors
+    wall0 = time.perf_counter()
+    for k in range(n + 1):
+        rig.advance_to(k0 + k * per)
+        t = rig.time
+        y = rig.sample()
+        true[k] = y
+        m = sensors.measure(t, y)
+        meas[k] = m
+        if controller is not None and k < n:
+            if sensors.active:
+                measurement = {s: v for s, v in zip(names, m.tolist()) if v == v}   # NaN: dropped
+            else:
+                measurement = dict(zip(names, m.tolist()))
+            if setpoint is not None:
+                sp[k] = measurement["setpoint"] = setpoint(t)
+            commands = controller(t, measurement)
+            if commands is not None:
+                if not isinstance(commands, Mapping):
+                    raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
+                                          f"accepted is a mapping valve -> duty ({', '.join(valves)}) "
+                                          "with an optional 'flags' mapping")
+                for key, value in commands.items():
+                    if key == "flags":
+                        for fname, fv in dict(value).items():
+                            arr = flags.get(f"controller.{fname}")
+                            if arr is None:
+                                arr = flags[f"controller.{fname}"] = np.full(n + 1, np.nan)
+                            arr[k] = float(fv)
+                    elif key in valves:
+                        try:
+                            rig.set_duty(key, value)
+                        except CommandError:
+                            pass            # counted in rig.rejected; the last valid command stays
+                    else:
+                        raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
+                                              f"valves {', '.join(valves)} and 'flags'")
+        elif setpoint is not None:
+            sp[k] = setpoint(t)
+        for j, v in enumerate(valves):
+            duties[k, j] = rig.duties[v]
+    wall = time.perf_counter() - wall0
+    times = (k0 + np.arange(n + 1) * per) * rig.dt
+    return RigRun(times, names, true, meas, duties, valves, sp, flags, list(rig.log), list(rig.rejected), wall)

@@ -1,0 +1,164 @@
+"""The rig's parameters (`config/rig.yaml`): its timing, its valves (each from its own valve YAML)
+and the steering cylinder, validated on load like the valve YAML.
+
+    rig:       time_step (s), control_period (s), watchdog_timeout (s, 0 = off), safe_duty (0..1)
+    valves:    name -> {config: valve YAML (relative to the rig file; '' = the shipped one),
+                        chamber: a | b | none, initial_duty: 0..1}
+               exactly one valve per cylinder chamber; any number with `chamber: none` (a valve
+               on its own dead-ended load volume, circuit.load_volume, no load flow)
+    cylinder:  `pcv_sim.plant.params.CylinderParams`
+
+Unknown keys, wrong types and values outside their range are refused with a `ParameterError`
+naming the key and what is accepted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from pcv_sim.errors import ParameterError
+from pcv_sim.params import ValveParams, load_params
+from pcv_sim.plant.params import CylinderParams, ranged, section_from_mapping
+
+__all__ = ["RigParams", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping", "DEFAULT_RIG"]
+
+DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "rig.yaml"
+CHAMBERS = ("a", "b")
+NO_CHAMBER = "none"
+
+
+@dataclass(frozen=True)
+class TimingParams:
+    time_step: float = ranged("s", 1e-6, 1e-3, "the fixed integration step of the whole rig (valves + cylinder)")
+    control_period: float = ranged("s", 1e-4, 1.0, "samples to the controller and its commands, every period")
+    watchdog_timeout: float = ranged("s", 0.0, 60.0, "model time without a valid duty command -> safe_duty; 0 = off")
+    safe_duty: float = ranged("-", 0.0, 1.0, "duty of a valve whose watchdog fired (fraction)")
+
+
+@dataclass(frozen=True)
+class ValveSlot:
+    """One valve of the rig: its name (the namespace), its parameters and the chamber it feeds."""
+
+    name: str
+    params: ValveParams
+    chamber: str
+    initial_duty: float
+    config: str
+
+
+@dataclass(frozen=True)
+class RigParams:
+    timing: TimingParams
+    valves: tuple[ValveSlot, ...]
+    cylinder: CylinderParams
+
+    @property
+    def steps_per_period(self) -> int:
+        return int(round(self.timing.control_period / self.timing.time_step))
+
+    def valve(self, name: str) -> ValveSlot:
+        for v in self.valves:
+            if v.name == name:
+                return v
+        raise ParameterError(f"no valve {name!r} in the rig; valves: {', '.join(v.name for v in self.valves)}")
+
+
+_SLOT_KEYS = ("config", "chamber", "initial_duty")
+
+
+def _slot(name: Any, raw: Any, base: Path) -> ValveSlot:
+    path = f"valves.{name}"
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ParameterError(f"valves: name {name!r}; accepted is an identifier (letters, digits, _), "
+                             "the valve's namespace (left, right)")
+    if not isinstance(raw, Mapping):
+        raise ParameterError(f"{path}: got {raw!r}; accepted is a mapping with {', '.join(_SLOT_KEYS)}")
+    unknown = sorted(str(k) for k in raw if k not in _SLOT_KEYS)
+    if unknown:
+        raise ParameterError(f"{path}: unknown key(s) {', '.join(f'{path}.{k}' for k in unknown)}; "
+                             f"accepted: {', '.join(_SLOT_KEYS)}")
+    config = raw.get("config", "")
+    if not isinstance(config, str):
+        raise ParameterError(f"{path}.config: got {config!r}; accepted is a path to a valve YAML ('' = shipped)")
+    params = load_params(base / config if config else None)
+    if params.command.duty_fall_rate_limit is not None:
+        raise ParameterError(f"{path}.config: {config or 'the valve YAML'} sets command.duty_fall_rate_limit; "
+                             "the rig applies each duty command at its step: accepted is null")
+    chamber = raw.get("chamber")
+    if chamber not in (*CHAMBERS, NO_CHAMBER):
+        raise ParameterError(f"{path}.chamber: got {chamber!r}; accepted is 'a' or 'b' (the cylinder chamber "
+                             "its load port feeds) or 'none' (its own dead-ended load volume)")
+    duty = raw.get("initial_duty", 0.0)
+    if isinstance(duty, bool) or not isinstance(duty, (int, float)) or not 0.0 <= duty <= 1.0:
+        raise ParameterError(f"{path}.initial_duty: got {duty!r}; accepted is a fraction 0..1")
+    return ValveSlot(name, params, chamber, float(duty), config)
+
+
+def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None) -> RigParams:
+    """Build RigParams from a nested mapping (as loaded from YAML); valve configs relative to `base`."""
+    base = base or DEFAULT_RIG.parent
+    sections = ("rig", "valves", "cylinder")
+    try:
+        if not isinstance(data, Mapping):
+            raise ParameterError(f"the top level must be a mapping of sections ({', '.join(sections)})")
+        unknown = sorted(str(k) for k in data if k not in sections)
+        if unknown:
+            raise ParameterError(f"unknown section(s) {unknown}; accepted are: {', '.join(sections)}")
+        missing = [s for s in sections if s not in data]
+        if missing:
+            raise ParameterError(f"missing section(s) {missing}")
+        timing = section_from_mapping(TimingParams, data["rig"], "rig")
+        steps = timing.control_period / timing.time_step
+        if abs(steps - round(steps)) > 1e-9 * steps:
+            raise ParameterError(f"rig.control_period={timing.control_period} s: accepted is a whole number of "
+                                 f"rig.time_step={timing.time_step} s")
+        raw_valves = data["valves"]
+        if not isinstance(raw_valves, Mapping) or not raw_valves:
+            raise ParameterError(f"valves: got {raw_valves!r}; accepted is a mapping name -> "
+                                 "{config, chamber, initial_duty}")
+        valves = tuple(_slot(k, v, base) for k, v in raw_valves.items())
+        for chamber in CHAMBERS:
+            feeding = [v.name for v in valves if v.chamber == chamber]
+            if len(feeding) != 1:
+                raise ParameterError(f"valves: chamber {chamber} is fed by {feeding or 'no valve'}; accepted is "
+                                     "exactly one valve per cylinder chamber")
+        for v in valves:
+            if abs(v.params.simulation.time_step - timing.time_step) > 1e-15:
+                raise ParameterError(f"valves.{v.name}: its simulation.time_step {v.params.simulation.time_step} s "
+                                     f"differs from rig.time_step {timing.time_step} s; accepted is the same step")
+        if len({v.params.simulation.model for v in valves}) != 1:
+            raise ParameterError("valves: all valves must run the same simulation.model (one integrator for the rig)")
+        cylinder = section_from_mapping(CylinderParams, data["cylinder"], "cylinder")
+    except ParameterError as err:
+        raise ParameterError(f"{origin}: {err}") from None
+    return RigParams(timing, valves, cylinder)
+
+
+def _installed_default() -> Path:
+    """The shipped rig YAML, from the source tree or an ament install (share/pcv_sim/config)."""
+    if DEFAULT_RIG.is_file():
+        return DEFAULT_RIG
+    try:
+        from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+
+        return Path(get_package_share_directory("pcv_sim")) / "config" / "rig.yaml"
+    except Exception:  # noqa: BLE001 - not installed through ament: report the source path
+        return DEFAULT_RIG
+
+
+def load_rig(path: str | Path | None = None) -> RigParams:
+    """Load and validate a rig YAML file (default: config/rig.yaml)."""
+    p = Path(path) if path is not None else _installed_default()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise ParameterError(f"cannot read rig file {p}: {err.strerror}") from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ParameterError(f"{p}: not valid YAML: {err}") from err
+    return rig_from_mapping(data, origin=str(p), base=p.parent)

@@ -1,0 +1,298 @@
+"""The rig without ROS: the valves and the steering cylinder in one `Simulator` at one fixed step.
+
+Each valve's load port is one cylinder chamber: the valve's pressure state feeds the cylinder's
+`pressure_a|b`; the chamber's displacement flow and volume feed the valve's `load_flow` and
+`load_volume` (Eq. 15 with the chamber's V). Everything is integrated together at
+`rig.time_step` (0.1 ms) with the valves' integrator (Heun for the simplified model), so the
+load flow is never a step late.
+
+Inputs follow the emulator's rules (`pcv_sim.node.device`): a duty command is validated on
+arrival (`CommandError` naming what is accepted; the last valid one stays) and acts from the
+present step on, i.e. at the first step at or after its reception; the watchdog runs in model
+time: `watchdog_timeout` s after a valve's last valid command took effect its duty falls to
+`safe_duty`, and the next valid command resumes. The rig starts with each valve at rest at its
+`initial_duty` (the watchdog counts from t = 0) and the piston at `initial_position`, at rest.
+
+Faults (`pcv_sim.rig.faults`) are injected and cleared at the present step; scheduled inputs
+(`schedule`) act at the first step at or after their time. Everything is deterministic: the same
+inputs at the same steps give the same numbers bit for bit.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.model import kernel
+from pcv_sim.plant.cylinder import cylinder_system
+from pcv_sim.rig.faults import Fault, FaultError
+from pcv_sim.rig.params import RigParams
+from pcv_sim.rig.sensors import Sensors
+from pcv_sim.simulation.duty import check_duty
+from pcv_sim.simulation.rest import rest_state
+from pcv_sim.simulation.simulator import Simulator
+from pcv_sim.simulation.system import compose
+from pcv_sim.simulation.valve import valve_system
+
+__all__ = ["Rig", "RigError", "RigStatus", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE"]
+
+VALVE_SIGNALS = ("pressure", "current", "spool_position")
+CYLINDER_SIGNALS = ("position", "velocity", "effort")
+#: N; beyond this an external force is a unit slip (kN for N), not a steering load.
+MAX_EXTERNAL_FORCE = 1.0e6
+
+
+class RigError(PcvSimError, RuntimeError):
+    """The rig cannot go on: the model state ran away (non-finite), as the emulator's fault state."""
+
+
+@dataclass(frozen=True)
+class RigStatus:
+    """What diagnostics show of the rig at one instant (model time `time`, s)."""
+
+    time: float
+    commands: dict[str, float]            # the last valid duty command per valve
+    duties: dict[str, float]              # the duty in force (the safe duty after the watchdog)
+    watchdog_fired: dict[str, bool]
+    faults: tuple[str, ...]               # active faults, "kind@target"
+    rejected: int                         # commands refused since reset
+
+
+@dataclass(order=True)
+class _Event:
+    step: int
+    seq: int
+    action: Callable[[], None]
+
+
+class Rig:
+    """N valves + one cylinder at one fixed step (see the module docstring)."""
+
+    def __init__(self, params: RigParams, *, seed: int = 0) -> None:
+        self.params = params
+        valves = params.valves
+        self.valve_names = tuple(v.name for v in valves)
+        kind = valves[0].params.simulation.model
+        self.kind = kind
+        systems = [valve_system(v.params, kind, v.name) for v in valves]
+        systems.append(cylinder_system(params.cylinder, "cylinder"))
+        wires = []
+        for v in valves:
+            c = v.chamber
+            if c not in ("a", "b"):
+                continue                    # on its own load volume: load_flow and load_volume stay inputs
+            wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
+                      (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
+        self.plant = compose(systems, wires)
+        self.dt = params.timing.time_step
+        self.sim = Simulator(self.plant, self.dt, valves[0].params.simulation.method)
+        plant = self.plant
+        self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in self.valve_names]
+        self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in self.valve_names]
+        self._force_i = plant.index("input", "cylinder.external_force")
+        #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
+        self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
+                             v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
+        self.signals = tuple(f"{n}.{s}" for n in self.valve_names for s in VALVE_SIGNALS) + tuple(
+            f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+        self._signal_i = np.array([plant.index("output", s) for s in self.signals])
+        self._state_off = plant.offsets("states")
+        self._healthy = [s.p.copy() for s in systems[:-1]]
+        self._supply0 = [v.params.circuit.supply_pressure for v in valves]
+        self._wd_steps = int(round(params.timing.watchdog_timeout / self.dt))
+        self._safe = params.timing.safe_duty
+        self.sensors = Sensors(self.signals, params.timing.control_period, seed)
+        self.reset()
+        # Compile (or load from the cache) the composite's functions now, not in the first run.
+        self.sim.outputs()
+        self.sim.advance(1)
+        self.reset()
+
+    # --- state -------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Valves at rest at their initial duty, piston at rest at its initial position, t = 0,
+        no faults, no scheduled inputs."""
+        sim = self.sim
+        x, w = [], []
+        for v in self.params.valves:
+            rest = rest_state(v.params, self.kind, v.initial_duty, 0.0, v.params.circuit.supply_pressure,
+                              integrator=self.sim.integrator)
+            x.append(rest.state)
+            w.append(rest.current)
+        x.append(np.array([self.params.cylinder.initial_position, 0.0]))
+        sim.x[:] = np.concatenate(x)
+        sim.W[:] = 0.0
+        sim.W[:len(w)] = w
+        sim.steps = 0
+        self.commands = {v.name: v.initial_duty for v in self.params.valves}
+        self.duties = dict(self.commands)
+        for k, v in enumerate(self.params.valves):
+            sim.set_parameters(k, self._healthy[k])
+            sim.u[self._duty_i[k]] = v.initial_duty
+            sim.u[self._supply_i[k]] = self._supply0[k]
+        sim.u[self._force_i] = 0.0
+        for i_flow, i_volume, volume in self._own_volume:
+            sim.u[i_flow], sim.u[i_volume] = 0.0, volume
+        self._last_cmd = dict.fromkeys(self.valve_names, 0)
+        self.watchdog_fired = dict.fromkeys(self.valve_names, False)
+        self.rejected: list[tuple[float, str]] = []
+        self.faults: dict[tuple[str, str], Fault] = {}
+        self.log: list[tuple[float, str]] = []
+        self._events: list[_Event] = []
+        self._seq = 0
+        self.sensors.reset()
+
+    @property
+    def steps(self) -> int:
+        return self.sim.steps
+
+    @property
+    def time(self) -> float:
+        return self.sim.time
+
+    def status(self) -> RigStatus:
+        return RigStatus(self.time, dict(self.commands), dict(self.duties), dict(self.watchdog_fired),
+                         tuple(f"{kind}@{target}" for target, kind in self.faults), len(self.rejected))
+
+    def sample(self) -> np.ndarray:
+        """The true values of `signals` now (SI: Pa, A, m per valve; m, m/s, N for the cylinder),
+        with the inputs in force from now on. A new array."""
+        return self.sim.outputs()[self._signal_i]
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def set_duty(self, valve: str, duty: Any) -> None:
+        """The duty command of `valve` from the present step on; CommandError (logged, the last
+        valid command stays) unless it is within the valve's command.duty_range."""
+        k = self.valve_names.index(valve)
+        try:
+            d = check_duty(duty, self.params.valves[k].params.command.duty_range)
+        except CommandError as err:
+            self.rejected.append((self.time, f"{valve}: {err}"))
+            raise
+        self.commands[valve] = d
+        self.duties[valve] = d
+        self.sim.u[self._duty_i[k]] = d
+        self._last_cmd[valve] = self.sim.steps
+        if self.watchdog_fired[valve]:
+            self.watchdog_fired[valve] = False
+            self.log.append((self.time, f"{valve}: watchdog cleared by a valid command"))
+
+    def set_external_force(self, force: Any) -> None:
+        """The external force on the rod (N, + toward +x: extending) from the present step on."""
+        if isinstance(force, bool) or not isinstance(force, (int, float)) or not math.isfinite(force) \
+                or abs(force) > MAX_EXTERNAL_FORCE:
+            raise CommandError(f"external force {force!r}: accepted is a finite number of N within "
+                               f"+-{MAX_EXTERNAL_FORCE:g} N")
+        self.sim.u[self._force_i] = float(force)
+
+    def inject(self, fault: Fault) -> None:
+        """Start `fault` at the present step (a second fault of the same kind on the same target
+        replaces the first)."""
+        if fault.sensor:
+            if fault.target not in self.signals:
+                raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(self.signals)}")
+            self.sensors.add(fault, self.time)
+        else:
+            if fault.target not in self.valve_names:
+                raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
+        self.faults[fault.key] = fault
+        if not fault.sensor:
+            self._apply_valve_faults(self.valve_names.index(fault.target))
+        self.log.append((self.time, f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip()))
+
+    def clear(self, target: str, kind: str) -> None:
+        """End a fault: the target is back to normal from the present step on."""
+        fault = self.faults.pop((target, kind), None)
+        if fault is None:
+            active = ", ".join(f"{k}@{t}" for t, k in self.faults) or "none"
+            raise FaultError(f"no active fault {kind} on {target}; active: {active}")
+        if fault.sensor:
+            self.sensors.clear(target, kind)
+        else:
+            self._apply_valve_faults(self.valve_names.index(target))
+        self.log.append((self.time, f"cleared {kind} on {target}"))
+
+    def _apply_valve_faults(self, k: int) -> None:
+        """The valve's parameter vector and supply: healthy, then every active fault on it."""
+        name = self.valve_names[k]
+        p = self._healthy[k].copy()
+        supply = self._supply0[k]
+        stuck = False
+        for (target, kind), f in self.faults.items():
+            if target != name:
+                continue
+            if kind == "supply_drop":
+                supply = f.values["pressure"]
+            elif kind == "supply_loss":
+                supply = 0.0
+            elif kind == "coil_open":
+                p[kernel.VOLTAGE_FACTOR] = 0.0
+            elif kind == "coil_short":
+                p[kernel.R_COIL] *= f.values["resistance_factor"]
+            elif kind == "spool_sticking":
+                friction = f.values["friction"]
+                p[kernel.SPOOL_FRICTION] = friction
+                # The friction's slope at v = 0 (F / v_s) kept at most the spool's own damping:
+                # a steeper one is a stiffer spool than the 0.1 ms Heun step can hold.
+                p[kernel.SPOOL_FRICTION_V] = max(1e-3, friction / p[kernel.DAMPING])
+            elif kind == "spool_stuck":
+                p[kernel.STUCK] = 1.0
+                stuck = True
+            elif kind == "contamination":
+                p[kernel.AREA_FACTOR] = f.values["area_factor"]
+            elif kind == "internal_leakage":
+                p[kernel.LEAK] = f.values["conductance"]
+        if stuck:   # seized where it is: no velocity (the continuity's A v term stops with it)
+            self.sim.x[self._state_off[k] + 2] = 0.0
+        self.sim.set_parameters(k, p)
+        self.sim.u[self._supply_i[k]] = supply
+
+    def schedule(self, t: float, action: Callable[[], None]) -> None:
+        """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s)."""
+        step = max(self.sim.steps, math.ceil(t / self.dt - 1e-9))
+        heapq.heappush(self._events, _Event(step, self._seq, action))
+        self._seq += 1
+
+    # --- stepping ------------------------------------------------------------------------------
+
+    def advance_to(self, step: int) -> None:
+        """Integrate to `step`, running scheduled inputs and the watchdog at their steps; inputs
+        due at `step` itself are applied (they act from there on). RigError if the state runs away."""
+        sim = self.sim
+        while True:
+            self._due()
+            if sim.steps >= step:
+                break
+            nxt = step
+            if self._events and self._events[0].step < nxt:
+                nxt = self._events[0].step
+            if self._wd_steps:
+                for name in self.valve_names:
+                    if not self.watchdog_fired[name]:
+                        deadline = self._last_cmd[name] + self._wd_steps
+                        if deadline < nxt:
+                            nxt = max(deadline, sim.steps + 1)
+            sim.advance(nxt - sim.steps)
+            x = sim.x
+            if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
+                raise RigError(f"the model state ran away (non-finite) before t = {sim.time:.6g} s; "
+                               f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
+
+    def _due(self) -> None:
+        steps = self.sim.steps
+        while self._events and self._events[0].step <= steps:
+            heapq.heappop(self._events).action()
+        if self._wd_steps:
+            for k, name in enumerate(self.valve_names):
+                if not self.watchdog_fired[name] and steps >= self._last_cmd[name] + self._wd_steps:
+                    self.watchdog_fired[name] = True
+                    self.duties[name] = self._safe
+                    self.sim.u[self._duty_i[k]] = self._safe
+                    self.log.append((self.time, f"{name}: watchdog fired, duty -> {self._safe:g}"))

@@ -1,0 +1,61 @@
+"""pytest support: run a rig scenario with your own controller in a few lines.
+
+    # conftest.py
+    pytest_plugins = ["pcv_sim.testing"]
+
+    # test_my_controller.py
+    def test_step(rig_scenario):
+        result = rig_scenario("examples/step.yaml", controller=MyController())
+        assert result.passed, result.summary()
+        assert result.run.signal("cylinder.position")[-1] > 0.019
+
+`rig_scenario(path_or_mapping, controller=None, **overrides)` loads the scenario (a YAML file,
+or a mapping as the file would hold; `overrides` replace top-level keys, e.g. duration=0.5),
+runs it in lockstep with `controller` (default: the one the scenario names) and returns a
+`ScenarioResult` (`passed`, `outcomes`, `run` with every sample). The compiled rig is shared by
+the tests of a session and reset before each run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import pytest
+import yaml
+
+from pcv_sim.rig.lockstep import Controller
+from pcv_sim.rig.rig import Rig
+from pcv_sim.rig.scenario import ScenarioResult, load_scenario, run_scenario, scenario_from_mapping
+
+__all__ = ["rig_scenario", "run_rig_scenario"]
+
+_RIGS: dict[int, Rig] = {}
+
+
+def run_rig_scenario(scenario: str | Path | Mapping[str, Any], controller: Controller | None = None,
+                     **overrides: Any) -> ScenarioResult:
+    """Load (with `overrides`), run and check one scenario; see the module docstring."""
+    if isinstance(scenario, Mapping):
+        data, path = dict(scenario), None
+    else:
+        path = Path(scenario)
+        if not overrides:
+            sc = load_scenario(path)
+            data = None
+        else:
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    if data is not None:
+        data.update(overrides)
+        sc = scenario_from_mapping(data, path=path)
+    key = hash((sc.rig, sc.seed))
+    rig = _RIGS.get(key)
+    if rig is None:
+        rig = _RIGS[key] = Rig(sc.rig, seed=sc.seed)
+    return run_scenario(sc, controller, rig=rig)
+
+
+@pytest.fixture
+def rig_scenario() -> Callable[..., ScenarioResult]:
+    """`rig_scenario(path_or_mapping, controller=None, **overrides) -> ScenarioResult`."""
+    return run_rig_scenario

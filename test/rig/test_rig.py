@@ -1,0 +1,156 @@
+"""The rig: valves and cylinder composed at 0.1 ms, its inputs, watchdog and lockstep runner."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pcv_sim.errors import CommandError
+from pcv_sim.rig import ControllerError, Rig, run_lockstep
+from pcv_sim.simulation.reference import VALVE_ATOL, integrate_reference
+
+BAR = 1e5
+
+
+def step_controller(t, m):
+    return {"left": 0.7 if t >= 0.01 else 0.5, "right": 0.5}
+
+
+def test_lockstep_run_repeats_bit_for_bit(rig):
+    a = run_lockstep(rig, step_controller, 0.2)
+    rig.reset()
+    b = run_lockstep(rig, step_controller, 0.2)
+    assert np.array_equal(a.true, b.true) and np.array_equal(a.duties, b.duties)
+    assert a.signal("cylinder.position")[-1] > 1e-3          # it did move
+
+
+def test_rig_agrees_with_radau_on_a_duty_step(rig):
+    """The composed rig at 0.1 ms (Heun) against scipy's Radau on the same composite right-hand side,
+    from rest at 0.5/0.5 with the left duty stepped to 0.7 at t = 0 for 0.2 s."""
+    x0, w0 = rig.sim.x.copy(), rig.sim.W.copy()
+    rig.set_duty("left", 0.7)
+    u = rig.sim.u.copy()
+    run = run_lockstep(rig, None, 0.2)
+    atol = np.array(list(VALVE_ATOL[:4]) * 2 + [1e-9, 1e-9])
+    xs, ys = integrate_reference(rig.plant, x0, lambda t: u, [], run.times, atol=atol, workspace=w0)
+    for name in ("left.pressure", "right.pressure"):
+        ref = ys[rig.plant.index("output", name)]
+        # 0.05 bar: the core's composition test's bound for Heun at 0.1 ms against Radau.
+        assert np.max(np.abs(run.signal(name) - ref)) < 0.05 * BAR, name
+    ref_x = ys[rig.plant.index("output", "cylinder.position")]
+    assert ref_x[-1] > 5e-3
+    # 0.2 % of the travel: Heun's error on the 60 Hz hydraulic-mass mode over 0.2 s.
+    assert np.max(np.abs(run.signal("cylinder.position") - ref_x)) < 2e-3 * ref_x[-1]
+
+
+def test_equal_duties_hold_a_double_rod_piston(rig):
+    run = run_lockstep(rig, lambda t, m: {"left": 0.5, "right": 0.5}, 0.3)
+    assert np.max(np.abs(run.signal("cylinder.position"))) < 1e-9
+
+
+def test_pressure_difference_moves_the_piston_toward_the_lower_pressure_side(rig):
+    run = run_lockstep(rig, lambda t, m: {"left": 0.5, "right": 0.7}, 0.3)
+    assert run.signal("right.pressure")[-1] > run.signal("left.pressure")[-1] + 20 * BAR
+    assert run.signal("cylinder.position")[-1] < -5e-3                    # toward chamber a (lower)
+    assert run.signal("cylinder.effort")[-1] < 0.0
+
+
+def test_differential_cylinder_settles_where_forces_balance(rig_params):
+    """Equal duties on a cylinder with A_b < A_a: the area difference times the pressure pushes
+    it out until the load spring holds it, k x = A_a p_a - A_b p_b, with both valves back near
+    their set pressure p: x -> (A_a - A_b) p / k. It creeps the last part (the valves pass little
+    flow near their set point, Coulomb friction holds part of the imbalance)."""
+    params = dataclasses.replace(rig_params, cylinder=dataclasses.replace(rig_params.cylinder, area_b=5e-4))
+    rig = Rig(params)
+    run = run_lockstep(rig, lambda t, m: {"left": 0.5, "right": 0.5}, 2.0)
+    c = params.cylinder
+    x = run.signal("cylinder.position")[-1]
+    pa, pb = run.signal("left.pressure")[-1], run.signal("right.pressure")[-1]
+    # Within the Coulomb friction, which can hold up to F_c of imbalance at (almost) rest.
+    assert abs(c.load_stiffness * x - (c.area_a * pa - c.area_b * pb)) < c.coulomb_friction
+    p_set = run.signal("left.pressure")[0]             # both valves' rest pressure at duty 0.5
+    assert x == pytest.approx((c.area_a - c.area_b) * p_set / c.load_stiffness, rel=0.1)
+
+
+def test_external_force_pushes_the_piston(rig):
+    rig.set_external_force(2000.0)
+    run = run_lockstep(rig, lambda t, m: {"left": 0.5, "right": 0.5}, 0.3)
+    assert run.signal("cylinder.position")[-1] > 1e-3
+    with pytest.raises(CommandError, match=r"external force 'x': accepted is a finite number of N"):
+        rig.set_external_force("x")
+
+
+def test_commands_are_validated_and_the_last_valid_one_stays(rig):
+    with pytest.raises(CommandError, match=r"not percent"):
+        rig.set_duty("left", 70)
+    assert rig.commands["left"] == 0.5
+    run = run_lockstep(rig, lambda t, m: {"left": float("nan"), "right": 0.5}, 0.01)
+    assert len(run.rejected) >= 10 and "not finite" in run.rejected[-1][1]
+    assert np.all(run.duties[:, 0] == 0.5)
+
+
+def test_controller_returning_nonsense_is_named(rig):
+    with pytest.raises(ControllerError, match=r"returned list .* accepted is a mapping valve -> duty"):
+        run_lockstep(rig, lambda t, m: [0.5, 0.5], 0.01)
+    with pytest.raises(ControllerError, match=r"commanded 'middle'"):
+        run_lockstep(rig, lambda t, m: {"middle": 0.5}, 0.01)
+
+
+def test_commands_act_from_the_next_step_and_measurements_are_that_periods(rig):
+    seen = []
+
+    def ctrl(t, m):
+        seen.append((t, m["left.current"]))
+        return {"left": 0.9 if t >= 0.005 else 0.5, "right": 0.5}
+
+    run = run_lockstep(rig, ctrl, 0.01)
+    k = int(np.argmax(run.times >= 0.005 - 1e-12))
+    assert run.duties[k - 1, 0] == 0.5 and run.duties[k, 0] == 0.9
+    # The sample the controller got at t_k is the one before its own command (right-continuous
+    # after); one period later the current has risen.
+    assert seen[k][1] == run.true[k, 1]
+    assert run.true[k + 1, 1] > run.true[k, 1]
+
+
+def test_watchdog_falls_to_safe_duty_and_a_valid_command_resumes(rig):
+    t_wd = rig.params.timing.watchdog_timeout
+    calls = []
+
+    def ctrl(t, m):
+        calls.append(t)
+        return {"left": 0.6, "right": 0.6} if t < 0.05 or t >= t_wd + 0.2 else {}
+
+    run = run_lockstep(rig, ctrl, t_wd + 0.3)
+    d = run.duties[:, 0]
+    times = run.times
+    fired = times[np.argmax(d == rig.params.timing.safe_duty)]
+    # Last command at t = 0.049 s: fires watchdog_timeout later (to the step).
+    assert fired == pytest.approx(0.049 + t_wd, abs=1e-9)
+    assert d[-1] == 0.6
+    assert any("watchdog fired" in text for _, text in run.log)
+    status = rig.status()
+    assert status.watchdog_fired == {"left": False, "right": False} and status.duties["left"] == 0.6
+
+
+def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_params, tmp_path):
+    """A third valve with chamber: none sits on its own dead-ended load volume: the same
+    arithmetic as the emulator's stepper, so the same numbers bit for bit."""
+    import yaml
+
+    from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    data = yaml.safe_load(DEFAULT_RIG.read_text())
+    data["valves"]["pilot"] = {"config": "valve.yaml", "chamber": "none", "initial_duty": 0.5}
+    rig = Rig(rig_from_mapping(data, base=DEFAULT_RIG.parent))
+    assert rig.valve_names == ("left", "right", "pilot")
+    run = run_lockstep(rig, lambda t, m: {"pilot": 0.7 if t >= 0.01 else 0.5, "left": 0.6}, 0.1)
+    st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
+    pressures = []
+    for k in range(len(run.times)):
+        if k == 10:
+            st.set_duty(0.7)
+        pressures.append(st.pressure)
+        st.advance(10)
+    assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
+    assert run.signal("pilot.pressure")[-1] > 110 * BAR

@@ -1,0 +1,147 @@
+"""Scenarios: validation of the file, assertions, the command (exit 0/1/2, --json, --bag,
+--report, a directory in parallel) and the pytest fixture."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pcv_sim.cli import main
+from pcv_sim.io import read_bag
+from pcv_sim.rig.scenario import ScenarioError, scenario_from_mapping
+
+pytest_plugins = ["pcv_sim.testing"]
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+sys.path.insert(0, str(EXAMPLES))
+from steering import PositionController  # noqa: E402
+
+
+def _step():
+    return yaml.safe_load((EXAMPLES / "step.yaml").read_text())
+
+
+@pytest.mark.parametrize(("edit", "match"), [
+    (lambda d: d.update(durration=1.0), r"scenario: unknown key\(s\) durration; accepted: name, rig, duration"),
+    (lambda d: d.pop("duration"), r"duration: missing"),
+    (lambda d: d.update(duration=-1), r"duration: got -1; accepted is a duration in s in 0\.001 \.\. 3600"),
+    (lambda d: d.update(controller="steering.PositionController"), r"controller: .* accepted is 'module:callable'"),
+    (lambda d: d["setpoint"].append({"t": 0.05, "value": 0.0}), r"setpoint\[2\]\.t: 0\.05 s; accepted is a time after"),
+    (lambda d: d["setpoint"].append({"t": 0.5, "value": 20}), r"setpoint\[2\]\.value: got 20; accepted is a position in m in -1 \.\. 1"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "coil_open", "target": "middle"}]),
+     r"timeline\[0\]\.fault: target 'middle' for coil_open; accepted are left, right"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "supply_drop", "target": "left", "pressure": 200}]) or None,
+     None),
+    (lambda d: d.update(timeline=[{"t": 0.1, "duty": {"left": 70}}]), r"timeline\[0\]\.duty\.left: got 70; accepted is a duty"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "force": 1.0, "duty": {"left": 0.5}}]), r"exactly one of duty, force, fault, clear"),
+    (lambda d: d.update(timeline=[{"t": 9.0, "force": 1.0}]), r"timeline\[0\]\.t: got 9\.0; accepted is a time in s within the duration"),
+    (lambda d: d["assertions"].append({"type": "always_fine", "signal": "left.pressure"}),
+     r"assertions\[3\]\.type: got 'always_fine'; accepted are max_error"),
+    (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.presure", "max": 1.0}),
+     r"assertions\[3\]\.signal: got 'left.presure'; accepted are left\.pressure"),
+    (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure"}), r"never_above needs max"),
+    (lambda d: d.update(rig="nosuch.yaml"), r"rig: cannot read rig file"),
+])
+def test_bad_scenarios_are_refused_naming_the_key(edit, match):
+    data = _step()
+    edit(data)
+    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault: accepted
+        scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
+        return
+    with pytest.raises(ScenarioError, match=match):
+        scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
+
+
+def test_the_fixture_runs_a_users_controller_through_a_scenario(rig_scenario):
+    result = rig_scenario(EXAMPLES / "step.yaml", controller=PositionController(), duration=1.0)
+    assert result.passed, result.summary()
+    assert result.run.signal("cylinder.position")[-1] == pytest.approx(0.02, abs=5e-4)
+    # A controller that does nothing leaves the piston where it was: the settling assertion fails.
+    lazy = rig_scenario(EXAMPLES / "step.yaml", controller=lambda t, m: {"left": 0.5, "right": 0.5}, duration=1.0)
+    assert not lazy.passed
+    failed = [o.name for o in lazy.outcomes if not o.passed]
+    assert failed == ["settles within 0.5 mm", "no false fault alarm"]      # the lazy one reports no flag either
+
+
+def test_scenario_with_noise_repeats_bit_for_bit(rig_scenario):
+    data = _step()
+    data.update(duration=0.3, rig=str(REPO / "config" / "rig.yaml"),
+                timeline=[{"t": 0.1, "fault": "noise", "target": "cylinder.position", "std": 2e-4}])
+    a = rig_scenario(data, controller=PositionController())
+    b = rig_scenario(data, controller=PositionController())
+    assert np.array_equal(a.run.true, b.run.true) and np.array_equal(a.run.measured, b.run.measured, equal_nan=True)
+    c = rig_scenario({**data, "seed": 1}, controller=PositionController())
+    assert not np.array_equal(a.run.true, c.run.true)       # other noise, other commands, other physics
+
+
+def test_command_json_bag_and_report(tmp_path, capsys):
+    scen = tmp_path / "short.yaml"
+    data = _step()
+    data.update(duration=0.4, rig=str(REPO / "config" / "rig.yaml"),
+                timeline=[{"t": 0.2, "fault": "dropout", "target": "right.current"}])
+    data["assertions"] = [{"type": "never_above", "signal": "left.pressure", "max": 1.8e7},
+                          {"type": "never_below", "signal": "cylinder.position", "min": 0.0}]
+    scen.write_text(yaml.safe_dump(data))
+    (tmp_path / "steering.py").write_text((EXAMPLES / "steering.py").read_text())
+    code = main(["scenario", "run", str(scen), "--json", "--bag", str(tmp_path / "bag"),
+                 "--report", str(tmp_path / "r.html")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 1 and out["status"] == 1                   # the step undershoots 0 first: never_below fails
+    assert [a["passed"] for a in out["assertions"]] == [True, False]
+    assert out["real_time_factor"] > 0
+    bag = read_bag(tmp_path / "bag")
+    topics = set(bag.topic_types)
+    assert bag.topic_types["/cylinder/joint_states"] == "sensor_msgs/msg/JointState"
+    assert {"/left/pressure", "/right/current", "/cylinder/joint_states", "/cylinder/pressure_a", "/setpoint",
+            "/rig/events"} <= topics
+    # 0.4 s at 1 kHz: 401 samples; the right current dropped out from 0.2 s on (no messages).
+    assert len(bag["/left/pressure"]) == 401
+    assert len(bag["/right/current"]) == 200
+    html = (tmp_path / "r.html").read_text()
+    assert "FAILED" in html and "data:image/png;base64," in html
+
+
+def test_command_bad_file_exits_2_naming_the_key(tmp_path, capsys):
+    scen = tmp_path / "bad.yaml"
+    scen.write_text("duration: 1.0\ncontroler: steering:PositionController\n")
+    assert main(["scenario", "run", str(scen)]) == 2
+    assert "unknown key(s) controler" in capsys.readouterr().err
+
+
+def test_command_runs_a_directory_in_parallel_with_one_summary(tmp_path, capsys):
+    (tmp_path / "steering.py").write_text((EXAMPLES / "steering.py").read_text())
+    for name, limit in (("good", 1.8e7), ("bad", 1.0e6)):
+        data = {"rig": str(REPO / "config" / "rig.yaml"), "duration": 0.2, "controller": "steering:PositionController",
+                "assertions": [{"type": "never_above", "signal": "left.pressure", "max": limit}]}
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(data))
+    (tmp_path / "broken.yaml").write_text("duration: [\n")
+    code = main(["scenario", "run", str(tmp_path), "--jobs", "2"])
+    out = capsys.readouterr().out
+    assert code == 2
+    assert "3 scenarios: 1 passed, 1 failed, 1 bad files" in out
+    assert "broken: BAD FILE" in out and "not valid YAML" in out
+
+
+def test_command_refuses_a_valve_config_and_a_missing_path(tmp_path, capsys):
+    assert main(["scenario", "run", str(EXAMPLES / "step.yaml"), "--config", "valve.yaml"]) == 2
+    assert "valves.<name>.config" in capsys.readouterr().err
+    assert main(["scenario", "run", str(tmp_path / "nope.yaml")]) == 2
+    assert "no such scenario file or directory" in capsys.readouterr().err
+
+
+def test_controller_module_beside_the_file_and_import_errors(tmp_path, capsys):
+    (tmp_path / "mine.py").write_text("def ctrl(t, m):\n    return {'left': 0.6, 'right': 0.6}\n")
+    data = {"rig": str(REPO / "config" / "rig.yaml"), "duration": 0.05, "controller": "mine:ctrl",
+            "assertions": [{"type": "never_below", "signal": "left.duty", "min": 0.6, "after": 0.001}]}
+    (tmp_path / "ok.yaml").write_text(yaml.safe_dump(data))
+    assert main(["scenario", "run", str(tmp_path / "ok.yaml")]) == 0
+    (tmp_path / "missing.yaml").write_text(yaml.safe_dump({**data, "controller": "nosuchmodule:ctrl"}))
+    assert main(["scenario", "run", str(tmp_path / "missing.yaml")]) == 2
+    assert "cannot import 'nosuchmodule'" in capsys.readouterr().err
+    (tmp_path / "noattr.yaml").write_text(yaml.safe_dump({**data, "controller": "mine:nothing"}))
+    assert main(["scenario", "run", str(tmp_path / "noattr.yaml")]) == 2
+    assert "mine has no callable 'nothing'" in capsys.readouterr().err
