@@ -57,7 +57,7 @@ def pack(params: CylinderParams) -> np.ndarray:
     return p
 
 
-@jit
+@jit(inline=True)
 def net_force(x, u, p):  # noqa: ANN001, ANN201
     """m dv/dt (N): A_a p_a - A_b p_b - k x - c v - F_c tanh(v / v_s) + F_ext (+ toward +x)."""
     pos, v = x[0], x[1]
@@ -65,7 +65,7 @@ def net_force(x, u, p):  # noqa: ANN001, ANN201
             - p[F_C] * math.tanh(v / p[V_S]) + u[2])
 
 
-@jit
+@jit(inline=True)
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     """dx/dt = v, m dv/dt = net_force; held at an end stop while the force pushes into it."""
     force = net_force(x, u, p)
@@ -77,7 +77,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
         dx[1] = force / p[MASS]
 
 
-@jit
+@jit(inline=True)
 def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
     """Chamber volumes (m^3), displacement flows (m^3/s, + drawn from the valve), position, velocity."""
     y[0] = p[V0_A] + p[A_A] * (x[0] - p[X_MIN])
@@ -88,14 +88,14 @@ def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
     y[5] = x[1]
 
 
-@jit
+@jit(inline=True)
 def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
     """State outputs and the effort A_a p_a - A_b p_b (N, the joint's effort, + toward +x)."""
     state_output(t, x, p, f, y)
     y[6] = p[A_A] * u[0] - p[A_B] * u[1]
 
 
-@jit
+@jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
     """Inelastic end stops: position clamped to the stroke, velocity into the stop zeroed."""
     if x[0] < p[X_MIN]:
