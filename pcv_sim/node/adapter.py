@@ -103,6 +103,7 @@ class EmulatorNode(Node):
         self._last_reject_log = dict.fromkeys(INPUTS, -math.inf)
         self._suppressed = dict.fromkeys(INPUTS, 0)
         self.samples_published = 0
+        self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
         self._pub_pressure = self.create_publisher(FluidPressure, "pressure", qos_profile_sensor_data)
         self._pub_current = self.create_publisher(Float64, "current", qos_profile_sensor_data)
@@ -385,6 +386,23 @@ class EmulatorNode(Node):
         stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
         return stamp
 
+    def _run_steps(self, n: int) -> list[Sample]:
+        """Run n model steps; log what the device did that a user must hear about (once per event)."""
+        dev = self.device
+        was_fired = dev.watchdog_state == WatchdogState.FIRED
+        samples = dev.run(n)
+        if dev.watchdog_fired != self._watchdog_logged:
+            self._watchdog_logged = dev.watchdog_fired
+            t = self.settings.watchdog_timeout
+            self.get_logger().warning(
+                f"watchdog: no valid duty_cycle command for {t:g} s (model time): the duty fell to safe_duty "
+                f"{dev.safe_duty:g}. Send the duty at least every {t:g} s (a controller does; by hand: ros2 topic pub "
+                f"-r 10 duty_cycle std_msgs/msg/Float64 '{{data: 0.7}}'), or raise watchdog_timeout (0 = off). "
+                "The next valid command resumes.")
+        elif was_fired and dev.watchdog_state != WatchdogState.FIRED:
+            self.get_logger().info(f"watchdog: duty commands resumed, duty {dev.duty_command_in_force:g}")
+        return samples
+
     def _publish(self, samples: list[Sample]) -> None:
         dev = self.device
         for s in samples:
@@ -533,7 +551,7 @@ class EmulatorNode(Node):
                     f"skipped {plan.skipped} steps, the model state was held over them",
                     throttle_duration_sec=1.0)
             if plan.steps:
-                self._publish(dev.run(plan.steps))
+                self._publish(self._run_steps(plan.steps))
             sched.finish()
             wake += 1
             if wake % SERVICE_POLL_EVERY == 0:
@@ -612,7 +630,7 @@ class EmulatorNode(Node):
                 time.sleep(min(ready - now, 1e-3))
                 continue
             answered = self._duty_messages
-            samples = dev.run(chunk)
+            samples = self._run_steps(chunk)
             sim.advance(chunk)
             self._publish_clock()
             self._publish(samples)

@@ -147,8 +147,8 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "not computed", _finite_positive),
     NodeParameter("realtime_priority", 0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this "
                   "priority (needs root or an rtprio limit); 0 = normal scheduling", _priority, read_only=True),
-    NodeParameter("watchdog_timeout", 0.5, "s", "no valid duty command for this long (model time) -> safe_duty; "
-                  "0 = off", _finite_non_negative),
+    NodeParameter("watchdog_timeout", 2.0, "s", "no valid duty command for this long (model time) -> safe_duty; "
+                  "0 = off. Above the 1 s period of `ros2 topic pub`'s default rate", _finite_non_negative),
     NodeParameter("safe_duty", 0.0, "-", "duty fraction applied before the first command and when the watchdog "
                   "fires", _fraction),
     NodeParameter("real_time_factor", 0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast "
@@ -186,7 +186,7 @@ class NodeSettings:
     late_threshold: float = 1e-3
     max_catchup: float = 0.05
     realtime_priority: int = 0
-    watchdog_timeout: float = 0.5
+    watchdog_timeout: float = 2.0
     safe_duty: float = 0.0
     real_time_factor: float = 0.0
     lockstep: bool = True

@@ -106,7 +106,7 @@ def test_bad_inputs_are_rejected_and_counted_while_publishing_continues(ros):
 # --- watchdog ---------------------------------------------------------------------------------
 
 def test_watchdog_fires_and_recovers(ros):
-    ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.25, 'diagnostics_period': 0.1})
+    emu = ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.25, 'diagnostics_period': 0.1})
     c = ros.client()
     assert c.wait_for_emulator(START)
     assert c.wait_for_diagnostics(lambda d: d['watchdog'] == 'waiting', 10)
@@ -126,6 +126,10 @@ def test_watchdog_fires_and_recovers(ros):
     resumed = c.wait_for_diagnostics(lambda d: d['watchdog'] == 'ok', 10)
     assert resumed is not None and resumed['duty_command'] == '0.6'
     assert c.spin_until(lambda: c.samples[-1].pressure > p_rest + 20e5, 10)
+    # One log line per firing, saying what happened and what to do (not one per step).
+    log = emu.output()
+    assert log.count('watchdog: no valid duty_cycle command for 0.25 s') == 1, log
+    assert 'ros2 topic pub -r 10 duty_cycle' in log and 'watchdog: duty commands resumed, duty 0.6' in log
 
 
 # --- two instances ------------------------------------------------------------------------------
