@@ -74,6 +74,17 @@ def _fraction(v: float) -> str | None:
     return None if 0.0 <= v <= 1.0 else "a fraction in 0..1"
 
 
+def _range(lo: float, hi: float) -> Check:
+    """A plausible physical range for a valve of this class (a small solenoid proportional valve on
+    a mobile hydraulic circuit), wide around the paper's values: beyond it the model means
+    nothing (e.g. a 1e-12 m^3 load volume makes it diverge), so it is refused, not run."""
+
+    def check(v: float) -> str | None:
+        return None if lo <= v <= hi else f"a plausible value {lo:g} .. {hi:g}"
+
+    return check
+
+
 def _one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
@@ -97,38 +108,38 @@ class SolenoidParams:
     restoring_f3: tuple[float, ...] = _param("A/Wb per mm^k", "T1 p_f31..p_f33", kind="vector3")
     dissipating: tuple[float, ...] = _param("A/V^k", "T1 p_d1..p_d4", kind="vector4")
     force: tuple[tuple[float, ...], ...] = _param("N/A^k per mm^j", "T1 p_fs11..p_fs44", kind="matrix4x4")
-    core_offset_mm: float = _param("mm", "R2", _non_negative)
-    coil_resistance: float = _param("ohm", "R16", _positive)
-    supply_voltage: float = _param("V", "Sec. 3.1", _positive)
+    core_offset_mm: float = _param("mm", "R2", _range(0.0, 10.0))
+    coil_resistance: float = _param("ohm", "R16", _range(0.5, 200.0))
+    supply_voltage: float = _param("V", "Sec. 3.1", _range(1.0, 60.0))
     pwm: str = _param("-", "R15", _one_of("averaged", "switched"), kind="str")
-    pwm_frequency: float = _param("Hz", "Sec. 3", _positive)
+    pwm_frequency: float = _param("Hz", "Sec. 3", _range(10.0, 1e5))
 
 
 @dataclass(frozen=True)
 class SpoolParams:
     """Eq. 14: the moving parts."""
 
-    mass: float = _param("kg", "T1 m", _positive)
-    pressure_area: float = _param("m^2", "T1 A_c", _positive)
-    chamber_area: float = _param("m^2", "T1 A_cc", _non_negative)
-    spring_stiffness: float = _param("N/m", "T1 K", _non_negative)
-    spring_preload: float = _param("N", "T1 f_0", _any_finite)
-    viscous_friction: float = _param("Ns/m", "T1 B", _non_negative)
-    viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _positive, kind="float_or_equivalent")
-    stroke_min_mm: float = _param("mm", "Sec. 4.2", _any_finite)
-    stroke_max_mm: float = _param("mm", "Sec. 4.2", _any_finite)
+    mass: float = _param("kg", "T1 m", _range(1e-3, 1.0))
+    pressure_area: float = _param("m^2", "T1 A_c", _range(1e-7, 1e-2))
+    chamber_area: float = _param("m^2", "T1 A_cc", _range(0.0, 1e-2))
+    spring_stiffness: float = _param("N/m", "T1 K", _range(0.0, 1e6))
+    spring_preload: float = _param("N", "T1 f_0", _range(-1e3, 1e3))
+    viscous_friction: float = _param("Ns/m", "T1 B", _range(0.0, 1e5))
+    viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _range(1e-3, 1e5), kind="float_or_equivalent")
+    stroke_min_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
+    stroke_max_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
 
 
 @dataclass(frozen=True)
 class OrificeParams:
     """Eq. 17 and Sec. 2: the metering holes and gaps."""
 
-    hole_radius: float = _param("m", "Sec. 2, R4", _positive)
-    hole_count: int = _param("-", "Sec. 2", _positive, kind="int")
-    gap_height: float = _param("m", "T1 h_gap", _positive)
-    tank_pilot_hole_radius: float = _param("m", "Sec. 2, R10", _positive)
-    tank_hole_offset: float = _param("m", "Sec. 2, R10", _non_negative)
-    blend_steepness_per_mm: float = _param("1/mm", "Eq. 27, R7", _positive)
+    hole_radius: float = _param("m", "Sec. 2, R4", _range(1e-5, 1e-2))
+    hole_count: int = _param("-", "Sec. 2", _range(1, 100), kind="int")
+    gap_height: float = _param("m", "T1 h_gap", _range(1e-7, 1e-3))
+    tank_pilot_hole_radius: float = _param("m", "Sec. 2, R10", _range(1e-5, 1e-2))
+    tank_hole_offset: float = _param("m", "Sec. 2, R10", _range(0.0, 1e-2))
+    blend_steepness_per_mm: float = _param("1/mm", "Eq. 27, R7", _range(1.0, 1e6))
 
 
 @dataclass(frozen=True)
@@ -150,22 +161,22 @@ class FitParams:
 class DampingParams:
     """Eqs. 28-29: restrictor and damping chamber."""
 
-    restrictor_conductance: float = _param("m^5/(N s)", "T1 K_d", _positive)
-    chamber_volume: float = _param("m^3", "T1 V_c", _positive)
+    restrictor_conductance: float = _param("m^5/(N s)", "T1 K_d", _range(1e-15, 1e-6))
+    chamber_volume: float = _param("m^3", "T1 V_c", _range(1e-12, 1e-4))
 
 
 @dataclass(frozen=True)
 class FluidParams:
-    density: float = _param("kg/m^3", "T1 rho", _positive)
-    bulk_modulus: float = _param("Pa", "T1 beta", _positive)
-    kinematic_viscosity: float = _param("m^2/s", "T1 nu", _positive)
+    density: float = _param("kg/m^3", "T1 rho", _range(500.0, 2000.0))
+    bulk_modulus: float = _param("Pa", "T1 beta", _range(1e8, 5e9))
+    kinematic_viscosity: float = _param("m^2/s", "T1 nu", _range(1e-7, 1e-2))
 
 
 @dataclass(frozen=True)
 class CircuitParams:
-    load_volume: float = _param("m^3", "T1 V", _positive)
-    supply_pressure: float = _param("Pa", "Sec. 3.2", _positive)
-    tank_pressure: float = _param("Pa", "R19", _non_negative)
+    load_volume: float = _param("m^3", "T1 V", _range(1e-6, 1.0))
+    supply_pressure: float = _param("Pa", "Sec. 3.2", _range(1e5, 400e5))
+    tank_pressure: float = _param("Pa", "R19", _range(0.0, 10e5))
 
 
 @dataclass(frozen=True)
@@ -181,12 +192,12 @@ def _duty_range(v: tuple[float, ...]) -> str | None:
 @dataclass(frozen=True)
 class CommandParams:
     duty_range: tuple[float, ...] = _param("-", "PWM duty, Sec. 3", _duty_range, kind="vector2")
-    duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _positive, kind="float_or_null")
+    duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _range(1e-3, 1e6), kind="float_or_null")
 
 
 @dataclass(frozen=True)
 class SimulationParams:
-    time_step: float = _param("s", "Sec. 3", _positive)
+    time_step: float = _param("s", "Sec. 3", _range(1e-7, 1e-3))
     integrator: str = _param("-", "docs/model.md", _one_of("euler", "rk2", "rk4"), kind="str")
 
 

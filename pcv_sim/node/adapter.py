@@ -212,10 +212,10 @@ class EmulatorNode(Node):
         if self._sim is not None and self._sim.factor != settings.real_time_factor:
             self._sim.set_factor(settings.real_time_factor)
         if stepper is not None:
-            dev.install(stepper)
+            what = dev.install(stepper)
             names = ", ".join(p.name for p in parameters if p.name.startswith(MODEL_PREFIX))
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
-                                   f"operating point, {dev.stepper.pressure / 1e5:.2f} bar")
+                                   f"operating point: {what}")
 
     # --- recording ---------------------------------------------------------------------------
 

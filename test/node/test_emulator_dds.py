@@ -209,7 +209,7 @@ def test_simulated_time_publishes_clock(ros):
 # --- parameters -------------------------------------------------------------------------------
 
 INVALID_AT_START = [
-    ({'model.spool.mass': -1.0}, 'model.spool.mass: got -1.0; accepted is a finite number > 0 (kg)'),
+    ({'model.spool.mass': -1.0}, 'model.spool.mass: got -1.0; accepted is a plausible value 0.001 .. 1 (kg)'),
     ({'publish_rate': 3.0}, 'is not a whole multiple of the model step'),
     ({'time_mode': 'wall'}, "time_mode: got 'wall'; accepted is one of 'real', 'simulated'"),
     ({'model.spool.mas': 1.0}, 'unknown model parameter(s) model.spool.mas'),
@@ -233,7 +233,7 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
     c = ros.client()
     assert c.wait_for_emulator(START)
     cases = {
-        'model.spool.mass': (-1.0, 'model.spool.mass: got -1.0; accepted is a finite number > 0 (kg)'),
+        'model.spool.mass': (-1.0, 'model.spool.mass: got -1.0; accepted is a plausible value 0.001 .. 1 (kg)'),
         'publish_rate': (3.0, 'not a whole multiple of the model step'),
         'model.simulation.time_step': (5e-5, 'fixed while the node runs'),
         'time_mode': ('simulated', 'read-only'),
@@ -253,25 +253,35 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
 
 
 def test_fault_state_and_reset_service(ros):
-    ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.0, 'diagnostics_period': 0.1})
+    emu = ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.0, 'diagnostics_period': 0.1})
     c = ros.client()
     assert c.wait_for_emulator(START)
-    # A bulk modulus 1e5 times too stiff makes the 0.1 ms explicit step unstable: the state blows up.
-    assert c.set_parameters({'model.fluid.bulk_modulus': 1e14})[0].successful
+    # Bounds: a load volume that passes "> 0" but makes the model diverge is refused, named.
+    refused = c.set_parameters({'model.circuit.load_volume': 1e-12})[0]
+    assert not refused.successful
+    assert 'model.circuit.load_volume: got 1e-12; accepted is a plausible value 1e-06 .. 1 (m^3)' in refused.reason
+    # A plausible spool mass the 0.1 ms step cannot integrate at duty 0.7 (it runs at 0.3, on the end stop).
+    assert c.set_parameters({'model.spool.mass': 0.01})[0].successful
     c.send_duty(0.7)
     fault = c.wait_for_diagnostics(lambda d: d['model'] == 'fault', 10)
-    assert fault is not None and ('non-finite' in fault['fault_reason'] or 'failed' in fault['fault_reason'])
+    assert fault is not None and ('diverged' in fault['fault_reason'] or 'failed' in fault['fault_reason'])
     assert c.diagnostic_levels[-1] == 2                                  # ERROR
     c.spin_for(0.3)
     n = len(c.samples)
     c.spin_for(0.3)
     assert len(c.samples) == n, 'a faulted device must not publish samples'
-    assert all(math.isfinite(s.pressure) for s in c.samples)
-    assert c.set_parameters({'model.fluid.bulk_modulus': 1e9})[0].successful
+    assert all(-1e5 <= s.pressure <= 800e5 for s in c.samples), 'a diverging sample was published'
+    # reset with the same parameters: the model would fault again at once -> failure, said so
     response = c.reset()
-    assert response.success and 'cleared fault' in response.message
-    assert c.spin_until(lambda: len(c.samples) > n + 100, 10), 'no samples after reset'
+    assert not response.success and 'faults again at once' in response.message, response.message
+    # a good value set while faulted restarts the model, as the log says
+    assert c.set_parameters({'model.spool.mass': 0.04})[0].successful
+    assert c.spin_until(lambda: len(c.samples) > n + 100, 10), 'no samples after the good value'
     assert c.wait_for_diagnostics(lambda d: d['model'] == 'ok', 10)
+    assert c.samples[-1].pressure > 100e5                                # at rest at duty 0.7
+    assert 'model restarted at rest' in emu.output() and 'cleared fault' in emu.output()
+    response = c.reset()
+    assert response.success and 'model at rest at duty 0.7' in response.message
 
 
 # --- process ------------------------------------------------------------------------------------
