@@ -36,6 +36,7 @@ __all__ = [
     "params_to_mapping",
     "default_params",
     "replace_param",
+    "yaml_load_unique",
 ]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
@@ -400,6 +401,31 @@ def params_to_mapping(params: ValveParams) -> dict[str, dict[str, Any]]:
     }
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses a key given twice in one mapping (plain YAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise ParameterError(f"duplicate key {key!r} at line {line} (first at line {seen[key]}); "
+                                     "accepted is each key once per mapping (YAML would keep the last silently)")
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def yaml_load_unique(text: str, origin: str) -> Any:
+    """yaml.safe_load that refuses duplicate keys; ParameterError naming `origin`, the key and line."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except ParameterError as err:
+        raise ParameterError(f"{origin}: {err}") from None
+    except yaml.YAMLError as err:
+        raise ParameterError(f"{origin}: not valid YAML: {err}") from err
+
+
 def load_params(path: str | Path | None = None) -> ValveParams:
     """Load and validate a valve YAML file (default: config/valve.yaml)."""
     p = Path(path) if path is not None else _installed_default()
@@ -407,11 +433,7 @@ def load_params(path: str | Path | None = None) -> ValveParams:
         text = p.read_text(encoding="utf-8")
     except OSError as err:
         raise ParameterError(f"cannot read parameter file {p}: {err.strerror}") from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ParameterError(f"{p}: not valid YAML: {err}") from err
-    return params_from_mapping(data, origin=str(p))
+    return params_from_mapping(yaml_load_unique(text, str(p)), origin=str(p))
 
 
 _DEFAULT: ValveParams | None = None

@@ -52,6 +52,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
@@ -65,6 +66,10 @@ from pcv_sim.node.settings import (
     MODEL_PREFIX, NODE_PARAMETERS, NodeSettings, check_node_value, model_parameters, params_with,
     settings_with,
 )
+from pcv_sim.node.parameters import (
+    Override, check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
+    unknown_parameters_message,
+)
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import RealTimeSchedule, SimulatedSchedule
 
@@ -76,7 +81,13 @@ DIAGNOSTICS_QOS = QoSProfile(depth=10)
 CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
-_ROS_OWN_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
+_UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
+                 "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
+
+
+def _ros_value(value: Any) -> Any:
+    """A checked value as a ROS parameter value (ints given for a float parameter stay numbers)."""
+    return list(value) if isinstance(value, tuple) else value
 
 
 class StopFlag(Protocol):
@@ -88,9 +99,14 @@ class StopFlag(Protocol):
 class EmulatorNode(Node):
     """ROS parameters in, `ValveDevice` out. Construct, then `run(stop)`."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        self._argv = list(sys.argv if argv is None else argv)
+        self._retaken: dict[str, Override] = {}      # -p overrides rcl dropped, applied by us
+        self._declared: set[str] = set()
         self.settings, params = self._declare_parameters()
+        if self._retaken:
+            self.set_parameters([Parameter(n, value=_ros_value(o.value)) for n, o in self._retaken.items()])
         dt = params.simulation.time_step
         s = self.settings
         self.simulated = s.time_mode == "simulated"
@@ -117,6 +133,11 @@ class EmulatorNode(Node):
              self._on_supply),
         ]
         self.create_service(Trigger, "reset", self._on_reset)
+        for srv in self.services:        # rclpy's handlers say "undeclared parameter(s): []": name them
+            if srv.srv_name.endswith("/set_parameters"):
+                srv.callback = self._on_set_parameters
+            elif srv.srv_name.endswith("/set_parameters_atomically"):
+                srv.callback = self._on_set_parameters_atomically
         self._msg_pressure = FluidPressure()
         self._msg_pressure.header.frame_id = s.frame_id
         self._msg_current = Float64()
@@ -136,12 +157,18 @@ class EmulatorNode(Node):
     # --- parameters --------------------------------------------------------------------------
 
     def _declare_parameters(self) -> tuple[NodeSettings, ValveParams]:
-        """Declare node and model parameters; refuse invalid ones with a ParameterError."""
+        """Declare node and model parameters; refuse invalid ones with a ParameterError.
+
+        Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
+        take (rcl drops one whose type differs from the params file's), and names nobody declares
+        (unless allow_unknown_parameters) are refused too (see pcv_sim.node.parameters)."""
+        check_params_files(self._argv)
+        cli = command_line_overrides(self._argv, self.get_name())
         values = {}
         for spec in NODE_PARAMETERS:
             desc = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]", dynamic_typing=True,
                                        read_only=spec.read_only)
-            value = self.declare_parameter(spec.name, spec.default, desc).value
+            value = self._taken(spec.name, self.declare_parameter(spec.name, spec.default, desc).value, cli)
             values[spec.name] = check_node_value(spec.name, value)
         settings = NodeSettings.from_parameters(values)
         if self.get_parameter("use_sim_time").value:
@@ -151,22 +178,44 @@ class EmulatorNode(Node):
         changes = {}
         for mp in model_parameters(params):
             desc = ParameterDescriptor(description=f"[{mp.unit}] {mp.source}", dynamic_typing=True)
-            value = self.declare_parameter(mp.name, mp.value, desc).value
+            value = self._taken(mp.name, self.declare_parameter(mp.name, mp.value, desc).value, cli)
             if value != mp.value:
                 changes[mp.name] = value
-        overrides = getattr(self, "_parameter_overrides", {}) or {}
-        declared = {spec.name for spec in NODE_PARAMETERS} | {mp.name for mp in model_parameters(params)}
-        unknown = sorted(n for n in overrides if n not in declared and not n.startswith(_ROS_OWN_PARAMETERS))
-        bad_model = [n for n in unknown if n.startswith(MODEL_PREFIX)]
-        if bad_model:
-            raise ParameterError(
-                f"unknown model parameter(s) {', '.join(bad_model)}; accepted are {MODEL_PREFIX}<section>.<key> "
-                "for the scalar and vector keys of the valve YAML (matrix fits: use valve_config)")
+        overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(cli)
+        self._declared = {spec.name for spec in NODE_PARAMETERS} | {mp.name for mp in model_parameters(params)}
+        unknown = sorted(n for n in overrides if n not in self._declared and not is_ros_own(n))
+        if unknown and not settings.allow_unknown_parameters:
+            refuse_unknown(unknown, self._declared, hint=_UNKNOWN_HINT)
         if unknown:
-            self.get_logger().warning(f"ignoring unknown parameter(s): {', '.join(unknown)}")
+            self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
         if changes:
             params = params_with(params, changes, origin="ROS parameters")
         return settings.check(params), params
+
+    def _taken(self, name: str, declared: Any, cli: dict[str, Override]) -> Any:
+        """The value the command line asked for if rcl dropped it (it is then checked like any value)."""
+        override = cli.get(name)
+        if override is None or not override_not_taken(override, declared):
+            return declared
+        self._retaken[name] = override
+        return override.value
+
+    def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
+        unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
+        if unknown:
+            return SetParametersResult(successful=False, reason=unknown_parameters_message(
+                unknown, self._declared, hint=_UNKNOWN_HINT.split("; allow_unknown")[0]))
+        return self.set_parameters_atomically(parameters)
+
+    def _on_set_parameters(self, request: Any, response: Any) -> Any:
+        """SetParameters service: one result per parameter, each set on its own (as rclpy does)."""
+        for msg in request.parameters:
+            response.results.append(self._set_checked([Parameter.from_parameter_msg(msg)]))
+        return response
+
+    def _on_set_parameters_atomically(self, request: Any, response: Any) -> Any:
+        response.result = self._set_checked([Parameter.from_parameter_msg(m) for m in request.parameters])
+        return response
 
     def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
         """on-set callback: validate the whole change with the model's rules; stage it."""

@@ -86,7 +86,7 @@ def _run(argv: list[str], stop: Stop) -> int:
     node = None
     try:
         try:
-            node = EmulatorNode()
+            node = EmulatorNode(argv=argv)
         except ParameterError as err:
             print(f"emulator: invalid parameters: {err}", file=sys.stderr)
             return EXIT_INVALID_PARAMETERS

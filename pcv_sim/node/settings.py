@@ -161,6 +161,9 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("frame_id", "load_port", "-", "header.frame_id of the pressure samples", _string),
     NodeParameter("reject_log_period", 1.0, "s", "at most one log line per input topic per this period for "
                   "rejected inputs (all are counted)", _finite_non_negative),
+    NodeParameter("allow_unknown_parameters", False, "-", "false: a parameter name nobody declares (a typo, a key "
+                  "of another node in a shared params file) stops the node at start (exit 2); true: warn and "
+                  "ignore it", _boolean, read_only=True),
     NodeParameter("record.enabled", False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start "
                   "(the device at rest) until SIGINT/SIGTERM", _boolean, read_only=True),
     NodeParameter("record.directory", ".", "-", "directory the bag is created in (made if missing; ~ expanded)",
@@ -194,6 +197,7 @@ class NodeSettings:
     diagnostics_period: float = 1.0
     frame_id: str = "load_port"
     reject_log_period: float = 1.0
+    allow_unknown_parameters: bool = False
     record_enabled: bool = False
     record_directory: str = "."
     record_name: str = ""

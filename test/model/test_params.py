@@ -264,3 +264,14 @@ def test_validate_section_value_converts_ints_to_floats() -> None:
     assert validate_section_value("calibration", "net_area", None) is None
     assert validate_section_value("spool", "viscous_friction_simplified", "equivalent") == "equivalent"
     assert validate_section_value("command", "duty_range", [0, 1]) == (0.0, 1.0)
+
+
+def test_a_duplicate_key_is_refused_with_its_name_and_line(tmp_path: Path) -> None:
+    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    at = next(k for k, line in enumerate(lines) if line.strip().startswith("mass:"))
+    lines.insert(at + 1, "  mass: 0.05")            # YAML alone would keep 0.05 silently
+    path = tmp_path / "valve.yaml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ParameterError, match=rf"valve\.yaml: duplicate key 'mass' at line {at + 2} \(first at line {at + 1}\)"):
+        load_params(path)

@@ -212,7 +212,8 @@ INVALID_AT_START = [
     ({'model.spool.mass': -1.0}, 'model.spool.mass: got -1.0; accepted is a plausible value 0.001 .. 1 (kg)'),
     ({'publish_rate': 3.0}, 'is not a whole multiple of the model step'),
     ({'time_mode': 'wall'}, "time_mode: got 'wall'; accepted is one of 'real', 'simulated'"),
-    ({'model.spool.mas': 1.0}, 'unknown model parameter(s) model.spool.mas'),
+    ({'model.spool.mas': 1.0}, 'unknown parameter(s) model.spool.mas (did you mean model.spool.mass?)'),
+    ({'watchdog_timout': 1.0}, 'unknown parameter(s) watchdog_timout (did you mean watchdog_timeout?)'),
     ({'valve_config': '/nonexistent/valve.yaml'}, 'cannot read parameter file /nonexistent/valve.yaml'),
     ({'safe_duty': 70.0}, 'safe_duty: got 70.0; accepted is a duty fraction 0..1'),
 ]
@@ -239,6 +240,7 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
         'time_mode': ('simulated', 'read-only'),
         'watchdog_timeout': (-0.5, 'watchdog_timeout: got -0.5; accepted is a finite number >= 0'),
         'model.calibration.net_area': (1.0, 'calibration.net_area'),
+        'model.nosuch.key': (1.0, 'unknown parameter(s) model.nosuch.key; accepted are'),
     }
     results = c.set_parameters({k: v for k, (v, _) in cases.items()})
     for (name, (_, reason)), result in zip(cases.items(), results):
