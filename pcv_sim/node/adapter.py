@@ -45,7 +45,9 @@ import math
 import os
 import sys
 import time
-from typing import Any, Protocol
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any, Callable, Protocol
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -112,7 +114,15 @@ class EmulatorNode(Node):
         self.simulated = s.time_mode == "simulated"
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt))
-        self._staged: tuple[NodeSettings, Any] | None = None
+        # Rest states (25-60 ms of model solves) are computed off the loop: the loop takes parameter
+        # and reset requests, a worker thread validates and prepares them, the loop swaps the result
+        # in at the next wake and only then answers. One request at a time, in arrival order.
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcv_sim_prepare")
+        self._deferred: deque[tuple[Any, Any, Any]] = deque()       # (service, request, header)
+        self._job: tuple[Any, Any, Future[Any]] | None = None       # (service, header, answer)
+        self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
+        self._pending: tuple[NodeSettings, ValveParams] | None = None   # staged within the running job
+        self._staged: tuple[NodeSettings, ValveParams, Any] | None = None
         self._schedule: RealTimeSchedule | None = None
         self._sim: SimulatedSchedule | None = None
         self._duty_messages = 0                      # valid or not: the lockstep handshake counts them
@@ -218,7 +228,8 @@ class EmulatorNode(Node):
         return response
 
     def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
-        """on-set callback: validate the whole change with the model's rules; stage it."""
+        """on-set callback (worker thread): validate the whole change with the model's rules, prepare
+        the new model's rest state; stage it (the loop applies it, `_pump`)."""
         node_changes: dict[str, Any] = {}
         model_changes: dict[str, Any] = {}
         names = {spec.name for spec in NODE_PARAMETERS}
@@ -229,10 +240,10 @@ class EmulatorNode(Node):
                 node_changes[p.name] = p.value
             elif p.name == "use_sim_time" and p.value:
                 return SetParametersResult(successful=False, reason="use_sim_time: the emulator keeps its own time")
+        base_settings, base_params = self._pending or (self.settings, self.device.params)
         try:
-            settings = settings_with(self.settings, node_changes)
-            params = (params_with(self.device.params, model_changes, runtime=True)
-                      if model_changes else self.device.params)
+            settings = settings_with(base_settings, node_changes)
+            params = params_with(base_params, model_changes, runtime=True) if model_changes else base_params
             settings.check(params)
             stepper = self.device.prepare(params) if model_changes else None
         except (ParameterError, ValueError) as err:
@@ -240,15 +251,21 @@ class EmulatorNode(Node):
         except Exception as err:  # noqa: BLE001 - e.g. no equilibrium for these parameters: refuse, keep running
             return SetParametersResult(successful=False,
                                        reason=f"the model cannot run with these parameters: {type(err).__name__}: {err}")
-        self._staged = (settings, stepper)
+        self._staged = (settings, params, stepper)
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
-        """post-set callback: apply what `_validate_parameters` staged."""
+        """post-set callback (worker thread): queue what `_validate_parameters` staged for the loop."""
         if self._staged is None:
             return
-        settings, stepper = self._staged
+        settings, params, stepper = self._staged
         self._staged = None
+        self._pending = (settings, params)
+        names = ", ".join(p.name for p in parameters if p.name.startswith(MODEL_PREFIX))
+        self._ready.append(lambda: self._apply(settings, stepper, names))
+
+    def _apply(self, settings: NodeSettings, stepper: Any, names: str) -> None:
+        """On the loop, between wakes: the new settings and model in force from the next step."""
         dev = self.device
         self.settings = settings
         dev.set_watchdog_timeout(settings.watchdog_timeout)
@@ -257,12 +274,11 @@ class EmulatorNode(Node):
         self._msg_pressure.header.frame_id = settings.frame_id
         if self._schedule is not None:
             self._schedule.late_threshold = settings.late_threshold
-            self._schedule.max_catchup_steps = int(settings.max_catchup / dev.dt)
+            self._schedule.max_catchup_steps = int(settings.catchup_bound / dev.dt)
         if self._sim is not None and self._sim.factor != settings.real_time_factor:
             self._sim.set_factor(settings.real_time_factor)
         if stepper is not None:
             what = dev.install(stepper)
-            names = ", ".join(p.name for p in parameters if p.name.startswith(MODEL_PREFIX))
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
                                    f"operating point: {what}")
 
@@ -404,7 +420,9 @@ class EmulatorNode(Node):
         return taken
 
     def _poll_services(self) -> None:
-        """Answer pending service requests (parameters, reset) the way an executor would."""
+        """Answer pending service requests the way an executor would; parameter sets and reset go
+        to the worker thread (`_pump`), the rest is answered here."""
+        deferred = (self._on_set_parameters, self._on_set_parameters_atomically, self._on_reset)
         for srv in list(self.services):
             while True:
                 try:
@@ -414,18 +432,59 @@ class EmulatorNode(Node):
                     break
                 if header is None:
                     break
-                response = srv.callback(request, srv.srv_type.Response())
-                srv.send_response(response, header)
+                if srv.callback in deferred:
+                    self._deferred.append((srv, request, header))
+                else:
+                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+        self._pump()
+
+    def _pump(self) -> None:
+        """At a step boundary: apply a finished worker job (new model, settings) and answer its request;
+        start the next one. Cheap when idle: called at every wake."""
+        job = self._job
+        if job is not None:
+            srv, header, answer = job
+            if not answer.done():
+                return
+            self._job = None
+            for apply in self._ready:
+                apply()
+            self._ready.clear()
+            self._pending = None
+            srv.send_response(answer.result(), header)
+        if self._deferred:
+            srv, request, header = self._deferred.popleft()
+            self._job = (srv, header, self._worker.submit(self._serve, srv, request))
+
+    def _serve(self, srv: Any, request: Any) -> Any:
+        """Worker thread: one deferred request; an unexpected error is logged and answered, not raised."""
+        response = srv.srv_type.Response()
+        try:
+            return srv.callback(request, response)
+        except Exception as err:  # noqa: BLE001 - the loop must go on; the caller learns why
+            self._staged = None
+            self._ready.clear()
+            self.get_logger().error(f"{srv.srv_name}: {type(err).__name__}: {err}")
+            if hasattr(response, "message"):
+                response.success, response.message = False, f"{type(err).__name__}: {err}"
+            return response
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """Worker thread: the rest state at the present operating point, on trial; the loop installs it."""
         try:
-            response.message = self.device.reset()
-            response.success = True
-            self.get_logger().info(f"reset: {response.message}")
+            stepper = self.device.prepare()
         except Exception as err:  # noqa: BLE001 - the device stays as it was; the caller learns why
             response.success = False
             response.message = f"reset failed: {type(err).__name__}: {err}"
             self.get_logger().error(response.message)
+            return response
+
+        def install() -> None:
+            response.message = self.device.install(stepper)
+            response.success = True
+            self.get_logger().info(f"reset: {response.message}")
+
+        self._ready.append(install)
         return response
 
     # --- outputs -----------------------------------------------------------------------------
@@ -569,15 +628,19 @@ class EmulatorNode(Node):
             else:
                 self._run_real_time(stop)
         finally:
+            self._worker.shutdown(wait=True, cancel_futures=True)
             self._stop_recording()
 
     def _run_real_time(self, stop: StopFlag) -> None:
         """Wake on the grid, take inputs, run the due steps, publish; see RealTimeSchedule."""
         s, dev = self.settings, self.device
         sched = RealTimeSchedule(dev.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
-                                 max_catchup=s.max_catchup)
+                                 max_catchup=s.catchup_bound)
         self._schedule = sched
         _tighten_timer_slack()
+        # The worker thread (rest states) competes for the interpreter lock: hand it back within one
+        # wake period rather than the default 5 ms.
+        sys.setswitchinterval(SWITCH_INTERVAL)
         if s.realtime_priority:
             self._set_realtime_priority(s.realtime_priority)
         _freeze_heap()
@@ -595,8 +658,11 @@ class EmulatorNode(Node):
             plan = sched.plan(now)
             if plan.skipped:
                 dev.skip(plan.skipped)
+                st = self.settings
+                bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
+                         else f"one wake period, overrun: skip")
                 self.get_logger().warning(
-                    f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup {s.max_catchup * 1e3:g} ms): "
+                    f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
                     f"skipped {plan.skipped} steps, the model state was held over them",
                     throttle_duration_sec=1.0)
             if plan.steps:
@@ -605,6 +671,8 @@ class EmulatorNode(Node):
             wake += 1
             if wake % SERVICE_POLL_EVERY == 0:
                 self._poll_services()
+            elif self._job is not None:
+                self._pump()
             if now >= next_diag:
                 self._publish_diagnostics(now)
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)

@@ -143,8 +143,12 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "and computes the steps due", _finite_positive, read_only=True),
     NodeParameter("late_threshold", 1e-3, "s", "real time: a step is late when the wake that computes it comes more "
                   "than this after its scheduled wake", _finite_non_negative),
-    NodeParameter("max_catchup", 0.05, "s", "real time: a backlog longer than this is skipped (model held), "
-                  "not computed", _finite_positive),
+    NodeParameter("overrun", "catch_up", "-", "real time, when the loop falls behind wall time: catch_up computes "
+                  "the backlog at once (continuous model, samples late by up to max_catchup); skip holds the "
+                  "model over any backlog beyond one wake period (samples on time, model state jumps)",
+                  _one_of("catch_up", "skip")),
+    NodeParameter("max_catchup", 0.05, "s", "real time, overrun catch_up: a backlog longer than this is skipped "
+                  "(model held), not computed", _finite_positive),
     NodeParameter("realtime_priority", 0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this "
                   "priority (needs root or an rtprio limit); 0 = normal scheduling", _priority, read_only=True),
     NodeParameter("watchdog_timeout", 2.0, "s", "no valid duty command for this long (model time) -> safe_duty; "
@@ -187,6 +191,7 @@ class NodeSettings:
     publish_rate: float = 1000.0
     wake_period: float = 1e-3
     late_threshold: float = 1e-3
+    overrun: str = "catch_up"
     max_catchup: float = 0.05
     realtime_priority: int = 0
     watchdog_timeout: float = 2.0
@@ -222,6 +227,11 @@ class NodeSettings:
         except ValueError as err:
             raise ParameterError(f"safe_duty: {err}") from None
         return self
+
+    @property
+    def catchup_bound(self) -> float:
+        """s of backlog the real-time loop computes rather than skips (see `overrun`)."""
+        return self.max_catchup if self.overrun == "catch_up" else self.wake_period
 
     def sample_every(self, dt: float) -> int:
         """Model steps per published sample."""
