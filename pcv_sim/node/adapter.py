@@ -62,7 +62,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, RecorderStatus
+from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
+from pcv_sim.node.diagnostics import DiagnosticsBuilder
 from pcv_sim.node.device import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.node.settings import (
     MODEL_PREFIX, NODE_PARAMETERS, NodeSettings, check_node_value, model_parameters, params_with,
@@ -103,6 +104,16 @@ class EmulatorNode(Node):
 
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        try:
+            self._setup(argv)
+        except ParameterError as err:
+            # Start-up errors also go to /rosout (a launch file's user may only see that), then the
+            # half-built node is destroyed here: nobody else holds it.
+            self.get_logger().error(f"invalid parameters: {err}")
+            self.destroy_node()
+            raise
+
+    def _setup(self, argv: list[str] | None) -> None:
         self._argv = list(sys.argv if argv is None else argv)
         self._retaken: dict[str, Override] = {}      # -p overrides rcl dropped, applied by us
         self._declared: set[str] = set()
@@ -154,10 +165,7 @@ class EmulatorNode(Node):
         self._msg_spool = Float64()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self._diag_wall = time.monotonic()
-        self._diag_steps = 0
-        self._diag_counts: dict[str, int] = {}
-        self._diag_dropped = 0
+        self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic())
         self.recorder = self._make_recorder()
         self.get_logger().info(
             f"{'simulated' if self.simulated else 'real'} time, samples at {s.publish_rate:g} Hz, "
@@ -328,29 +336,6 @@ class EmulatorNode(Node):
             self.get_logger().error(f"recording failed ({st.error}); {text}")
         else:
             self.get_logger().info(f"recording finished: {text}")
-
-    def _recording_values(self, values: dict[str, Any], problems: list[str]) -> None:
-        rec = self.recorder
-        if rec is None:
-            values["recording"] = "off"
-            return
-        st: RecorderStatus = rec.status()
-        new_dropped = st.dropped - self._diag_dropped
-        self._diag_dropped = st.dropped
-        if st.error:
-            problems.append(f"recording failed: {st.error}")
-        if new_dropped:
-            problems.append(f"recording dropped {new_dropped} messages in the last period")
-        values.update({
-            "recording": st.state,
-            "recording_path": str(st.path),
-            "recording_messages": st.messages,
-            "recording_bytes": st.bytes,
-            "recording_files": st.files,
-            "recording_queued": st.queued,
-            "recording_dropped": st.dropped,
-            "recording_error": st.error,
-        })
 
     # --- recorder hook -----------------------------------------------------------------------
 
@@ -528,94 +513,22 @@ class EmulatorNode(Node):
         msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
         self._pub_clock.publish(msg)
 
-    def diagnostics(self, now: float) -> DiagnosticStatus:
-        """The device's health as one DiagnosticStatus (values as strings, SI units in the key names)."""
-        dev, s = self.device, self.settings
-        wall = max(now - self._diag_wall, 1e-9)
-        rtf = (dev.steps - self._diag_steps) * dev.dt / wall
-        counts = {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}
-        sched = self._schedule
-        if sched is not None:
-            counts["late_steps"] = sched.late_steps
-            counts["skipped_steps"] = sched.skipped_steps
-        new = {k: v - self._diag_counts.get(k, 0) for k, v in counts.items()}
-        self._diag_wall, self._diag_steps, self._diag_counts = now, dev.steps, counts
-        last = dev.last_good
-        st = DiagnosticStatus()
-        st.name = f"{self.get_fully_qualified_name()}: pcv_sim valve emulator"
-        st.hardware_id = self.get_fully_qualified_name()
-        problems = []
-        if dev.fault is not None:
-            st.level = DiagnosticStatus.ERROR
-            problems.append(f"model fault: {dev.fault}; call the reset service")
-        if dev.watchdog_state == WatchdogState.FIRED:
-            problems.append(f"watchdog: no duty command for {s.watchdog_timeout:g} s, safe duty {dev.safe_duty:g}")
-        if new.get("late_steps") or new.get("skipped_steps"):
-            problems.append(f"{new['late_steps']} late and {new['skipped_steps']} skipped steps in the last "
-                            f"{wall:.1f} s")
-        rejected = {k[len('rejected.'):]: v for k, v in new.items() if k.startswith("rejected.") and v}
-        if rejected:
-            problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
-        recording: dict[str, Any] = {}
-        self._recording_values(recording, problems)
-        if dev.fault is None:
-            st.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
-        waiting = dev.watchdog_state == WatchdogState.WAITING
-        st.message = "; ".join(problems) if problems else ("running, waiting for the first duty command"
-                                                           if waiting else "running")
-        values: dict[str, Any] = {
-            "time_mode": s.time_mode,
-            "model_time_s": f"{dev.time:.4f}",
-            "real_time_factor": f"{rtf:.4f}",
-            "model": "fault" if dev.fault else "ok",
-            "fault_reason": dev.fault or "",
-            "watchdog": dev.watchdog_state,
-            "watchdog_timeout_s": f"{s.watchdog_timeout:g}",
-            "watchdog_fired_count": dev.watchdog_fired,
-            "safe_duty": f"{dev.safe_duty:g}",
-            "duty_command": f"{dev.duty_command_in_force:g}",
-            "duty_effective": f"{last.duty:g}" if last else "",
-            "duty_applied_stamp_ns": dev.stamp_ns(dev.duty_applied_step) if dev.duty_applied_step is not None else "",
-            "watchdog_fired_stamp_ns": (dev.stamp_ns(dev.watchdog_fired_step)
-                                        if dev.watchdog_fired_step is not None else ""),
-            "model_time_origin_ns": dev.origin_ns,
-            "pressure_pa": f"{last.pressure:.1f}" if last else "",
-            "pressure_bar": f"{last.pressure / 1e5:.3f}" if last else "",
-            "current_a": f"{last.current:.5f}" if last else "",
-            "spool_position_m": f"{last.spool_position:.4e}" if last else "",
-            "load_flow_m3s": f"{dev.load_flow:g}",
-            "supply_pressure_pa": f"{dev.stepper.supply_pressure:g}",
-            "integrator": dev.stepper.integrator,
-            "samples_published": self.samples_published,
-            "last_rejection": dev.counts.last_rejection,
-        }
-        for k in INPUTS:
-            values[f"accepted.{k}"] = dev.counts.accepted[k]
-            values[f"rejected.{k}"] = dev.counts.rejected[k]
-        if sched is not None:
-            period_lag, period_lag_after = sched.take_period_max()
-            values.update({
-                "late_steps": sched.late_steps,
-                "skipped_steps": sched.skipped_steps,
-                "late_threshold_ms": f"{s.late_threshold * 1e3:g}",
-                "lag_ms": f"{sched.lag_after * 1e3:.3f}",
-                "max_lag_ms": f"{sched.max_lag * 1e3:.3f}",
-                "max_lag_after_step_ms": f"{sched.max_lag_after * 1e3:.3f}",
-                "period_max_lag_ms": f"{period_lag * 1e3:.3f}",
-                "period_max_lag_after_step_ms": f"{period_lag_after * 1e3:.3f}",
-                "wakes": sched.wakes,
-            })
-        else:
-            values["lockstep"] = str(s.lockstep).lower()
-            values["real_time_factor_set"] = f"{s.real_time_factor:g}"
-        values.update(recording)
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        return st
+    def diagnostics(self, now: float) -> list[DiagnosticStatus]:
+        """The device's health, one status per concern (see pcv_sim.node.diagnostics)."""
+        rec = self.recorder.status() if self.recorder is not None else None
+        out = []
+        for st in self._diag.build(now, device=self.device, settings=self.settings, schedule=self._schedule,
+                                   recorder=rec, samples_published=self.samples_published):
+            msg = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message,
+                                   hardware_id=st.hardware_id)
+            msg.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
+            out.append(msg)
+        return out
 
     def _publish_diagnostics(self, now: float) -> None:
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [self.diagnostics(now)]
+        msg.status = self.diagnostics(now)
         self._pub_diag.publish(msg)
 
     # --- loops -------------------------------------------------------------------------------
@@ -648,8 +561,8 @@ class EmulatorNode(Node):
         sched.start()
         dev.origin_ns = self.get_clock().now().nanoseconds
         self._start_recording()
-        self._diag_wall = mono()
-        next_diag = self._diag_wall + s.diagnostics_period
+        self._diag.restart(mono(), dev.steps)
+        next_diag = mono() + s.diagnostics_period
         self._publish([dev.sample()])
         wake = 0
         while not stop.requested:
@@ -711,8 +624,8 @@ class EmulatorNode(Node):
         dev.origin_ns = 0
         self._start_recording()
         sim.start()
-        self._diag_wall = mono()
-        next_diag = self._diag_wall + s.diagnostics_period
+        self._diag.restart(mono(), dev.steps)
+        next_diag = mono() + s.diagnostics_period
         answered = self._duty_messages
 
         def publish_now() -> float:

@@ -58,6 +58,7 @@ class EmulatorClient:
         self.diagnostics: list[dict[str, str]] = []
         self.diagnostic_levels: list[int] = []
         self.diagnostic_messages: list[str] = []
+        self.diagnostic_statuses: list[dict[str, tuple[int, str]]] = []   # concern -> (level, message)
         self.duty_sent: list[tuple[float, int]] = []
         self._on_pressure = on_pressure
         qos = sample_qos(sample_depth)
@@ -91,12 +92,21 @@ class EmulatorClient:
         return callback
 
     def _diagnostics(self, msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.name.startswith(self.emulator_name + ":"):
-                self.diagnostics.append({kv.key: kv.value for kv in st.values})
-                level = st.level
-                self.diagnostic_levels.append(level[0] if isinstance(level, (bytes, bytearray)) else int(level))
-                self.diagnostic_messages.append(st.message)
+        """One entry per message of this emulator: the statuses' values merged (the keys are unique
+        across concerns), the highest level, the messages joined; per concern in `diagnostic_statuses`."""
+        ours = [st for st in msg.status if st.name.startswith(self.emulator_name + ":")]
+        if not ours:
+            return
+        merged: dict[str, str] = {}
+        statuses: dict[str, tuple[int, str]] = {}
+        for st in ours:
+            merged.update({kv.key: kv.value for kv in st.values})
+            level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+            statuses[st.name[len(self.emulator_name) + 1:].strip()] = (level, st.message)
+        self.diagnostics.append(merged)
+        self.diagnostic_statuses.append(statuses)
+        self.diagnostic_levels.append(max(level for level, _ in statuses.values()))
+        self.diagnostic_messages.append("; ".join(m for _, m in statuses.values()))
 
     # --- spinning ----------------------------------------------------------------------------
 

@@ -72,6 +72,13 @@ def _fraction(name: str, v: Any) -> float:
     return x
 
 
+def _fraction_of_one(name: str, v: Any) -> float:
+    x = _number(name, v, "a fraction 0..1")
+    if not (math.isfinite(x) and 0.0 <= x <= 1.0):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a fraction 0..1")
+    return x
+
+
 def _one_of(*choices: str) -> Callable[[str, Any], str]:
     def check(name: str, v: Any) -> str:
         if v not in choices:
@@ -162,6 +169,11 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("valve_config", "", "-", "valve model YAML; '' = the shipped config/valve.yaml", _string,
                   read_only=True),
     NodeParameter("diagnostics_period", 1.0, "s", "wall-clock period of /diagnostics", _finite_positive),
+    NodeParameter("diagnostics.late_fraction", 0.01, "-", "timing status WARN when more than this fraction of the "
+                  "steps of a diagnostics period were late (a few late steps on a shared machine are normal)",
+                  _fraction_of_one),
+    NodeParameter("diagnostics.max_lag", 0.01, "s", "timing status WARN when the model lagged wall time by more "
+                  "than this at a wake within the period (a sample then leaves that late)", _finite_positive),
     NodeParameter("frame_id", "load_port", "-", "header.frame_id of the pressure samples", _string),
     NodeParameter("reject_log_period", 1.0, "s", "at most one log line per input topic per this period for "
                   "rejected inputs (all are counted)", _finite_non_negative),
@@ -200,6 +212,8 @@ class NodeSettings:
     lockstep: bool = True
     valve_config: str = ""
     diagnostics_period: float = 1.0
+    diagnostics_late_fraction: float = 0.01
+    diagnostics_max_lag: float = 0.01
     frame_id: str = "load_port"
     reject_log_period: float = 1.0
     allow_unknown_parameters: bool = False

@@ -227,6 +227,9 @@ def test_invalid_parameters_are_refused_at_start(ros):
         assert rc == 2, f'{emu.cmd}: exit {rc}\n{out}'
         assert 'emulator: invalid parameters: ' in out and message in out, out
         assert 'Traceback' not in out
+        # also through the node's logger, i.e. to /rosout as well as stderr
+        assert any('[ERROR]' in line and 'invalid parameters: ' in line and message in line
+                   for line in out.splitlines()), out
 
 
 def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
