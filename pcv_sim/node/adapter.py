@@ -52,10 +52,11 @@ from typing import Any, Callable, Protocol
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSPolicyKind, QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
@@ -63,6 +64,9 @@ from std_srvs.srv import Trigger
 
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
+from pcv_sim.io.topics import (
+    CLOCK, CURRENT, DIAGNOSTICS, DUTY_CYCLE, LOAD_FLOW, PRESSURE, RESET, SPOOL_POSITION, SUPPLY_PRESSURE,
+)
 from pcv_sim.node.diagnostics import DiagnosticsBuilder
 from pcv_sim.node.device import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.node.settings import (
@@ -83,6 +87,7 @@ COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
 DIAGNOSTICS_QOS = QoSProfile(depth=10)
 CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
+EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
                  "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
@@ -140,20 +145,29 @@ class EmulatorNode(Node):
         self._last_reject_log = dict.fromkeys(INPUTS, -math.inf)
         self._suppressed = dict.fromkeys(INPUTS, 0)
         self.samples_published = 0
+        self._polls = 0
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
-        self._pub_pressure = self.create_publisher(FluidPressure, "pressure", qos_profile_sensor_data)
-        self._pub_current = self.create_publisher(Float64, "current", qos_profile_sensor_data)
-        self._pub_spool = self.create_publisher(Float64, "spool_position", qos_profile_sensor_data)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        self._pub_clock = self.create_publisher(Clock, "/clock", CLOCK_QOS) if self.simulated else None
+        out, sensor = self._output_events, qos_profile_sensor_data
+        self._pub_pressure = self.create_publisher(FluidPressure, PRESSURE, sensor, event_callbacks=out(PRESSURE))
+        self._pub_current = self.create_publisher(Float64, CURRENT, sensor, event_callbacks=out(CURRENT))
+        self._pub_spool = self.create_publisher(Float64, SPOOL_POSITION, sensor, event_callbacks=out(SPOOL_POSITION))
+        self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
+                                               event_callbacks=out(DIAGNOSTICS))
+        self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
+                           if self.simulated else None)
+        inp = self._input_events
         self._inputs = [
-            (self.create_subscription(Float64, "duty_cycle", self._on_duty, COMMAND_QOS), self._on_duty),
-            (self.create_subscription(Float64, "load_flow", self._on_load_flow, COMMAND_QOS), self._on_load_flow),
-            (self.create_subscription(FluidPressure, "supply_pressure", self._on_supply, COMMAND_QOS),
-             self._on_supply),
+            (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
+                                      event_callbacks=inp(DUTY_CYCLE)), self._on_duty),
+            (self.create_subscription(Float64, LOAD_FLOW, self._on_load_flow, COMMAND_QOS,
+                                      event_callbacks=inp(LOAD_FLOW)), self._on_load_flow),
+            (self.create_subscription(FluidPressure, SUPPLY_PRESSURE, self._on_supply, COMMAND_QOS,
+                                      event_callbacks=inp(SUPPLY_PRESSURE)), self._on_supply),
         ]
-        self.create_service(Trigger, "reset", self._on_reset)
+        self._event_handlers = [h for e in (*self.publishers, *self.subscriptions)
+                                for h in getattr(e, "event_handlers", ())]
+        self.create_service(Trigger, RESET, self._on_reset)
         for srv in self.services:        # rclpy's handlers say "undeclared parameter(s): []": name them
             if srv.srv_name.endswith("/set_parameters"):
                 srv.callback = self._on_set_parameters
@@ -290,6 +304,40 @@ class EmulatorNode(Node):
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
                                    f"operating point: {what}")
 
+    # --- QoS events ----------------------------------------------------------------------------
+
+    def _output_events(self, topic: str) -> PublisherEventCallbacks:
+        hint = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
+                "ros2 topic echo --qos-reliability best_effort)") if topic in (PRESSURE, CURRENT, SPOOL_POSITION) \
+            else "subscribe with a compatible QoS (reliable, volatile)"
+        return PublisherEventCallbacks(incompatible_qos=lambda info: self._incompatible(
+            topic, "a subscriber", info, hint))
+
+    def _input_events(self, topic: str) -> SubscriptionEventCallbacks:
+        return SubscriptionEventCallbacks(incompatible_qos=lambda info: self._incompatible(
+            topic, "a publisher", info, "publish reliable (the default of ros2 topic pub and of QoSProfile(depth=10))"))
+
+    def _incompatible(self, topic: str, them: str, info: Any, hint: str) -> None:
+        try:
+            policy = QoSPolicyKind(info.last_policy_kind).name
+        except ValueError:
+            policy = str(info.last_policy_kind)
+        self.get_logger().warning(
+            f"QoS incompatible on {topic!r}: {them} has a {policy} policy the node's endpoint cannot match; no "
+            f"messages flow between them ({info.total_count} such endpoint(s) so far). To connect: {hint}")
+
+    def _poll_events(self) -> None:
+        """Run the QoS event callbacks (no executor runs them here): take each event's status, call back
+        when its count changed. ~2 us per endpoint; polled with the services."""
+        for handler in self._event_handlers:
+            try:
+                handler._ready_to_take_data = True     # what a wait set would mark; then rclpy's own take
+                info = handler.take_data()
+            except (InvalidHandle, AttributeError, RuntimeError):
+                continue
+            if info is not None and getattr(info, "total_count_change", 0) > 0:
+                handler.callback(info)
+
     # --- recording ---------------------------------------------------------------------------
 
     def _make_recorder(self) -> BagRecorder | None:
@@ -369,13 +417,13 @@ class EmulatorNode(Node):
 
     def _on_duty(self, msg: Float64, info: Any = None) -> None:
         self._duty_messages += 1
-        self._input("duty_cycle", msg.data, info)
+        self._input(DUTY_CYCLE, msg.data, info)
 
     def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
-        self._input("load_flow", msg.data, info)
+        self._input(LOAD_FLOW, msg.data, info)
 
     def _on_supply(self, msg: FluidPressure, info: Any = None) -> None:
-        self._input("supply_pressure", msg.fluid_pressure, info)
+        self._input(SUPPLY_PRESSURE, msg.fluid_pressure, info)
 
     def _log_rejection(self, name: str, reason: str) -> None:
         now = time.monotonic()
@@ -422,6 +470,9 @@ class EmulatorNode(Node):
                 else:
                     srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
         self._pump()
+        self._polls += 1
+        if self._polls % EVENT_POLL_EVERY == 0:
+            self._poll_events()
 
     def _pump(self) -> None:
         """At a step boundary: apply a finished worker job (new model, settings) and answer its request;

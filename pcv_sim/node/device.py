@@ -30,6 +30,7 @@ from typing import Mapping, Protocol
 
 from pcv_sim.analysis.static import EquilibriumError
 from pcv_sim.errors import CommandError
+from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import (
@@ -45,7 +46,7 @@ __all__ = [
 MODEL_FAILURES = (ArithmeticError, ValueError)
 
 #: Input names, as the node's topics are called.
-INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
+INPUTS = INPUT_ROLES
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")

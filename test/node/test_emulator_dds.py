@@ -309,3 +309,23 @@ def test_colcon_built_executable_starts_and_publishes(ros, colcon_install):
     assert c.wait_for_emulator(START), emu.output()
     assert c.spin_until(lambda: len(c.samples) > 100, 10)
     assert emu.stop() == 0
+
+
+def test_incompatible_qos_is_logged_by_the_node(ros):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import FluidPressure
+    from std_msgs.msg import Float64
+
+    emu = ros.start()
+    c = ros.client()
+    assert c.wait_for_emulator(START)
+    c.node.create_subscription(FluidPressure, 'pressure', lambda m: None,
+                               QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    pub = c.node.create_publisher(Float64, 'duty_cycle',
+                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert c.spin_until(lambda: "QoS incompatible on 'pressure'" in emu.output()
+                        and "QoS incompatible on 'duty_cycle'" in emu.output(), 20), emu.output()
+    out = emu.output()
+    assert 'a subscriber has a RELIABILITY policy' in out and 'subscribe best effort' in out
+    assert 'a publisher has a RELIABILITY policy' in out and 'publish reliable' in out
+    assert pub is not None
