@@ -87,6 +87,8 @@ COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
 DIAGNOSTICS_QOS = QoSProfile(depth=10)
 CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
+CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
+EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
@@ -128,6 +130,8 @@ class EmulatorNode(Node):
         dt = params.simulation.time_step
         s = self.settings
         self.simulated = s.time_mode == "simulated"
+        self.external_clock = bool(self.get_parameter("use_sim_time").value)
+        self._clock_ns: int | None = None            # latest external /clock (use_sim_time)
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt))
         # Rest states (25-60 ms of model solves) are computed off the loop: the loop takes parameter
@@ -154,6 +158,8 @@ class EmulatorNode(Node):
         self._pub_spool = self.create_publisher(Float64, SPOOL_POSITION, sensor, event_callbacks=out(SPOOL_POSITION))
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
                                                event_callbacks=out(DIAGNOSTICS))
+        if self.simulated:
+            self._refuse_a_second_clock()
         self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
                            if self.simulated else None)
         inp = self._input_events
@@ -165,6 +171,9 @@ class EmulatorNode(Node):
             (self.create_subscription(FluidPressure, SUPPLY_PRESSURE, self._on_supply, COMMAND_QOS,
                                       event_callbacks=inp(SUPPLY_PRESSURE)), self._on_supply),
         ]
+        if self.external_clock:
+            self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
+                                                          event_callbacks=inp(CLOCK)), self._on_clock))
         self._event_handlers = [h for e in (*self.publishers, *self.subscriptions)
                                 for h in getattr(e, "event_handlers", ())]
         self.create_service(Trigger, RESET, self._on_reset)
@@ -181,8 +190,9 @@ class EmulatorNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic())
         self.recorder = self._make_recorder()
+        mode = "simulated" if self.simulated else "external /clock (use_sim_time)" if self.external_clock else "real"
         self.get_logger().info(
-            f"{'simulated' if self.simulated else 'real'} time, samples at {s.publish_rate:g} Hz, "
+            f"{mode} time, samples at {s.publish_rate:g} Hz, "
             f"model step {dt * 1e3:g} ms ({self.device.stepper.integrator}), watchdog "
             f"{s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config {s.valve_config or 'shipped default'}")
 
@@ -203,9 +213,10 @@ class EmulatorNode(Node):
             value = self._taken(spec.name, self.declare_parameter(spec.name, spec.default, desc).value, cli)
             values[spec.name] = check_node_value(spec.name, value)
         settings = NodeSettings.from_parameters(values)
-        if self.get_parameter("use_sim_time").value:
-            raise ParameterError("use_sim_time: the emulator keeps its own time (time_mode real or simulated, "
-                                 "where it publishes /clock itself); leave use_sim_time false")
+        if self.get_parameter("use_sim_time").value and settings.time_mode == "simulated":
+            raise ParameterError("use_sim_time: true follows another node's /clock, time_mode: simulated publishes "
+                                 "/clock itself; accepted is one of them: use_sim_time with time_mode real (the "
+                                 "model follows the external clock), or time_mode simulated without use_sim_time")
         params = load_params(settings.valve_config or None)
         changes = {}
         for mp in model_parameters(params):
@@ -419,6 +430,9 @@ class EmulatorNode(Node):
         self._duty_messages += 1
         self._input(DUTY_CYCLE, msg.data, info)
 
+    def _on_clock(self, msg: Clock, _info: Any = None) -> None:
+        self._clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+
     def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
         self._input(LOAD_FLOW, msg.data, info)
 
@@ -569,7 +583,8 @@ class EmulatorNode(Node):
         rec = self.recorder.status() if self.recorder is not None else None
         out = []
         for st in self._diag.build(now, device=self.device, settings=self.settings, schedule=self._schedule,
-                                   recorder=rec, samples_published=self.samples_published):
+                                   recorder=rec, samples_published=self.samples_published,
+                                   time_mode="external_clock" if self.external_clock else None):
             msg = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message,
                                    hardware_id=st.hardware_id)
             msg.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
@@ -578,7 +593,9 @@ class EmulatorNode(Node):
 
     def _publish_diagnostics(self, now: float) -> None:
         msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        # The node's ROS clock is not updated without an executor; the model time is the device's clock.
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+            self.device.stamp_ns() if self.simulated or self.external_clock else time.time_ns(), 1_000_000_000)
         msg.status = self.diagnostics(now)
         self._pub_diag.publish(msg)
 
@@ -589,6 +606,8 @@ class EmulatorNode(Node):
         try:
             if self.simulated:
                 self._run_simulated(stop)
+            elif self.external_clock:
+                self._run_external_clock(stop)
             else:
                 self._run_real_time(stop)
         finally:
@@ -716,6 +735,77 @@ class EmulatorNode(Node):
             self._publish_clock()
             self._publish(samples)
             published = mono()
+
+
+    def _refuse_a_second_clock(self) -> None:
+        """Two simulated-time emulators would both publish /clock, and every node with use_sim_time would
+        see time jump between them. Before creating its own /clock publisher the node looks for another
+        one for up to CLOCK_DISCOVERY s (discovery is usually done within the node's creation; under
+        load it can take longer) and refuses to start if it finds one. Only the newcomer looks, so a
+        running simulation is never stopped by a second one."""
+        end = time.monotonic() + CLOCK_DISCOVERY
+        while True:
+            others = self.count_publishers(CLOCK)
+            if others > 0 or time.monotonic() >= end:
+                break
+            time.sleep(0.05)
+        if others > 0:
+            raise ParameterError(
+                    f"time_mode: simulated: {others} other publisher(s) of {CLOCK} found; two clocks make time jump "
+                    "for every node that follows /clock. Accepted is one clock: run this emulator with "
+                    "use_sim_time:=true (time_mode real) to follow the other clock, or simulate several valves "
+                    "in one process (the multi-valve rig)")
+
+    def _run_external_clock(self, stop: StopFlag) -> None:
+        """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
+
+        Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
+        the steps up to it run and the samples that fell due are published. An input acts from the
+        step after the last one run when it was taken. The clock going back (a simulation reset)
+        re-anchors model time at the new clock, keeping the model's state."""
+        s, dev = self.settings, self.device
+        _freeze_heap()
+        mono = time.monotonic
+        max_steps = round(EXTERNAL_MAX_JUMP / dev.dt)
+        self._diag.restart(mono(), dev.steps)
+        next_diag = mono() + s.diagnostics_period
+        started = False
+        loops = 0
+        while not stop.requested:
+            loops += 1
+            self._drain()
+            now = mono()
+            if loops % SERVICE_POLL_EVERY == 0:
+                self._poll_services()
+            elif self._job is not None:
+                self._pump()
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
+            clock = self._clock_ns
+            if clock is None:
+                time.sleep(1e-3)
+                continue
+            if not started:
+                dev.origin_ns = clock - dev.steps * dev.dt_ns
+                self._start_recording()
+                self._publish([dev.sample()])
+                started = True
+                continue
+            target = (clock - dev.origin_ns) // dev.dt_ns
+            if target < dev.steps:
+                dev.origin_ns = clock - dev.steps * dev.dt_ns
+                self.get_logger().warning(f"{CLOCK} went back to {clock / 1e9:.4f} s: model time re-anchored "
+                                          "there (the model state is kept)", throttle_duration_sec=1.0)
+            elif target - dev.steps > max_steps:
+                skipped = target - dev.steps - max_steps
+                dev.skip(skipped)
+                self.get_logger().warning(f"{CLOCK} jumped {skipped * dev.dt:.3f} s ahead: the model was held over "
+                                          f"all but the last {EXTERNAL_MAX_JUMP:g} s", throttle_duration_sec=1.0)
+            elif target > dev.steps:
+                self._publish(self._run_steps(target - dev.steps))
+            else:
+                time.sleep(2e-4)           # wait for the clock to advance
 
 
 def _tighten_timer_slack() -> None:

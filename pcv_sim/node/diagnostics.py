@@ -61,7 +61,7 @@ class DiagnosticsBuilder:
                       {k: str(v) for k, v in values.items()})
 
     def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
-              recorder: RecorderStatus | None, samples_published: int) -> list[Status]:
+              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
         dev, s = device, settings
         wall = max(now - self._wall, 1e-9)
         period_steps = dev.steps - self._steps
@@ -71,15 +71,15 @@ class DiagnosticsBuilder:
             counts["skipped_steps"] = schedule.skipped_steps
         new = {k: v - self._counts.get(k, 0) for k, v in counts.items()}
         self._wall, self._steps, self._counts = now, dev.steps, counts
-        return [self._timing(dev, s, schedule, new, wall, period_steps),
+        return [self._timing(dev, s, schedule, new, wall, period_steps, time_mode or s.time_mode),
                 self._inputs(dev, s, new),
                 self._model(dev, samples_published),
                 self._recording(recorder)]
 
     def _timing(self, dev: ValveDevice, s: NodeSettings, sched: RealTimeSchedule | None, new: dict[str, int],
-                wall: float, period_steps: int) -> Status:
+                wall: float, period_steps: int, time_mode: str) -> Status:
         values: dict[str, Any] = {
-            "time_mode": s.time_mode,
+            "time_mode": time_mode,
             "model_time_s": f"{dev.time:.4f}",
             "real_time_factor": f"{period_steps * dev.dt / wall:.4f}",
             "model_time_origin_ns": dev.origin_ns,
@@ -88,7 +88,7 @@ class DiagnosticsBuilder:
         if sched is None:
             values["lockstep"] = str(s.lockstep).lower()
             values["real_time_factor_set"] = f"{s.real_time_factor:g}"
-            return self._status("timing", OK, problems, "simulated time", values)
+            return self._status("timing", OK, problems, f"{time_mode} time", values)
         late, skipped = new["late_steps"], new["skipped_steps"]
         computed = max(period_steps - skipped, 1)
         fraction = late / computed

@@ -90,7 +90,12 @@ def _run(argv: list[str], stop: Stop) -> int:
         except ParameterError as err:
             print(f"emulator: invalid parameters: {err}", file=sys.stderr)
             return EXIT_INVALID_PARAMETERS
-        node.run(stop)
+        try:
+            node.run(stop)
+        except ParameterError as err:           # found while running (e.g. a second /clock at start)
+            node.get_logger().error(f"invalid parameters: {err}")
+            print(f"emulator: invalid parameters: {err}", file=sys.stderr)
+            return EXIT_INVALID_PARAMETERS
         node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
         return EXIT_OK
     finally:

@@ -169,6 +169,7 @@ def _simulated_run(ros, name, n_samples=200):
 
     c = ros.client(name, on_pressure=answer)
     assert c.spin_until(lambda: len(answered) > n_samples, 60), f'lockstep stalled after {len(answered)} samples'
+    assert ros.emulators[-1].stop() == 0            # one /clock at a time (a second one is refused)
     return sorted(answered.items())[:n_samples + 1]
 
 
@@ -329,3 +330,58 @@ def test_incompatible_qos_is_logged_by_the_node(ros):
     assert 'a subscriber has a RELIABILITY policy' in out and 'subscribe best effort' in out
     assert 'a publisher has a RELIABILITY policy' in out and 'publish reliable' in out
     assert pub is not None
+
+
+# --- external clock (use_sim_time) ----------------------------------------------------------------
+
+def test_use_sim_time_follows_an_external_clock(ros):
+    """As under a Gazebo simulation: model time follows /clock, stamps are that clock."""
+    from rosgraph_msgs.msg import Clock
+
+    emu = ros.start(params={'use_sim_time': True, 'safe_duty': 0.3, 'watchdog_timeout': 0.0,
+                            'diagnostics_period': 0.2})
+    c = ros.client()
+    pub = c.node.create_publisher(Clock, '/clock', 10)
+    t0 = 1000 * 10**9                                 # the simulation's clock: 1000 s
+    assert c.spin_until(lambda: pub.get_subscription_count() > 0, START), emu.output()
+
+    def tick(k):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(t0 + k * 1_000_000, 10**9)
+        pub.publish(msg)
+
+    k = 0
+    while not c.samples and k < 20000:
+        tick(k)
+        k += 1
+        c.spin_for(0.002)
+    assert c.samples, emu.output()
+    for _ in range(200):                             # 200 ms of simulated time, at any wall pace
+        tick(k)
+        k += 1
+        c.spin_for(0.002)
+    last_clock = t0 + (k - 1) * 1_000_000
+    c.spin_for(0.5)
+    stamps = [s.stamp_ns for s in c.samples]
+    assert t0 <= stamps[0] and stamps[-1] <= last_clock, (stamps[0], stamps[-1], last_clock)
+    assert stamps[-1] >= last_clock - 2_000_000         # caught up with the clock
+    assert all(b - a == 1_000_000 for a, b in zip(stamps, stamps[1:])), 'a gap or a repeat in model time'
+    n = len(c.samples)
+    c.spin_for(0.3)                                  # the clock stands still: so does the model
+    assert len(c.samples) == n
+    diag = c.wait_for_diagnostics(timeout=10)
+    assert diag['time_mode'] == 'external_clock'
+
+
+def test_a_second_clock_and_use_sim_time_with_simulated_time_are_refused(ros):
+    first = ros.start('sim1', params={'time_mode': 'simulated', 'lockstep': True})
+    c = ros.client('sim1')
+    assert c.wait_for_emulator(START), first.output()
+    second = ros.start('sim2', params={'time_mode': 'simulated'})
+    both = ros.start('both', params={'time_mode': 'simulated', 'use_sim_time': True})
+    for emu, message in ((second, 'other publisher(s) of /clock found'),
+                         (both, 'use_sim_time: true follows another node')):
+        rc = emu.wait(START)
+        out = emu.output()
+        assert rc == 2 and message in out and 'Traceback' not in out, out
+    assert 'use_sim_time:=true' in second.output()
