@@ -1,9 +1,14 @@
-"""Typed, validated valve parameters, loaded from `config/*.yaml`.
+"""Typed, validated valve parameters, loaded from `config/*.yaml`; the one parameter mechanism.
 
 One frozen dataclass per section of the YAML file. Each field carries its unit, its source and
 the check that makes it physical; `load_params` refuses unknown keys, wrong types and
-non-physical values with a message naming the key and what is accepted. The node's
-parameter callback reuses `validate_section_value` so a runtime change is held to the same rules.
+non-physical values with a message naming the key and what is accepted.
+
+The same declarations serve the ROS node: its settings (`pcv_sim.node.settings.NodeSettings`)
+are fields declared with `setting(default, unit, description, check, ...)`, and every value, a
+valve YAML key, a `model.*` ROS parameter or a node setting, is converted and checked by
+`check_value` from its field's metadata. The node names model keys `model.<section>.<key>`
+(`prefix=` of `params_from_mapping`), so the messages name the parameter as the user wrote it.
 """
 
 from __future__ import annotations
@@ -35,7 +40,9 @@ __all__ = [
     "params_from_mapping",
     "params_to_mapping",
     "default_params",
+    "check_value",
     "replace_param",
+    "setting",
     "yaml_load_unique",
 ]
 
@@ -95,6 +102,17 @@ def _one_of(*choices: str) -> Check:
 
 def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float") -> Any:
     return field(metadata={"unit": unit, "source": source, "check": check, "kind": kind})
+
+
+def setting(default: Any, unit: str, description: str, check: Check = _any_finite, kind: str = "float", *,
+            name: str | None = None, read_only: bool = False,
+            convert: Callable[[str, Any], Any] | None = None) -> Any:
+    """A parameter with its default, unit, description, check and read-only flag, in one place (the
+    node's settings). `name`: the parameter's name if not the field's (`record.enabled`); `convert`:
+    a converter `(name, value) -> value` raising ParameterError, for values no kind describes."""
+    return field(default=default, metadata={"unit": unit, "source": "", "description": description,
+                                            "check": check, "kind": kind, "name": name, "read_only": read_only,
+                                            "convert": convert})
 
 
 # --- sections ---------------------------------------------------------------------------------
@@ -317,18 +335,26 @@ def _matrix(path: str, value: Any, rows: int | None, cols: int) -> tuple[tuple[f
     return tuple(_vector(f"{path}[{k}]", row, cols) for k, row in enumerate(value))
 
 
-def validate_section_value(section: str, key: str, value: Any) -> Any:
-    """Convert and check one parameter; raise ParameterError naming `section.key` if it is refused."""
+def validate_section_value(section: str, key: str, value: Any, *, prefix: str = "") -> Any:
+    """Convert and check one parameter; raise ParameterError naming `<prefix>section.key` if it is refused."""
     cls = _SECTIONS.get(section)
     if cls is None:
         raise ParameterError(f"unknown section {section!r}; accepted are: {', '.join(_SECTIONS)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     if key not in fields:
-        raise ParameterError(f"unknown parameter {section}.{key}; accepted in {section}: {', '.join(fields)}")
-    meta = fields[key].metadata
-    path, kind, check = f"{section}.{key}", meta["kind"], meta["check"]
+        raise ParameterError(f"unknown parameter {prefix}{section}.{key}; accepted in {section}: {', '.join(fields)}")
+    return check_value(f"{prefix}{section}.{key}", fields[key].metadata, value)
+
+
+def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+    """Convert and check one value of a declared parameter (its field's metadata: kind, unit, check,
+    convert); ParameterError naming `path` and what is accepted."""
+    kind, check, unit = meta["kind"], meta["check"], meta["unit"]
+    in_unit = f" in {unit}" if unit not in ("", "-") else ""
+    if meta.get("convert") is not None:
+        return meta["convert"](path, value)
     if kind == "float":
-        out: Any = _number(path, value, f"a number in {meta['unit']}")
+        out: Any = _number(path, value, f"a number{in_unit}")
     elif kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
@@ -337,14 +363,18 @@ def validate_section_value(section: str, key: str, value: Any) -> Any:
         if not isinstance(value, str):
             raise ParameterError(f"{path}: got {value!r}; accepted is {check('') or 'a string'}")
         out = value
+    elif kind == "bool":
+        if not isinstance(value, bool):
+            raise ParameterError(f"{path}: got {value!r}; accepted is true or false")
+        out = value
     elif kind == "float_or_null":
         if value is None:
             return None
-        out = _number(path, value, f"null (off) or a number in {meta['unit']}")
+        out = _number(path, value, f"null (off) or a number{in_unit}")
     elif kind == "float_or_equivalent":
         if value == "equivalent":
             return value
-        out = _number(path, value, f"'equivalent' or a number in {meta['unit']}")
+        out = _number(path, value, f"'equivalent' or a number{in_unit}")
     elif kind.startswith("vector"):
         out = _vector(path, value, int(kind[6:]))
     elif kind == "matrix4x4":
@@ -355,12 +385,18 @@ def validate_section_value(section: str, key: str, value: Any) -> Any:
         raise AssertionError(kind)
     problem = check(out)
     if problem is not None:
-        raise ParameterError(f"{path}: got {value!r}; accepted is {problem} ({meta['unit']})")
+        raise ParameterError(f"{path}: got {value!r}; accepted is {problem}{f' ({unit})' if in_unit else ''}")
     return out
 
 
-def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams:
-    """Build ValveParams from a nested mapping (as loaded from YAML), refusing anything unknown."""
+def params_from_mapping(data: Any, *, origin: str | None = "parameters", prefix: str = "") -> ValveParams:
+    """Build ValveParams from a nested mapping (as loaded from YAML), refusing anything unknown.
+
+    Messages start with `origin: ` (None: no origin) and name keys `<prefix>section.key`."""
+
+    def where(err: ParameterError) -> ParameterError:
+        return ParameterError(f"{origin}: {err}" if origin else str(err))
+
     if not isinstance(data, Mapping):
         raise ParameterError(f"{origin}: the top level must be a mapping of sections ({', '.join(_SECTIONS)})")
     unknown = sorted(set(data) - set(_SECTIONS))
@@ -376,17 +412,17 @@ def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams
             raise ParameterError(f"{origin}: section {name!r} must be a mapping of key: value")
         names = [f.name for f in dataclasses.fields(cls)]
         try:
-            values = {str(k): validate_section_value(name, str(k), v) for k, v in raw.items()}
+            values = {str(k): validate_section_value(name, str(k), v, prefix=prefix) for k, v in raw.items()}
         except ParameterError as err:  # unknown keys first: a misspelt key is not reported as missing
-            raise ParameterError(f"{origin}: {err}") from None
+            raise where(err) from None
         absent = [k for k in names if k not in raw]
         if absent:
-            raise ParameterError(f"{origin}: missing parameter(s) {', '.join(f'{name}.{k}' for k in absent)}")
+            raise where(ParameterError(f"missing parameter(s) {', '.join(f'{prefix}{name}.{k}' for k in absent)}"))
         sections[name] = cls(**values)
     try:
         return ValveParams(**sections)
     except ParameterError as err:
-        raise ParameterError(f"{origin}: {err}") from None
+        raise where(err) from None
 
 
 def params_to_mapping(params: ValveParams) -> dict[str, dict[str, Any]]:

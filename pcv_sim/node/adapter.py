@@ -232,7 +232,7 @@ class EmulatorNode(Node):
         if unknown:
             self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
         if changes:
-            params = params_with(params, changes, origin="ROS parameters")
+            params = params_with(params, changes)
         return settings.check(params), params
 
     def _taken(self, name: str, declared: Any, cli: dict[str, Override]) -> Any:

@@ -63,7 +63,7 @@ def test_bad_command_lines_are_refused_at_start(ros):
     cases = [
         # rcl keeps the file's 2.0 for a string override: refused, not run silently with 2.0
         (['--params-file', shipped, '-p', 'watchdog_timeout:=abc'],
-         "watchdog_timeout: got 'abc' (str); accepted is a number >= 0"),
+         "watchdog_timeout: got 'abc' (str); accepted is a number in s"),
         (['--params-file', shipped, '-p', 'model.spool.mass:=heavy'], "model.spool.mass: got 'heavy'"),
         (['--params-file', shipped, '-p', 'watchdog_timout:=1.0'],
          'unknown parameter(s) watchdog_timout (did you mean watchdog_timeout?)'),
