@@ -150,6 +150,7 @@ class EmulatorNode(Node):
         self._suppressed = dict.fromkeys(INPUTS, 0)
         self.samples_published = 0
         self._polls = 0
+        self._last_input_step: dict[str, int] = {}   # per input topic: the step its last valid value acts at
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
         out, sensor = self._output_events, qos_profile_sensor_data
@@ -422,9 +423,14 @@ class EmulatorNode(Node):
         return min(-(-(r_ns - dev.origin_ns) // dev.dt_ns), taken)
 
     def _input(self, name: str, value: float, info: Any) -> None:
-        reason = self.device.submit(name, value, self._at_step(info))
+        # Two inputs on one topic never act at the same step (a starved DDS thread can receive
+        # several at once): the later acts one step after the earlier, so none is lost unseen.
+        at = max(self._at_step(info) or 0, self._last_input_step.get(name, -1) + 1, self.device.steps + 1)
+        reason = self.device.submit(name, value, at)
         if reason is not None:
             self._log_rejection(name, reason)
+        else:
+            self._last_input_step[name] = at
 
     def _on_duty(self, msg: Float64, info: Any = None) -> None:
         self._duty_messages += 1
