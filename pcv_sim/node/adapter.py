@@ -272,8 +272,10 @@ class EmulatorNode(Node):
                 model_changes[p.name] = p.value
             elif p.name in names:
                 node_changes[p.name] = p.value
-            elif p.name == "use_sim_time" and p.value:
-                return SetParametersResult(successful=False, reason="use_sim_time: the emulator keeps its own time")
+            elif p.name == "use_sim_time" and bool(p.value) != self.external_clock:
+                return SetParametersResult(successful=False, reason=(
+                    "use_sim_time is fixed while the node runs (the model's clock is chosen at start): restart "
+                    f"with -p use_sim_time:={'true' if p.value else 'false'}"))
         base_settings, base_params = self._pending or (self.settings, self.device.params)
         try:
             settings = settings_with(base_settings, node_changes)

@@ -245,6 +245,7 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
         'watchdog_timeout': (-0.5, 'watchdog_timeout: got -0.5; accepted is a finite number >= 0'),
         'model.calibration.net_area': (1.0, 'calibration.net_area'),
         'model.nosuch.key': (1.0, 'unknown parameter(s) model.nosuch.key; accepted are'),
+        'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),
     }
     results = c.set_parameters({k: v for k, (v, _) in cases.items()})
     for (name, (_, reason)), result in zip(cases.items(), results):
