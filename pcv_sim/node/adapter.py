@@ -89,6 +89,7 @@ CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
+JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
@@ -150,6 +151,7 @@ class EmulatorNode(Node):
         self._suppressed = dict.fromkeys(INPUTS, 0)
         self.samples_published = 0
         self._polls = 0
+        self._switch_interval = sys.getswitchinterval()
         self._last_input_step: dict[str, int] = {}   # per input topic: the step its last valid value acts at
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
@@ -505,6 +507,7 @@ class EmulatorNode(Node):
             if not answer.done():
                 return
             self._job = None
+            sys.setswitchinterval(self._switch_interval)
             for apply in self._ready:
                 apply()
             self._ready.clear()
@@ -512,6 +515,10 @@ class EmulatorNode(Node):
             srv.send_response(answer.result(), header)
         if self._deferred:
             srv, request, header = self._deferred.popleft()
+            # While the worker computes (~40 ms of Python) the loop waits for the interpreter lock at
+            # each wake: a short switch interval hands it over sooner (bench/node_restart.py).
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(JOB_SWITCH_INTERVAL)
             self._job = (srv, header, self._worker.submit(self._serve, srv, request))
 
     def _serve(self, srv: Any, request: Any) -> Any:
