@@ -14,6 +14,7 @@ out. Topic names are relative, so a namespace runs one valve per steering chambe
     out  spool_position   std_msgs/Float64            m (x > 0 opens pump -> load)      sensor data
     out  /diagnostics     diagnostic_msgs/DiagnosticArray, every diagnostics_period (wall)
     out  /clock           rosgraph_msgs/Clock (simulated time only)
+    in   /clock           rosgraph_msgs/Clock (use_sim_time only: the model follows it)
     srv  reset            std_srvs/Trigger: back to rest at the present operating point, clears a fault
 
 The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz)
@@ -21,11 +22,20 @@ The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz
     (`wake_period`, 1 ms), then: takes every pending input message (`take_message` polling),
     asks the `RealTimeSchedule` which 0.1 ms steps are due (model time = steps * dt, never ahead of
     wall time, never drifting), runs them, publishes the samples that fell due, and every 10th
-    wake answers pending service requests (parameters, reset). An input takes effect at the
-    first model step whose stamp is at or after the input's DDS reception time. Stamps are
-    model time anchored to the ROS clock at start, so they are wall-consistent.
+    wake takes pending service requests: parameter sets and reset go to a worker thread that
+    validates them and computes the new rest state (25-60 ms), the loop swaps the result in at
+    its next wake and answers (`_pump`); the rest is answered at once. An input takes effect at
+    the first model step whose stamp is at or after the input's DDS reception time (and after
+    the previous input on its topic). Stamps are model time anchored to the ROS clock at start,
+    so they are wall-consistent. Falling behind: `overrun` (catch_up up to max_catchup, or skip).
     Simulated time: model time starts at 0 and runs in chunks of one publish period; see
     `_run_simulated` for when an input takes effect.
+    External clock (use_sim_time): the steps up to each new /clock run when it arrives; see
+    `_run_external_clock`.
+
+Parameters are declared from `pcv_sim.node.settings` (one declaration each); what rcl leaves
+silent is checked by `pcv_sim.node.parameters`; diagnostics are built by `pcv_sim.node.diagnostics`.
+QoS incompatibility events are polled with the services (no executor runs their callbacks).
 
 Recorder hook: `EmulatorNode.set_recorder(recorder, every)` makes the device call
 `recorder(t_ns, signals)` at every `every`-th model step (see pcv_sim.node.device.SIGNALS); a
@@ -193,9 +203,10 @@ class EmulatorNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic())
         self.recorder = self._make_recorder()
-        mode = "simulated" if self.simulated else "external /clock (use_sim_time)" if self.external_clock else "real"
+        mode = ("simulated time" if self.simulated else "time from an external /clock (use_sim_time)"
+                if self.external_clock else "real time")
         self.get_logger().info(
-            f"{mode} time, samples at {s.publish_rate:g} Hz, "
+            f"{mode}, samples at {s.publish_rate:g} Hz, "
             f"model step {dt * 1e3:g} ms ({self.device.stepper.integrator}), watchdog "
             f"{s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config {s.valve_config or 'shipped default'}")
 
@@ -799,6 +810,9 @@ class EmulatorNode(Node):
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)
             clock = self._clock_ns
             if clock is None:
+                if loops == 2000:           # ~2 s: say why nothing is published
+                    self.get_logger().warning(f"no {CLOCK} received yet: the model waits for the simulation's "
+                                              "clock (use_sim_time is true)")
                 time.sleep(1e-3)
                 continue
             if not started:
