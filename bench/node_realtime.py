@@ -2,6 +2,7 @@
 
     .venv-kilted/bin/python bench/node_realtime.py --duration 60
     .venv-kilted/bin/python bench/node_realtime.py --duration 600      # the 10-minute run
+    .venv-kilted/bin/python bench/node_realtime.py --duration 60 --load 2 --param overrun:=skip
 
 Starts `python -m pcv_sim.node.emulator` (this interpreter, default parameters, watchdog off)
 in its own ROS domain on localhost, subscribes to `pressure` best-effort with a deep queue, and
@@ -60,6 +61,7 @@ def main() -> int:
     ap.add_argument("--domain", type=int, default=120 + os.getpid() % 80)
     ap.add_argument("--json", type=Path, help="write the figures here")
     ap.add_argument("--param", action="append", default=[], help="extra emulator parameter NAME:=VALUE")
+    ap.add_argument("--load", type=int, default=0, help="CPU-bound processes beside the node (as test's cpu_load)")
     opts = ap.parse_args()
 
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
@@ -69,6 +71,7 @@ def main() -> int:
            "-p", "watchdog_timeout:=0.0", "-p", "safe_duty:=0.3"]
     for p in opts.param:
         cmd += ["-p", p]
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"], env=env) for _ in range(opts.load)]
     log = open(f"/tmp/pcv_bench_emulator_{os.getpid()}.log", "w")
     proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     ctx = rclpy.Context()
@@ -102,6 +105,8 @@ def main() -> int:
         last_diag = client.wait_for_diagnostics(timeout=5)
         client.spin_for(0.2)
     finally:
+        for h in hogs:
+            h.kill()
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(20)
         client.close()

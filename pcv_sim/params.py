@@ -1,9 +1,14 @@
-"""Typed, validated valve parameters, loaded from `config/*.yaml`.
+"""Typed, validated valve parameters, loaded from `config/*.yaml`; the one parameter mechanism.
 
 One frozen dataclass per section of the YAML file. Each field carries its unit, its source and
 the check that makes it physical; `load_params` refuses unknown keys, wrong types and
-non-physical values with a message naming the key and what is accepted. The node's
-parameter callback reuses `validate_section_value` so a runtime change is held to the same rules.
+non-physical values with a message naming the key and what is accepted.
+
+The same declarations serve the ROS node: its settings (`pcv_sim.node.settings.NodeSettings`)
+are fields declared with `setting(default, unit, description, check, ...)`, and every value, a
+valve YAML key, a `model.*` ROS parameter or a node setting, is converted and checked by
+`check_value` from its field's metadata. The node names model keys `model.<section>.<key>`
+(`prefix=` of `params_from_mapping`), so the messages name the parameter as the user wrote it.
 """
 
 from __future__ import annotations
@@ -35,7 +40,10 @@ __all__ = [
     "params_from_mapping",
     "params_to_mapping",
     "default_params",
+    "check_value",
     "replace_param",
+    "setting",
+    "yaml_load_unique",
 ]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
@@ -74,6 +82,18 @@ def _fraction(v: float) -> str | None:
     return None if 0.0 <= v <= 1.0 else "a fraction in 0..1"
 
 
+def _range(lo: float, hi: float) -> Check:
+    """A plausible physical range for a valve of this class (a small solenoid proportional valve on
+    a mobile hydraulic circuit), wide around the paper's values: beyond it the model means
+    nothing (e.g. a 1e-12 m^3 load volume makes it diverge), so it is refused, not run."""
+
+    def check(v: float) -> str | None:
+        return None if lo <= v <= hi else f"a plausible value {lo:g} .. {hi:g}"
+
+    check.lo, check.hi = lo, hi  # type: ignore[attr-defined]  # the range, for default fit bounds
+    return check
+
+
 def _one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
@@ -83,6 +103,17 @@ def _one_of(*choices: str) -> Check:
 
 def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float") -> Any:
     return field(metadata={"unit": unit, "source": source, "check": check, "kind": kind})
+
+
+def setting(default: Any, unit: str, description: str, check: Check = _any_finite, kind: str = "float", *,
+            name: str | None = None, read_only: bool = False,
+            convert: Callable[[str, Any], Any] | None = None) -> Any:
+    """A parameter with its default, unit, description, check and read-only flag, in one place (the
+    node's settings). `name`: the parameter's name if not the field's (`record.enabled`); `convert`:
+    a converter `(name, value) -> value` raising ParameterError, for values no kind describes."""
+    return field(default=default, metadata={"unit": unit, "source": "", "description": description,
+                                            "check": check, "kind": kind, "name": name, "read_only": read_only,
+                                            "convert": convert})
 
 
 # --- sections ---------------------------------------------------------------------------------
@@ -97,38 +128,38 @@ class SolenoidParams:
     restoring_f3: tuple[float, ...] = _param("A/Wb per mm^k", "T1 p_f31..p_f33", kind="vector3")
     dissipating: tuple[float, ...] = _param("A/V^k", "T1 p_d1..p_d4", kind="vector4")
     force: tuple[tuple[float, ...], ...] = _param("N/A^k per mm^j", "T1 p_fs11..p_fs44", kind="matrix4x4")
-    core_offset_mm: float = _param("mm", "R2", _non_negative)
-    coil_resistance: float = _param("ohm", "R16", _positive)
-    supply_voltage: float = _param("V", "Sec. 3.1", _positive)
+    core_offset_mm: float = _param("mm", "R2", _range(0.0, 10.0))
+    coil_resistance: float = _param("ohm", "R16", _range(0.5, 200.0))
+    supply_voltage: float = _param("V", "Sec. 3.1", _range(1.0, 60.0))
     pwm: str = _param("-", "R15", _one_of("averaged", "switched"), kind="str")
-    pwm_frequency: float = _param("Hz", "Sec. 3", _positive)
+    pwm_frequency: float = _param("Hz", "Sec. 3", _range(10.0, 1e5))
 
 
 @dataclass(frozen=True)
 class SpoolParams:
     """Eq. 14: the moving parts."""
 
-    mass: float = _param("kg", "T1 m", _positive)
-    pressure_area: float = _param("m^2", "T1 A_c", _positive)
-    chamber_area: float = _param("m^2", "T1 A_cc", _non_negative)
-    spring_stiffness: float = _param("N/m", "T1 K", _non_negative)
-    spring_preload: float = _param("N", "T1 f_0", _any_finite)
-    viscous_friction: float = _param("Ns/m", "T1 B", _non_negative)
-    viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _positive, kind="float_or_equivalent")
-    stroke_min_mm: float = _param("mm", "Sec. 4.2", _any_finite)
-    stroke_max_mm: float = _param("mm", "Sec. 4.2", _any_finite)
+    mass: float = _param("kg", "T1 m", _range(1e-3, 1.0))
+    pressure_area: float = _param("m^2", "T1 A_c", _range(1e-7, 1e-2))
+    chamber_area: float = _param("m^2", "T1 A_cc", _range(0.0, 1e-2))
+    spring_stiffness: float = _param("N/m", "T1 K", _range(0.0, 1e6))
+    spring_preload: float = _param("N", "T1 f_0", _range(-1e3, 1e3))
+    viscous_friction: float = _param("Ns/m", "T1 B", _range(0.0, 1e5))
+    viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _range(1e-3, 1e5), kind="float_or_equivalent")
+    stroke_min_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
+    stroke_max_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
 
 
 @dataclass(frozen=True)
 class OrificeParams:
     """Eq. 17 and Sec. 2: the metering holes and gaps."""
 
-    hole_radius: float = _param("m", "Sec. 2, R4", _positive)
-    hole_count: int = _param("-", "Sec. 2", _positive, kind="int")
-    gap_height: float = _param("m", "T1 h_gap", _positive)
-    tank_pilot_hole_radius: float = _param("m", "Sec. 2, R10", _positive)
-    tank_hole_offset: float = _param("m", "Sec. 2, R10", _non_negative)
-    blend_steepness_per_mm: float = _param("1/mm", "Eq. 27, R7", _positive)
+    hole_radius: float = _param("m", "Sec. 2, R4", _range(1e-5, 1e-2))
+    hole_count: int = _param("-", "Sec. 2", _range(1, 100), kind="int")
+    gap_height: float = _param("m", "T1 h_gap", _range(1e-7, 1e-3))
+    tank_pilot_hole_radius: float = _param("m", "Sec. 2, R10", _range(1e-5, 1e-2))
+    tank_hole_offset: float = _param("m", "Sec. 2, R10", _range(0.0, 1e-2))
+    blend_steepness_per_mm: float = _param("1/mm", "Eq. 27, R7", _range(1.0, 1e6))
 
 
 @dataclass(frozen=True)
@@ -150,22 +181,22 @@ class FitParams:
 class DampingParams:
     """Eqs. 28-29: restrictor and damping chamber."""
 
-    restrictor_conductance: float = _param("m^5/(N s)", "T1 K_d", _positive)
-    chamber_volume: float = _param("m^3", "T1 V_c", _positive)
+    restrictor_conductance: float = _param("m^5/(N s)", "T1 K_d", _range(1e-15, 1e-6))
+    chamber_volume: float = _param("m^3", "T1 V_c", _range(1e-12, 1e-4))
 
 
 @dataclass(frozen=True)
 class FluidParams:
-    density: float = _param("kg/m^3", "T1 rho", _positive)
-    bulk_modulus: float = _param("Pa", "T1 beta", _positive)
-    kinematic_viscosity: float = _param("m^2/s", "T1 nu", _positive)
+    density: float = _param("kg/m^3", "T1 rho", _range(500.0, 2000.0))
+    bulk_modulus: float = _param("Pa", "T1 beta", _range(1e8, 5e9))
+    kinematic_viscosity: float = _param("m^2/s", "T1 nu", _range(1e-7, 1e-2))
 
 
 @dataclass(frozen=True)
 class CircuitParams:
-    load_volume: float = _param("m^3", "T1 V", _positive)
-    supply_pressure: float = _param("Pa", "Sec. 3.2", _positive)
-    tank_pressure: float = _param("Pa", "R19", _non_negative)
+    load_volume: float = _param("m^3", "T1 V", _range(1e-6, 1.0))
+    supply_pressure: float = _param("Pa", "Sec. 3.2", _range(1e5, 400e5))
+    tank_pressure: float = _param("Pa", "R19", _range(0.0, 10e5))
 
 
 @dataclass(frozen=True)
@@ -181,12 +212,12 @@ def _duty_range(v: tuple[float, ...]) -> str | None:
 @dataclass(frozen=True)
 class CommandParams:
     duty_range: tuple[float, ...] = _param("-", "PWM duty, Sec. 3", _duty_range, kind="vector2")
-    duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _positive, kind="float_or_null")
+    duty_fall_rate_limit: float | None = _param("1/s", "Sec. 3.2", _range(1e-3, 1e6), kind="float_or_null")
 
 
 @dataclass(frozen=True)
 class SimulationParams:
-    time_step: float = _param("s", "Sec. 3", _positive)
+    time_step: float = _param("s", "Sec. 3", _range(1e-7, 1e-3))
     integrator: str = _param("-", "docs/model.md", _one_of("auto", "euler", "rk2", "rk4", "erk2"), kind="str")
     model: str = _param("-", "Sec. 4.2 / 4.3", _one_of("simplified", "full"), kind="str")
 
@@ -320,18 +351,26 @@ def _matrix(path: str, value: Any, rows: int | None, cols: int) -> tuple[tuple[f
     return tuple(_vector(f"{path}[{k}]", row, cols) for k, row in enumerate(value))
 
 
-def validate_section_value(section: str, key: str, value: Any) -> Any:
-    """Convert and check one parameter; raise ParameterError naming `section.key` if it is refused."""
+def validate_section_value(section: str, key: str, value: Any, *, prefix: str = "") -> Any:
+    """Convert and check one parameter; raise ParameterError naming `<prefix>section.key` if it is refused."""
     cls = _SECTIONS.get(section)
     if cls is None:
         raise ParameterError(f"unknown section {section!r}; accepted are: {', '.join(_SECTIONS)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     if key not in fields:
-        raise ParameterError(f"unknown parameter {section}.{key}; accepted in {section}: {', '.join(fields)}")
-    meta = fields[key].metadata
-    path, kind, check = f"{section}.{key}", meta["kind"], meta["check"]
+        raise ParameterError(f"unknown parameter {prefix}{section}.{key}; accepted in {section}: {', '.join(fields)}")
+    return check_value(f"{prefix}{section}.{key}", fields[key].metadata, value)
+
+
+def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+    """Convert and check one value of a declared parameter (its field's metadata: kind, unit, check,
+    convert); ParameterError naming `path` and what is accepted."""
+    kind, check, unit = meta["kind"], meta["check"], meta["unit"]
+    in_unit = f" in {unit}" if unit not in ("", "-") else ""
+    if meta.get("convert") is not None:
+        return meta["convert"](path, value)
     if kind == "float":
-        out: Any = _number(path, value, f"a number in {meta['unit']}")
+        out: Any = _number(path, value, f"a number{in_unit}")
     elif kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
@@ -340,14 +379,18 @@ def validate_section_value(section: str, key: str, value: Any) -> Any:
         if not isinstance(value, str):
             raise ParameterError(f"{path}: got {value!r}; accepted is {check('') or 'a string'}")
         out = value
+    elif kind == "bool":
+        if not isinstance(value, bool):
+            raise ParameterError(f"{path}: got {value!r}; accepted is true or false")
+        out = value
     elif kind == "float_or_null":
         if value is None:
             return None
-        out = _number(path, value, f"null (off) or a number in {meta['unit']}")
+        out = _number(path, value, f"null (off) or a number{in_unit}")
     elif kind == "float_or_equivalent":
         if value == "equivalent":
             return value
-        out = _number(path, value, f"'equivalent' or a number in {meta['unit']}")
+        out = _number(path, value, f"'equivalent' or a number{in_unit}")
     elif kind.startswith("vector"):
         out = _vector(path, value, int(kind[6:]))
     elif kind == "matrix4x4":
@@ -358,12 +401,18 @@ def validate_section_value(section: str, key: str, value: Any) -> Any:
         raise AssertionError(kind)
     problem = check(out)
     if problem is not None:
-        raise ParameterError(f"{path}: got {value!r}; accepted is {problem} ({meta['unit']})")
+        raise ParameterError(f"{path}: got {value!r}; accepted is {problem}{f' ({unit})' if in_unit else ''}")
     return out
 
 
-def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams:
-    """Build ValveParams from a nested mapping (as loaded from YAML), refusing anything unknown."""
+def params_from_mapping(data: Any, *, origin: str | None = "parameters", prefix: str = "") -> ValveParams:
+    """Build ValveParams from a nested mapping (as loaded from YAML), refusing anything unknown.
+
+    Messages start with `origin: ` (None: no origin) and name keys `<prefix>section.key`."""
+
+    def where(err: ParameterError) -> ParameterError:
+        return ParameterError(f"{origin}: {err}" if origin else str(err))
+
     if not isinstance(data, Mapping):
         raise ParameterError(f"{origin}: the top level must be a mapping of sections ({', '.join(_SECTIONS)})")
     unknown = sorted(set(data) - set(_SECTIONS))
@@ -379,17 +428,17 @@ def params_from_mapping(data: Any, *, origin: str = "parameters") -> ValveParams
             raise ParameterError(f"{origin}: section {name!r} must be a mapping of key: value")
         names = [f.name for f in dataclasses.fields(cls)]
         try:
-            values = {str(k): validate_section_value(name, str(k), v) for k, v in raw.items()}
+            values = {str(k): validate_section_value(name, str(k), v, prefix=prefix) for k, v in raw.items()}
         except ParameterError as err:  # unknown keys first: a misspelt key is not reported as missing
-            raise ParameterError(f"{origin}: {err}") from None
+            raise where(err) from None
         absent = [k for k in names if k not in raw]
         if absent:
-            raise ParameterError(f"{origin}: missing parameter(s) {', '.join(f'{name}.{k}' for k in absent)}")
+            raise where(ParameterError(f"missing parameter(s) {', '.join(f'{prefix}{name}.{k}' for k in absent)}"))
         sections[name] = cls(**values)
     try:
         return ValveParams(**sections)
     except ParameterError as err:
-        raise ParameterError(f"{origin}: {err}") from None
+        raise where(err) from None
 
 
 def params_to_mapping(params: ValveParams) -> dict[str, dict[str, Any]]:
@@ -404,6 +453,31 @@ def params_to_mapping(params: ValveParams) -> dict[str, dict[str, Any]]:
     }
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses a key given twice in one mapping (plain YAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise ParameterError(f"duplicate key {key!r} at line {line} (first at line {seen[key]}); "
+                                     "accepted is each key once per mapping (YAML would keep the last silently)")
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def yaml_load_unique(text: str, origin: str) -> Any:
+    """yaml.safe_load that refuses duplicate keys; ParameterError naming `origin`, the key and line."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except ParameterError as err:
+        raise ParameterError(f"{origin}: {err}") from None
+    except yaml.YAMLError as err:
+        raise ParameterError(f"{origin}: not valid YAML: {err}") from err
+
+
 def load_params(path: str | Path | None = None) -> ValveParams:
     """Load and validate a valve YAML file (default: config/valve.yaml)."""
     p = Path(path) if path is not None else _installed_default()
@@ -411,11 +485,7 @@ def load_params(path: str | Path | None = None) -> ValveParams:
         text = p.read_text(encoding="utf-8")
     except OSError as err:
         raise ParameterError(f"cannot read parameter file {p}: {err.strerror}") from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ParameterError(f"{p}: not valid YAML: {err}") from err
-    return params_from_mapping(data, origin=str(p))
+    return params_from_mapping(yaml_load_unique(text, str(p)), origin=str(p))
 
 
 _DEFAULT: ValveParams | None = None

@@ -141,6 +141,10 @@ def fit_parameter(params: ValveParams, spec: str) -> FitParameter:
         if not lo <= x0 <= hi:
             msg = f"--fit {spec!r}: the start value {x0:g} (from the config) lies outside {lo:g}..{hi:g}"
             raise CalibrationError(msg)
+    elif hasattr(f.metadata["check"], "lo"):        # a plausible physical range: stay inside it
+        r_lo, r_hi = f.metadata["check"].lo, f.metadata["check"].hi
+        lo, hi = (x0 / 4.0, x0 * 4.0) if x0 > 0 and r_lo >= 0 else (x0 - 3.0 * max(abs(x0), 1.0), x0 + 3.0 * max(abs(x0), 1.0))
+        lo, hi = max(lo, r_lo), min(hi, r_hi)
     elif check_name in ("_positive", "_non_negative") and x0 > 0:
         lo, hi = x0 / 4.0, x0 * 4.0
     elif check_name == "_fraction":

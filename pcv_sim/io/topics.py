@@ -1,4 +1,4 @@
-"""The device's topics (docs/interface.md): names, message types and units, in one place.
+"""The device's topics and service (docs/interface.md): names, message types and units, in one place.
 
 The node uses the relative names (so ``--ros-args -r __ns:=/left`` moves a whole valve); a bag
 recorded by the emulator in the root namespace holds them as ``/<name>`` (:data:`BAG_TOPICS`).
@@ -17,6 +17,7 @@ from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
 
 __all__ = [
     "BAG_TOPICS",
+    "CLOCK",
     "CURRENT",
     "DIAGNOSTICS",
     "DUTY_CYCLE",
@@ -24,6 +25,7 @@ __all__ = [
     "LOAD_FLOW",
     "OUTPUT_ROLES",
     "PRESSURE",
+    "RESET",
     "ROLES",
     "ROLE_ALIASES",
     "ROLE_TYPES",
@@ -42,6 +44,8 @@ PRESSURE: Final = "pressure"                # out, sensor_msgs/FluidPressure, Pa
 CURRENT: Final = "current"                  # out, std_msgs/Float64, A
 SPOOL_POSITION: Final = "spool_position"    # out, std_msgs/Float64, m
 DIAGNOSTICS: Final = "/diagnostics"         # out, diagnostic_msgs/DiagnosticArray (absolute by ROS habit)
+CLOCK: Final = "/clock"                     # out (simulated time) or in (use_sim_time), rosgraph_msgs/Clock
+RESET: Final = "reset"                      # service, std_srvs/Trigger
 
 INPUT_ROLES: Final = (DUTY_CYCLE, LOAD_FLOW, SUPPLY_PRESSURE)
 OUTPUT_ROLES: Final = (PRESSURE, CURRENT, SPOOL_POSITION)

@@ -25,6 +25,10 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from pcv_sim.io.topics import (
+    CURRENT, DIAGNOSTICS, DUTY_CYCLE, LOAD_FLOW, PRESSURE, RESET, SPOOL_POSITION, SUPPLY_PRESSURE,
+)
+
 __all__ = ["EmulatorClient", "PressureSample", "sample_qos"]
 
 
@@ -46,7 +50,7 @@ class EmulatorClient:
 
     def __init__(
         self, namespace: str = "/", *, context: Any = None, node_name: str = "pcv_client",
-        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = ("pressure",),
+        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = (PRESSURE,),
         on_pressure: Callable[[PressureSample], None] | None = None,
     ) -> None:
         self.context = context
@@ -54,24 +58,25 @@ class EmulatorClient:
         ns = self.node.get_namespace().rstrip("/")
         self.emulator_name = f"{ns}/{emulator_node}"
         self.samples: list[PressureSample] = []
-        self.outputs: dict[str, list[tuple[int, float]]] = {"current": [], "spool_position": []}
+        self.outputs: dict[str, list[tuple[int, float]]] = {CURRENT: [], SPOOL_POSITION: []}
         self.diagnostics: list[dict[str, str]] = []
         self.diagnostic_levels: list[int] = []
         self.diagnostic_messages: list[str] = []
+        self.diagnostic_statuses: list[dict[str, tuple[int, str]]] = []   # concern -> (level, message)
         self.duty_sent: list[tuple[float, int]] = []
         self._on_pressure = on_pressure
         qos = sample_qos(sample_depth)
         cmd = QoSProfile(depth=10)
-        self.pub_duty = self.node.create_publisher(Float64, "duty_cycle", cmd)
-        self.pub_load_flow = self.node.create_publisher(Float64, "load_flow", cmd)
-        self.pub_supply = self.node.create_publisher(FluidPressure, "supply_pressure", cmd)
-        if "pressure" in outputs:
-            self.node.create_subscription(FluidPressure, "pressure", self._pressure, qos)
-        for name in ("current", "spool_position"):
+        self.pub_duty = self.node.create_publisher(Float64, DUTY_CYCLE, cmd)
+        self.pub_load_flow = self.node.create_publisher(Float64, LOAD_FLOW, cmd)
+        self.pub_supply = self.node.create_publisher(FluidPressure, SUPPLY_PRESSURE, cmd)
+        if PRESSURE in outputs:
+            self.node.create_subscription(FluidPressure, PRESSURE, self._pressure, qos)
+        for name in (CURRENT, SPOOL_POSITION):
             if name in outputs:
                 self.node.create_subscription(Float64, name, self._scalar(name), qos)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, QoSProfile(depth=50))
-        self.reset_client = self.node.create_client(Trigger, "reset")
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
+        self.reset_client = self.node.create_client(Trigger, RESET)
         self.param_client = self.node.create_client(SetParameters, f"{self.emulator_name}/set_parameters")
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -91,12 +96,21 @@ class EmulatorClient:
         return callback
 
     def _diagnostics(self, msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.name.startswith(self.emulator_name + ":"):
-                self.diagnostics.append({kv.key: kv.value for kv in st.values})
-                level = st.level
-                self.diagnostic_levels.append(level[0] if isinstance(level, (bytes, bytearray)) else int(level))
-                self.diagnostic_messages.append(st.message)
+        """One entry per message of this emulator: the statuses' values merged (the keys are unique
+        across concerns), the highest level, the messages joined; per concern in `diagnostic_statuses`."""
+        ours = [st for st in msg.status if st.name.startswith(self.emulator_name + ":")]
+        if not ours:
+            return
+        merged: dict[str, str] = {}
+        statuses: dict[str, tuple[int, str]] = {}
+        for st in ours:
+            merged.update({kv.key: kv.value for kv in st.values})
+            level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+            statuses[st.name[len(self.emulator_name) + 1:].strip()] = (level, st.message)
+        self.diagnostics.append(merged)
+        self.diagnostic_statuses.append(statuses)
+        self.diagnostic_levels.append(max(level for level, _ in statuses.values()))
+        self.diagnostic_messages.append("; ".join(m for _, m in statuses.values()))
 
     # --- spinning ----------------------------------------------------------------------------
 

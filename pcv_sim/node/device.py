@@ -8,9 +8,12 @@ device's model time, `steps * dt`), and
   with its reason and the last valid value stays in force;
 - runs the watchdog in model time: `watchdog_timeout` s after the last valid duty command took
   effect, the duty falls to `safe_duty`; the next valid command resumes;
-- enters a fault state when the model state goes non-finite or a model step raises (e.g. no
-  coil current solves Eq. 2 for a runaway state): it stops stepping and emits no samples (a
-  controller must not read a dead sensor as a valid one) until `reset()`;
+- enters a fault state when the model state goes non-finite, leaves what any valve can produce
+  (`PhysicalLimits`: a pressure outside -1 bar .. 2 x the highest supply, a coil current beyond
+  2 x supply voltage / coil resistance) or a model step raises (e.g. no coil current solves
+  Eq. 2 for a runaway state): it stops stepping and emits no samples (a controller must not read
+  a dead sensor, or a diverging model, as a valid one) until `reset()` or new parameters
+  (`install`); the limits are checked on every sample and recorder call before it leaves;
 - returns samples at every `sample_every`-th step (`run`) and calls an optional recorder
   `recorder(t_ns, signals)` at every `record_every`-th step (the hook for bag logging).
 
@@ -20,22 +23,29 @@ Everything is deterministic for a given sequence of (step, input) pairs.
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Protocol
 
 from pcv_sim.errors import CommandError
+from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
-from pcv_sim.simulation.stepper import RealTimeStepper, check_load_flow, check_supply_pressure
+from pcv_sim.simulation.stepper import (
+    MAX_SUPPLY_PRESSURE, RealTimeStepper, check_load_flow, check_supply_pressure,
+)
 
-__all__ = ["INPUTS", "SIGNALS", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper"]
+__all__ = [
+    "INPUTS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
+    "trial_run",
+]
 
 #: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
 MODEL_FAILURES = (ArithmeticError, ValueError)
 
 #: Input names, as the node's topics are called.
-INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
+INPUTS = INPUT_ROLES
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
@@ -45,6 +55,41 @@ class Recorder(Protocol):
     """Receives one model sample: t_ns (stamp of the sample's model time), signals by SIGNALS name."""
 
     def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None: ...
+
+
+#: Model steps a new rest state is run on trial before it is accepted (20 ms at 0.1 ms): a model
+#: that diverges at rest at the present operating point is refused, not installed.
+TRIAL_STEPS = 200
+
+
+@dataclass(frozen=True)
+class PhysicalLimits:
+    """What a valve of these parameters can show; beyond it the model has diverged (a fault).
+
+    pressure: -1 bar (vacuum, gauge) .. 2 x the highest supply the device accepts or is configured
+    with (a reducing valve cannot exceed its supply; the factor leaves room for compression of the
+    load by a pushed-in flow). current: |i| <= 2 x supply voltage / coil resistance (the steady
+    current at duty 1 is V/R; the factor leaves room for the induced voltage)."""
+
+    pressure_min: float     # Pa
+    pressure_max: float     # Pa
+    current_max: float      # A
+
+    @classmethod
+    def of(cls, params: ValveParams) -> PhysicalLimits:
+        sol = params.solenoid
+        return cls(-1.0e5, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
+                   2.0 * sol.supply_voltage / sol.coil_resistance)
+
+    def problem(self, pressure: float, current: float) -> str | None:
+        """Why (pressure, current) is no valve's, or None."""
+        if not self.pressure_min <= pressure <= self.pressure_max:
+            return (f"pressure {pressure / 1e5:.4g} bar outside the physical range {self.pressure_min / 1e5:g} .. "
+                    f"{self.pressure_max / 1e5:g} bar: the model diverged")
+        if not abs(current) <= self.current_max:
+            return (f"coil current {current:.4g} A beyond the coil's possible +-{self.current_max:.3g} A: "
+                    "the model diverged")
+        return None
 
 
 class WatchdogState:
@@ -104,6 +149,7 @@ class ValveDevice:
         self.fault: str | None = None
         self.fault_step: int | None = None
         self.last_good: Sample | None = None
+        self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
         self.last_good = self.sample()
 
@@ -126,21 +172,45 @@ class ValveDevice:
         if self.watchdog_state in (WatchdogState.WAITING, WatchdogState.FIRED):
             self._apply_duty(self.safe_duty)
 
-    def prepare(self, params: ValveParams, integrator: str | None = None) -> RealTimeStepper:
-        """A stepper for new parameters at the present operating point (raises if it cannot be built)."""
+    def prepare(self, params: ValveParams | None = None, integrator: str | None = None) -> RealTimeStepper:
+        """A stepper at rest at the present operating point, for new parameters (default: the present
+        ones). Raises if it cannot be built, or (ValueError) if it diverges within TRIAL_STEPS at rest.
+
+        Reads the device but changes nothing: it may run in another thread than `run` (it takes
+        25-60 ms); `install` then swaps the result in at a step boundary."""
+        params = self.params if params is None else params
         if params.simulation.time_step != self.params.simulation.time_step:
             raise ValueError("the model time step cannot change while the device runs")
         duty = self.duty_command_in_force
         check_duty(duty, params.command.duty_range)
-        return rest_stepper(params, duty, self.load_flow, self.supply_pressure, integrator=integrator)
+        if integrator is None and params is self.params:
+            integrator = self.stepper.integrator
+        stepper = rest_stepper(params, duty, self.load_flow, self.supply_pressure, integrator=integrator)
+        problem = trial_run(stepper, PhysicalLimits.of(params))
+        if problem is not None:
+            raise ValueError(f"the model faults again at once at rest at duty {duty:g}: {problem}")
+        return stepper
 
-    def install(self, stepper: RealTimeStepper) -> None:
-        """Swap in a stepper from `prepare`: the model restarts at rest at the present operating point
-        (the equilibrium for the command, load flow and supply pressure in force); model time goes on."""
+    def install(self, stepper: RealTimeStepper) -> str:
+        """Swap in a stepper from `prepare`: the model restarts at rest (the equilibrium for the
+        command, load flow and supply pressure in force when it was prepared; inputs taken since act
+        from now); model time goes on; a fault is cleared. Returns what was done."""
+        was = self.fault
         self.params = stepper.params
+        self.limits = PhysicalLimits.of(stepper.params)
         self.stepper = stepper
-        if self.fault is None:
-            self.last_good = self.sample()
+        try:
+            stepper.set_duty(self.duty_command_in_force)
+            stepper.set_load_flow(self.load_flow)
+            if self.supply_pressure is not None:
+                stepper.set_supply_pressure(self.supply_pressure)
+        except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
+            self.counts.last_rejection = f"after a model restart: {err}"
+        self.fault = None
+        self.fault_step = None
+        self.last_good = self.sample()
+        what = f"model at rest at duty {self.duty_command_in_force:g}, {stepper.pressure / 1e5:.2f} bar"
+        return f"{what} (cleared fault: {was})" if was else what
 
     # --- inputs ------------------------------------------------------------------------------
 
@@ -248,7 +318,7 @@ class ValveDevice:
             if self.fault is None:
                 try:
                     self.stepper.advance(stop - self.steps)
-                    problem = None if self.stepper.finite() else "model state went non-finite"
+                    problem = self._state_problem()
                 except MODEL_FAILURES as err:
                     problem = f"model step failed ({type(err).__name__}: {err})"
                 if problem is not None:
@@ -265,8 +335,15 @@ class ValveDevice:
                     sample = self.sample() if stop % self.sample_every == 0 else None
                     signals = (self.signals() if self.recorder is not None and stop % self.record_every == 0
                                else None)
+                    # Nothing a valve cannot produce leaves the device: checked before it is shown.
+                    shown = sample or signals
+                    problem = (None if shown is None else
+                               self.limits.problem(shown.pressure, shown.current) if isinstance(shown, Sample)
+                               else self.limits.problem(shown["pressure"], shown["current"]))
                 except MODEL_FAILURES as err:
-                    self._model_fault(f"model output failed ({type(err).__name__}: {err})")
+                    problem = f"model output failed ({type(err).__name__}: {err})"
+                if problem is not None:
+                    self._model_fault(problem)
                     continue
                 if sample is not None:
                     out.append(sample)
@@ -274,6 +351,14 @@ class ValveDevice:
                 if signals is not None:
                     self.recorder(self.stamp_ns(stop), signals)
         return out
+
+    def _state_problem(self) -> str | None:
+        """A cheap check after every stretch of steps (state only; the current is checked on output)."""
+        if not self.stepper.finite():
+            return "model state went non-finite"
+        p = self.stepper.pressure
+        lim = self.limits
+        return None if lim.pressure_min <= p <= lim.pressure_max else lim.problem(p, 0.0)
 
     def skip(self, n: int) -> None:
         """Let n steps of model time pass without computing them (the model state is held)."""
@@ -307,15 +392,9 @@ class ValveDevice:
             self.fault_step = self.steps
 
     def reset(self) -> str:
-        """Back to rest at the present operating point; clears a fault. Returns what was done."""
-        was = self.fault
-        self.stepper = rest_stepper(self.params, self.duty_command_in_force, self.load_flow, self.supply_pressure,
-                                    integrator=self.stepper.integrator)
-        self.fault = None
-        self.fault_step = None
-        self.last_good = self.sample()
-        what = f"model at rest at duty {self.duty_command_in_force:g}, {self.stepper.pressure / 1e5:.2f} bar"
-        return f"{what} (cleared fault: {was})" if was else what
+        """Back to rest at the present operating point; clears a fault. Returns what was done.
+        Raises (ValueError) and changes nothing if the model would fault again at once."""
+        return self.install(self.prepare())
 
 
 def rest_stepper(params: ValveParams, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None,
@@ -324,6 +403,22 @@ def rest_stepper(params: ValveParams, duty: float, load_flow: float = 0.0, suppl
     equilibrium, or where the model settles when none exists, e.g. on the end stop at low duty)."""
     return RealTimeStepper(params, integrator=integrator, duty=duty, load_flow=load_flow,
                            supply_pressure=supply_pressure)
+
+
+def trial_run(stepper: RealTimeStepper, limits: PhysicalLimits, steps: int = TRIAL_STEPS) -> str | None:
+    """Run a copy of `stepper` for `steps` steps with its inputs; why it faulted, or None."""
+    trial = copy.deepcopy(stepper)
+    try:
+        for _ in range(0, steps, 10):
+            trial.advance(10)
+            if not trial.finite():
+                return "model state went non-finite"
+            problem = limits.problem(trial.pressure, trial.current)
+            if problem is not None:
+                return problem
+    except MODEL_FAILURES as err:
+        return f"model step failed ({type(err).__name__}: {err})"
+    return None
 
 
 def _positive_int(value: int, name: str) -> int:

@@ -1,7 +1,9 @@
 """The emulator node's parameters: node settings and the model's parameters as ROS parameters.
 
 No ROS here: values come in as plain Python (what rclpy's `Parameter.value` gives) and are
-validated with the same rules and messages as the model's YAML (`pcv_sim.params`).
+validated by the one mechanism of `pcv_sim.params`: each node setting is a `NodeSettings` field
+declared once with `setting(default, unit, description, check, ...)`; `NODE_PARAMETERS` (what
+the node declares, its --help) is derived from those fields.
 
 Model parameters appear as `model.<section>.<key>` (e.g. `model.spool.mass`), every scalar and
 vector field of the valve YAML; the matrix-valued curve fits (`solenoid.force`, `fits.*` tables)
@@ -18,7 +20,7 @@ from typing import Any, Callable, Mapping
 
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import RECORDABLE, check_signals
-from pcv_sim.params import ValveParams, params_from_mapping, params_to_mapping
+from pcv_sim.params import ValveParams, check_value, params_from_mapping, params_to_mapping, setting
 from pcv_sim.simulation.clock import steps_per
 from pcv_sim.simulation.duty import check_duty
 
@@ -36,66 +38,50 @@ RUNTIME_FIXED_MODEL = ("simulation.time_step",)
 
 
 # --- node settings ---------------------------------------------------------------------------
+# Checks in the pcv_sim.params style: value -> None when fine, else the text "what is accepted".
 
 
-def _number(name: str, v: Any, accepted: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ParameterError(f"{name}: got {v!r} ({type(v).__name__}); accepted is {accepted}")
-    return float(v)
+def _positive(v: float) -> str | None:
+    return None if v > 0.0 else "a finite number > 0"
 
 
-def _finite_positive(name: str, v: Any) -> float:
-    x = _number(name, v, "a number > 0")
-    if not (math.isfinite(x) and x > 0.0):
-        raise ParameterError(f"{name}: got {v!r}; accepted is a finite number > 0")
-    return x
+def _non_negative(v: float) -> str | None:
+    return None if v >= 0.0 else "a finite number >= 0"
 
 
-def _finite_non_negative(name: str, v: Any) -> float:
-    x = _number(name, v, "a number >= 0")
-    if not (math.isfinite(x) and x >= 0.0):
-        raise ParameterError(f"{name}: got {v!r}; accepted is a finite number >= 0")
-    return x
+def _duty_fraction(v: float) -> str | None:
+    return None if 0.0 <= v <= 1.0 else "a duty fraction 0..1"
 
 
-def _factor(name: str, v: Any) -> float:
-    x = _number(name, v, "a number >= 0 (0 or inf: as fast as possible)")
-    if math.isnan(x) or x < 0.0:
-        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
-    return x
+def _fraction(v: float) -> str | None:
+    return None if 0.0 <= v <= 1.0 else "a fraction 0..1"
 
 
-def _fraction(name: str, v: Any) -> float:
-    x = _number(name, v, "a duty fraction 0..1")
-    if not (math.isfinite(x) and 0.0 <= x <= 1.0):
-        raise ParameterError(f"{name}: got {v!r}; accepted is a duty fraction 0..1")
-    return x
-
-
-def _one_of(*choices: str) -> Callable[[str, Any], str]:
-    def check(name: str, v: Any) -> str:
-        if v not in choices:
-            raise ParameterError(f"{name}: got {v!r}; accepted is one of {', '.join(map(repr, choices))}")
-        return str(v)
+def _one_of(*choices: str) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        return None if v in choices else f"one of {', '.join(map(repr, choices))}"
     return check
 
 
-def _boolean(name: str, v: Any) -> bool:
-    if not isinstance(v, bool):
-        raise ParameterError(f"{name}: got {v!r}; accepted is true or false")
-    return v
+def _priority(v: int) -> str | None:
+    return None if 0 <= v <= 99 else "an integer 0..99 (0 = normal scheduling)"
 
 
-def _priority(name: str, v: Any) -> int:
-    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 99:
-        raise ParameterError(f"{name}: got {v!r}; accepted is an integer 0..99 (0 = normal scheduling)")
-    return v
+def _any(_v: Any) -> str | None:
+    return None
 
 
-def _string(name: str, v: Any) -> str:
-    if not isinstance(v, str):
-        raise ParameterError(f"{name}: got {v!r}; accepted is a string")
-    return v
+def _bag_name(v: str) -> str | None:
+    if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
+        return "'' (a timestamped name) or a plain directory name of letters, digits, '_', '-', '.'"
+    return None
+
+
+def _factor(name: str, v: Any) -> float:
+    """real_time_factor: a number >= 0, where 0 and inf both mean as fast as possible."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
+        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
+    return float(v)
 
 
 def _record_signals(name: str, v: Any) -> tuple[str, ...]:
@@ -110,96 +96,78 @@ def _record_signals(name: str, v: Any) -> tuple[str, ...]:
         raise ParameterError(f"{name}: {err}") from None
 
 
-def _bag_name(name: str, v: Any) -> str:
-    v = _string(name, v)
-    if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
-        raise ParameterError(f"{name}: got {v!r}; accepted is '' (a timestamped name) or a plain directory "
-                             "name of letters, digits, '_', '-', '.'")
-    return v
-
-
-@dataclass(frozen=True)
-class NodeParameter:
-    name: str
-    default: Any
-    unit: str
-    description: str
-    check: Callable[[str, Any], Any]
-    read_only: bool = False
-
-    @property
-    def attr(self) -> str:
-        """The NodeSettings field (dots become underscores: record.rate_hz -> record_rate_hz)."""
-        return self.name.replace(".", "_")
-
-
-NODE_PARAMETERS: tuple[NodeParameter, ...] = (
-    NodeParameter("time_mode", "real", "-", "real: model time follows the wall clock (hardware in the loop); "
-                  "simulated: model time decoupled, /clock published (controller CI)", _one_of("real", "simulated"),
-                  read_only=True),
-    NodeParameter("publish_rate", 1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); "
-                  "its period must be a whole multiple of the model step", _finite_positive),
-    NodeParameter("wake_period", 1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock "
-                  "and computes the steps due", _finite_positive, read_only=True),
-    NodeParameter("late_threshold", 1e-3, "s", "real time: a step is late when the wake that computes it comes more "
-                  "than this after its scheduled wake", _finite_non_negative),
-    NodeParameter("max_catchup", 0.05, "s", "real time: a backlog longer than this is skipped (model held), "
-                  "not computed", _finite_positive),
-    NodeParameter("realtime_priority", 0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this "
-                  "priority (needs root or an rtprio limit); 0 = normal scheduling", _priority, read_only=True),
-    NodeParameter("watchdog_timeout", 0.5, "s", "no valid duty command for this long (model time) -> safe_duty; "
-                  "0 = off", _finite_non_negative),
-    NodeParameter("safe_duty", 0.0, "-", "duty fraction applied before the first command and when the watchdog "
-                  "fires", _fraction),
-    NodeParameter("real_time_factor", 0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast "
-                  "as possible", _factor),
-    NodeParameter("lockstep", True, "-", "simulated time: after each published sample wait for one duty_cycle "
-                  "message before advancing (deterministic controller-in-the-loop)", _boolean, read_only=True),
-    NodeParameter("valve_config", "", "-", "valve model YAML; '' = the shipped config/valve.yaml", _string,
-                  read_only=True),
-    NodeParameter("diagnostics_period", 1.0, "s", "wall-clock period of /diagnostics", _finite_positive),
-    NodeParameter("frame_id", "load_port", "-", "header.frame_id of the pressure samples", _string),
-    NodeParameter("reject_log_period", 1.0, "s", "at most one log line per input topic per this period for "
-                  "rejected inputs (all are counted)", _finite_non_negative),
-    NodeParameter("record.enabled", False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start "
-                  "(the device at rest) until SIGINT/SIGTERM", _boolean, read_only=True),
-    NodeParameter("record.directory", ".", "-", "directory the bag is created in (made if missing; ~ expanded)",
-                  _string, read_only=True),
-    NodeParameter("record.name", "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an "
-                  "existing bag is never overwritten", _bag_name, read_only=True),
-    NodeParameter("record.signals", list(RECORDABLE), "-", "signals to record: inputs on change (the duty as the "
-                  "model used it), outputs at record.rate_hz", _record_signals, read_only=True),
-    NodeParameter("record.rate_hz", 1000.0, "Hz", "output samples in the bag (model time); 10000 = every 0.1 ms "
-                  "model step; the period must be a whole multiple of the model step", _finite_positive,
-                  read_only=True),
-    NodeParameter("record.split_size_mb", 0.0, "MB", "start a new .mcap file of the bag at this size "
-                  "(10^6 bytes); 0 = one file", _finite_non_negative, read_only=True),
-)
-_NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
-
-
 @dataclass(frozen=True)
 class NodeSettings:
-    time_mode: str = "real"
-    publish_rate: float = 1000.0
-    wake_period: float = 1e-3
-    late_threshold: float = 1e-3
-    max_catchup: float = 0.05
-    realtime_priority: int = 0
-    watchdog_timeout: float = 0.5
-    safe_duty: float = 0.0
-    real_time_factor: float = 0.0
-    lockstep: bool = True
-    valve_config: str = ""
-    diagnostics_period: float = 1.0
-    frame_id: str = "load_port"
-    reject_log_period: float = 1.0
-    record_enabled: bool = False
-    record_directory: str = "."
-    record_name: str = ""
-    record_signals: tuple[str, ...] = RECORDABLE
-    record_rate_hz: float = 1000.0
-    record_split_size_mb: float = 0.0
+    """The node's parameters: each declared once, with default, unit, description, check, read-only."""
+
+    time_mode: str = setting(
+        "real", "-", "real: model time follows the wall clock (hardware in the loop), or an external /clock "
+        "with use_sim_time; simulated: model time decoupled, /clock published (controller CI)",
+        _one_of("real", "simulated"), "str", read_only=True)
+    publish_rate: float = setting(
+        1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
+        "whole multiple of the model step", _positive)
+    wake_period: float = setting(
+        1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock and computes the steps "
+        "due", _positive, read_only=True)
+    late_threshold: float = setting(
+        1e-3, "s", "real time: a step is late when the wake that computes it comes more than this after its "
+        "scheduled wake", _non_negative)
+    overrun: str = setting(
+        "catch_up", "-", "real time, when the loop falls behind wall time: catch_up computes the backlog at "
+        "once (continuous model, samples late by up to max_catchup); skip holds the model over any backlog "
+        "beyond one wake period (samples on time, model state jumps)", _one_of("catch_up", "skip"), "str")
+    max_catchup: float = setting(
+        0.05, "s", "real time, overrun catch_up: a backlog longer than this is skipped (model held), not "
+        "computed", _positive)
+    realtime_priority: int = setting(
+        0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this priority (needs root or an "
+        "rtprio limit); 0 = normal scheduling", _priority, "int", read_only=True)
+    watchdog_timeout: float = setting(
+        2.0, "s", "no valid duty command for this long (model time) -> safe_duty; 0 = off. Above the 1 s "
+        "period of `ros2 topic pub`'s default rate", _non_negative)
+    safe_duty: float = setting(
+        0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
+    real_time_factor: float = setting(
+        0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast as possible",
+        convert=_factor)
+    lockstep: bool = setting(
+        True, "-", "simulated time: after each published sample wait for one duty_cycle message before "
+        "advancing (deterministic controller-in-the-loop)", _any, "bool", read_only=True)
+    valve_config: str = setting(
+        "", "-", "valve model YAML; '' = the shipped config/valve.yaml", _any, "str", read_only=True)
+    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", _positive)
+    diagnostics_late_fraction: float = setting(
+        0.01, "-", "timing status WARN when more than this fraction of the steps of a diagnostics period were "
+        "late (a few late steps on a shared machine are normal)", _fraction, name="diagnostics.late_fraction")
+    diagnostics_max_lag: float = setting(
+        0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
+        "period (a sample then leaves that late)", _positive, name="diagnostics.max_lag")
+    frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", _any, "str")
+    reject_log_period: float = setting(
+        1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
+        _non_negative)
+    allow_unknown_parameters: bool = setting(
+        False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
+        "file) stops the node at start (exit 2); true: warn and ignore it", _any, "bool", read_only=True)
+    record_enabled: bool = setting(
+        False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start (the device at rest) until "
+        "SIGINT/SIGTERM", _any, "bool", name="record.enabled", read_only=True)
+    record_directory: str = setting(
+        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", _any, "str",
+        name="record.directory", read_only=True)
+    record_name: str = setting(
+        "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
+        "overwritten", _bag_name, "str", name="record.name", read_only=True)
+    record_signals: tuple[str, ...] = setting(
+        RECORDABLE, "-", "signals to record: inputs on change (the duty as the model used it), outputs at "
+        "record.rate_hz", name="record.signals", read_only=True, convert=_record_signals)
+    record_rate_hz: float = setting(
+        1000.0, "Hz", "output samples in the bag (model time); 10000 = every 0.1 ms model step; the period must "
+        "be a whole multiple of the model step", _positive, name="record.rate_hz", read_only=True)
+    record_split_size_mb: float = setting(
+        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", _non_negative,
+        name="record.split_size_mb", read_only=True)
 
     def check(self, params: ValveParams) -> NodeSettings:
         """Cross-checks against the model (step multiples, duty range); returns self or raises."""
@@ -219,6 +187,11 @@ class NodeSettings:
             raise ParameterError(f"safe_duty: {err}") from None
         return self
 
+    @property
+    def catchup_bound(self) -> float:
+        """s of backlog the real-time loop computes rather than skips (see `overrun`)."""
+        return self.max_catchup if self.overrun == "catch_up" else self.wake_period
+
     def sample_every(self, dt: float) -> int:
         """Model steps per published sample."""
         return steps_per(1.0 / self.publish_rate, dt, what="publish period")
@@ -231,6 +204,29 @@ class NodeSettings:
     def from_parameters(cls, values: Mapping[str, Any]) -> NodeSettings:
         """Settings from checked values keyed by parameter name (record.rate_hz, ...)."""
         return cls(**{_NODE_BY_NAME[k].attr: v for k, v in values.items()})
+
+
+@dataclass(frozen=True)
+class NodeParameter:
+    """One node parameter as the node declares it (derived from NodeSettings' field)."""
+
+    name: str
+    attr: str            # the NodeSettings field
+    default: Any         # as a ROS parameter value (lists, not tuples)
+    unit: str
+    description: str
+    read_only: bool
+    meta: Mapping[str, Any]
+
+    def check(self, name: str, value: Any) -> Any:
+        return check_value(name, self.meta, value)
+
+
+NODE_PARAMETERS: tuple[NodeParameter, ...] = tuple(
+    NodeParameter(f.metadata["name"] or f.name, f.name, list(f.default) if isinstance(f.default, tuple) else f.default,
+                  f.metadata["unit"], f.metadata["description"], f.metadata["read_only"], f.metadata)
+    for f in dataclasses.fields(NodeSettings))
+_NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
 
 
 def check_node_value(name: str, value: Any) -> Any:
@@ -302,8 +298,7 @@ def model_parameters(params: ValveParams) -> list[ModelParameter]:
     return out
 
 
-def params_with(params: ValveParams, changes: Mapping[str, Any], *, origin: str = "ROS parameters",
-                runtime: bool = False) -> ValveParams:
+def params_with(params: ValveParams, changes: Mapping[str, Any], *, runtime: bool = False) -> ValveParams:
     """params with `model.<section>.<key>` values changed, validated as a whole (so that related
     values, e.g. both spool areas, can change together). ParameterError names what is wrong."""
     kinds = {p.name: p.kind for p in model_parameters(params)}
@@ -318,12 +313,5 @@ def params_with(params: ValveParams, changes: Mapping[str, Any], *, origin: str 
                                  "restart the node with the new value")
         section, key = dotted.split(".", 1)
         mapping[section][key] = model_value_from_ros(kinds[name], value)
-    try:
-        return params_from_mapping(mapping, origin=origin)
-    except ParameterError as err:
-        msg = str(err)
-        if msg.startswith(f"{origin}: "):    # the per-key messages name the ROS parameter instead
-            msg = msg[len(origin) + 2:]
-        if msg.startswith(tuple(f"{section}." for section in mapping)):
-            msg = MODEL_PREFIX + msg          # name the ROS parameter: model.spool.mass, not spool.mass
-        raise ParameterError(msg) from None
+    # Keys are named as the ROS parameters (model.spool.mass); cross-field rules name section.key.
+    return params_from_mapping(mapping, origin=None, prefix=MODEL_PREFIX)

@@ -51,6 +51,18 @@ class Simulator:
         self._weights = exponential_weights(plant.rates, self.dt)
         self.steps = 0
 
+    def copy(self) -> Simulator:
+        """An independent simulator in the same state (its own arrays, the same compiled code)."""
+        new = object.__new__(Simulator)
+        new.__dict__.update(self.__dict__)
+        for name in ("x", "u", "P", "W", "Y", "U"):
+            setattr(new, name, getattr(self, name).copy())
+        new._scratch = tuple(a.copy() for a in self._scratch)
+        return new
+
+    def __deepcopy__(self, memo: dict[int, object]) -> Simulator:
+        return self.copy()          # compiled functions and their module are shared, not copied
+
     @property
     def time(self) -> float:
         """Model time (s): an integer count of steps, so it never drifts."""

@@ -142,9 +142,13 @@ def test_replace_param_returns_a_validated_copy() -> None:
          r"spool\.viscous_friction_simplified: got 'tuned' .*'equivalent' or a number in Ns/m"),
         (set_key("calibration", "net_area", "none"), r"calibration\.net_area: got 'none' .*null \(off\) or a number"),
         # non-physical values
-        (set_key("spool", "mass", -0.04), r"spool\.mass: got -0\.04; accepted is a finite number > 0 \(kg\)"),
-        (set_key("circuit", "load_volume", 0.0), r"circuit\.load_volume: got 0\.0; accepted is a finite number > 0"),
-        (set_key("circuit", "tank_pressure", -1.0), r"circuit\.tank_pressure: .*>= 0"),
+        (set_key("spool", "mass", -0.04), r"spool\.mass: got -0\.04; accepted is a plausible value 0\.001 \.\. 1 \(kg\)"),
+        (set_key("circuit", "load_volume", 0.0), r"circuit\.load_volume: got 0\.0; accepted is a plausible value 1e-06 \.\. 1 \(m\^3\)"),
+        # Plausible ranges, not signs: 1e-12 m^3 passes "> 0" but makes the model diverge (issue: 1.2e282 bar).
+        (set_key("circuit", "load_volume", 1e-12), r"circuit\.load_volume: got 1e-12; accepted is a plausible value 1e-06 \.\. 1"),
+        (set_key("fluid", "bulk_modulus", 1e14), r"fluid\.bulk_modulus: got 1\d+\.0; accepted is a plausible value 1e\+08 \.\. 5e\+09 \(Pa\)"),
+        (set_key("circuit", "supply_pressure", 2000.0e5), r"circuit\.supply_pressure: got 200000000\.0; accepted is a plausible value 100000 \.\. 4e\+07 \(Pa\)"),
+        (set_key("circuit", "tank_pressure", -1.0), r"circuit\.tank_pressure: got -1\.0; accepted is a plausible value 0 \.\. 1e\+06 \(Pa\)"),
         (set_key("fluid", "density", math.nan), r"fluid\.density: got nan; accepted is a finite number"),
         (set_key("fluid", "density", math.inf), r"fluid\.density: got inf; accepted is a finite number"),
         (set_key("spool", "chamber_area", 6.36e-5), r"spool\.chamber_area=6\.36e-05 >= spool\.pressure_area"),
@@ -154,13 +158,14 @@ def test_replace_param_returns_a_validated_copy() -> None:
         (set_key("spool", "stroke_max_mm", -0.1), r"spool\.stroke_max_mm=-0\.1"),
         (set_key("spool", "stroke_min_mm", -2.0), r"stroke_min_mm \+ solenoid\.core_offset_mm .*must stay >= 0"),
         (set_key("calibration", "net_area", 7e-5), r"calibration\.net_area=7e-05: accepted is null"),
-        (set_key("circuit", "tank_pressure", 300e5), r"circuit\.tank_pressure must be below circuit\.supply_pressure"),
-        (set_key("simulation", "time_step", 2e-3), r"simulation\.time_step=0\.002: accepted is 0 < time_step <= 1e-3"),
+        (lambda d: d["circuit"].update(tank_pressure=9e5, supply_pressure=5e5),
+         r"circuit\.tank_pressure must be below circuit\.supply_pressure"),
+        (set_key("simulation", "time_step", 2e-3), r"simulation\.time_step: got 0\.002; accepted is a plausible value 1e-07 \.\. 0\.001 \(s\)"),
         (set_key("command", "duty_range", [0.0, 1.5]), r"command\.duty_range: got \[0\.0, 1\.5\]; accepted is \[min, max\]"),
         (set_key("command", "duty_range", [-0.1, 1.0]), r"command\.duty_range: .*0 <= min < max <= 1"),
         (set_key("command", "duty_range", [0.8, 0.2]), r"command\.duty_range: got \[0\.8, 0\.2\]"),
         (set_key("command", "duty_range", [0.5, 0.5]), r"command\.duty_range: got \[0\.5, 0\.5\]"),
-        (set_key("command", "duty_fall_rate_limit", 0.0), r"command\.duty_fall_rate_limit: got 0\.0; .*> 0"),
+        (set_key("command", "duty_fall_rate_limit", 0.0), r"command\.duty_fall_rate_limit: got 0\.0; accepted is a plausible value 0\.001"),
         (set_key("fits", "pump_jet_cap", 1.2), r"fits\.pump_jet_cap: got 1\.2; accepted is a fraction in 0\.\.1"),
         # choices
         (set_key("solenoid", "pwm", "pulsed"), r"solenoid\.pwm: got 'pulsed'; accepted is one of 'averaged', 'switched'"),
@@ -235,7 +240,7 @@ def test_top_level_must_be_a_mapping(tmp_path: Path, text: str) -> None:
         ("spool.masss", 0.04, r"unknown parameter spool\.masss; accepted in spool: mass"),
         ("bogus.mass", 0.04, r"unknown section 'bogus'"),
         ("spool.mass", "heavy", r"spool\.mass: got 'heavy'"),
-        ("spool.mass", -1.0, r"spool\.mass: got -1\.0; accepted is a finite number > 0"),
+        ("spool.mass", -1.0, r"spool\.mass: got -1\.0; accepted is a plausible value 0\.001 \.\. 1 \(kg\)"),
         ("fluid.bulk_modulus", "1e9", r"write 1\.0e\+9"),
         ("solenoid.pwm", "pulsed", r"solenoid\.pwm: got 'pulsed'"),
         ("simulation.integrator", "rk45", r"simulation\.integrator: got 'rk45'"),
@@ -243,7 +248,7 @@ def test_top_level_must_be_a_mapping(tmp_path: Path, text: str) -> None:
         # cross-field checks run on the replaced copy, prefixed with the assignment
         ("spool.chamber_area", 7e-5, r"spool\.chamber_area=7e-05: spool\.chamber_area=7e-05 >= spool\.pressure_area"),
         ("spool.stroke_min_mm", 0.2, r"spool\.stroke_min_mm=0\.2: .*stroke_min_mm < 0 < stroke_max_mm"),
-        ("circuit.tank_pressure", 300e5, r"circuit\.tank_pressure must be below circuit\.supply_pressure"),
+        ("circuit.tank_pressure", 300e5, r"circuit\.tank_pressure: got 30000000\.0; accepted is a plausible value 0 \.\. 1e\+06"),
     ],
 )
 def test_replace_param_validates_like_the_file(dotted: str, value, match: str) -> None:  # noqa: ANN001
@@ -259,3 +264,14 @@ def test_validate_section_value_converts_ints_to_floats() -> None:
     assert validate_section_value("calibration", "net_area", None) is None
     assert validate_section_value("spool", "viscous_friction_simplified", "equivalent") == "equivalent"
     assert validate_section_value("command", "duty_range", [0, 1]) == (0.0, 1.0)
+
+
+def test_a_duplicate_key_is_refused_with_its_name_and_line(tmp_path: Path) -> None:
+    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    at = next(k for k, line in enumerate(lines) if line.strip().startswith("mass:"))
+    lines.insert(at + 1, "  mass: 0.05")            # YAML alone would keep 0.05 silently
+    path = tmp_path / "valve.yaml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ParameterError, match=rf"valve\.yaml: duplicate key 'mass' at line {at + 2} \(first at line {at + 1}\)"):
+        load_params(path)

@@ -106,7 +106,7 @@ def test_bad_inputs_are_rejected_and_counted_while_publishing_continues(ros):
 # --- watchdog ---------------------------------------------------------------------------------
 
 def test_watchdog_fires_and_recovers(ros):
-    ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.25, 'diagnostics_period': 0.1})
+    emu = ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.25, 'diagnostics_period': 0.1})
     c = ros.client()
     assert c.wait_for_emulator(START)
     assert c.wait_for_diagnostics(lambda d: d['watchdog'] == 'waiting', 10)
@@ -120,12 +120,18 @@ def test_watchdog_fires_and_recovers(ros):
     assert int(fired['watchdog_fired_stamp_ns']) - int(fired['duty_applied_stamp_ns']) == 250_000_000
     assert fired['duty_command'] == '0.3'
     assert 'watchdog' in c.diagnostic_messages[-1]
+    level, message = c.diagnostic_statuses[-1]['inputs']        # its own status: inputs, WARN
+    assert level == 1 and 'watchdog' in message and c.diagnostic_statuses[-1]['model'][0] == 0
     p_rest = rest_pressure(0.3)
     assert c.spin_until(lambda: abs(c.samples[-1].pressure - p_rest) < 0.5e5, 10), 'not back to the safe duty'
     c.send_duty(0.6)
     resumed = c.wait_for_diagnostics(lambda d: d['watchdog'] == 'ok', 10)
     assert resumed is not None and resumed['duty_command'] == '0.6'
     assert c.spin_until(lambda: c.samples[-1].pressure > p_rest + 20e5, 10)
+    # One log line per firing, saying what happened and what to do (not one per step).
+    log = emu.output()
+    assert log.count('watchdog: no valid duty_cycle command for 0.25 s') == 1, log
+    assert 'ros2 topic pub -r 10 duty_cycle' in log and 'watchdog: duty commands resumed, duty 0.6' in log
 
 
 # --- two instances ------------------------------------------------------------------------------
@@ -141,9 +147,12 @@ def test_two_namespaced_instances_run_side_by_side_without_crosstalk(ros):
     assert left.spin_until(lambda: left.samples[-1].pressure > p_rest + 40e5, 10)
     right.spin_for(0.3)
     assert all(abs(s.pressure - p_rest) < 1.0 for s in right.samples)      # untouched, at rest
-    dl = left.wait_for_diagnostics(timeout=10)
+    # A diagnostics message built before the command may still be queued behind 1 kHz samples: wait
+    # for the left one that counts it; the right one must never count anything.
+    dl = left.wait_for_diagnostics(lambda d: d['accepted.duty_cycle'] == '1', timeout=10)
     dr = right.wait_for_diagnostics(timeout=10)
-    assert (dl['accepted.duty_cycle'], dr['accepted.duty_cycle']) == ('1', '0')
+    assert dl is not None and dr['accepted.duty_cycle'] == '0'
+    assert all(d['accepted.duty_cycle'] == '0' for d in right.diagnostics)
     assert left.emulator_name.endswith('/left/emulator') and right.emulator_name.endswith('/right/emulator')
 
 
@@ -165,6 +174,7 @@ def _simulated_run(ros, name, n_samples=200):
 
     c = ros.client(name, on_pressure=answer)
     assert c.spin_until(lambda: len(answered) > n_samples, 60), f'lockstep stalled after {len(answered)} samples'
+    assert ros.emulators[-1].stop() == 0            # one /clock at a time (a second one is refused)
     return sorted(answered.items())[:n_samples + 1]
 
 
@@ -205,10 +215,11 @@ def test_simulated_time_publishes_clock(ros):
 # --- parameters -------------------------------------------------------------------------------
 
 INVALID_AT_START = [
-    ({'model.spool.mass': -1.0}, 'model.spool.mass: got -1.0; accepted is a finite number > 0 (kg)'),
+    ({'model.spool.mass': -1.0}, 'model.spool.mass: got -1.0; accepted is a plausible value 0.001 .. 1 (kg)'),
     ({'publish_rate': 3.0}, 'is not a whole multiple of the model step'),
     ({'time_mode': 'wall'}, "time_mode: got 'wall'; accepted is one of 'real', 'simulated'"),
-    ({'model.spool.mas': 1.0}, 'unknown model parameter(s) model.spool.mas'),
+    ({'model.spool.mas': 1.0}, 'unknown parameter(s) model.spool.mas (did you mean model.spool.mass?)'),
+    ({'watchdog_timout': 1.0}, 'unknown parameter(s) watchdog_timout (did you mean watchdog_timeout?)'),
     ({'valve_config': '/nonexistent/valve.yaml'}, 'cannot read parameter file /nonexistent/valve.yaml'),
     ({'safe_duty': 70.0}, 'safe_duty: got 70.0; accepted is a duty fraction 0..1'),
 ]
@@ -222,6 +233,9 @@ def test_invalid_parameters_are_refused_at_start(ros):
         assert rc == 2, f'{emu.cmd}: exit {rc}\n{out}'
         assert 'emulator: invalid parameters: ' in out and message in out, out
         assert 'Traceback' not in out
+        # also through the node's logger, i.e. to /rosout as well as stderr
+        assert any('[ERROR]' in line and 'invalid parameters: ' in line and message in line
+                   for line in out.splitlines()), out
 
 
 def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
@@ -229,12 +243,14 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
     c = ros.client()
     assert c.wait_for_emulator(START)
     cases = {
-        'model.spool.mass': (-1.0, 'model.spool.mass: got -1.0; accepted is a finite number > 0 (kg)'),
+        'model.spool.mass': (-1.0, 'model.spool.mass: got -1.0; accepted is a plausible value 0.001 .. 1 (kg)'),
         'publish_rate': (3.0, 'not a whole multiple of the model step'),
         'model.simulation.time_step': (5e-5, 'fixed while the node runs'),
         'time_mode': ('simulated', 'read-only'),
         'watchdog_timeout': (-0.5, 'watchdog_timeout: got -0.5; accepted is a finite number >= 0'),
         'model.calibration.net_area': (1.0, 'calibration.net_area'),
+        'model.nosuch.key': (1.0, 'unknown parameter(s) model.nosuch.key; accepted are'),
+        'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),
     }
     results = c.set_parameters({k: v for k, (v, _) in cases.items()})
     for (name, (_, reason)), result in zip(cases.items(), results):
@@ -249,25 +265,36 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
 
 
 def test_fault_state_and_reset_service(ros):
-    ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.0, 'diagnostics_period': 0.1})
+    emu = ros.start(params={'safe_duty': 0.3, 'watchdog_timeout': 0.0, 'diagnostics_period': 0.1})
     c = ros.client()
     assert c.wait_for_emulator(START)
-    # A bulk modulus 1e5 times too stiff makes the 0.1 ms explicit step unstable: the state blows up.
-    assert c.set_parameters({'model.fluid.bulk_modulus': 1e14})[0].successful
+    # Bounds: a load volume that passes "> 0" but makes the model diverge is refused, named.
+    refused = c.set_parameters({'model.circuit.load_volume': 1e-12})[0]
+    assert not refused.successful
+    assert 'model.circuit.load_volume: got 1e-12; accepted is a plausible value 1e-06 .. 1 (m^3)' in refused.reason
+    # A plausible spool mass the 0.1 ms step cannot integrate at duty 0.7 (it runs at 0.3, on the end stop).
+    assert c.set_parameters({'model.spool.mass': 0.01})[0].successful
     c.send_duty(0.7)
     fault = c.wait_for_diagnostics(lambda d: d['model'] == 'fault', 10)
-    assert fault is not None and ('non-finite' in fault['fault_reason'] or 'failed' in fault['fault_reason'])
+    assert fault is not None and ('diverged' in fault['fault_reason'] or 'failed' in fault['fault_reason'])
     assert c.diagnostic_levels[-1] == 2                                  # ERROR
+    assert c.diagnostic_statuses[-1]['model'][0] == 2 and c.diagnostic_statuses[-1]['inputs'][0] == 0
     c.spin_for(0.3)
     n = len(c.samples)
     c.spin_for(0.3)
     assert len(c.samples) == n, 'a faulted device must not publish samples'
-    assert all(math.isfinite(s.pressure) for s in c.samples)
-    assert c.set_parameters({'model.fluid.bulk_modulus': 1e9})[0].successful
+    assert all(-1e5 <= s.pressure <= 800e5 for s in c.samples), 'a diverging sample was published'
+    # reset with the same parameters: the model would fault again at once -> failure, said so
     response = c.reset()
-    assert response.success and 'cleared fault' in response.message
-    assert c.spin_until(lambda: len(c.samples) > n + 100, 10), 'no samples after reset'
+    assert not response.success and 'faults again at once' in response.message, response.message
+    # a good value set while faulted restarts the model, as the log says
+    assert c.set_parameters({'model.spool.mass': 0.04})[0].successful
+    assert c.spin_until(lambda: len(c.samples) > n + 100, 10), 'no samples after the good value'
     assert c.wait_for_diagnostics(lambda d: d['model'] == 'ok', 10)
+    assert c.samples[-1].pressure > 100e5                                # at rest at duty 0.7
+    assert 'model restarted at rest' in emu.output() and 'cleared fault' in emu.output()
+    response = c.reset()
+    assert response.success and 'model at rest at duty 0.7' in response.message
 
 
 # --- process ------------------------------------------------------------------------------------
@@ -290,3 +317,82 @@ def test_colcon_built_executable_starts_and_publishes(ros, colcon_install):
     assert c.wait_for_emulator(START), emu.output()
     assert c.spin_until(lambda: len(c.samples) > 100, 10)
     assert emu.stop() == 0
+
+
+def test_incompatible_qos_is_logged_by_the_node(ros):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import FluidPressure
+    from std_msgs.msg import Float64
+
+    emu = ros.start()
+    c = ros.client()
+    assert c.wait_for_emulator(START)
+    c.node.create_subscription(FluidPressure, 'pressure', lambda m: None,
+                               QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    pub = c.node.create_publisher(Float64, 'duty_cycle',
+                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert c.spin_until(lambda: "QoS incompatible on 'pressure'" in emu.output()
+                        and "QoS incompatible on 'duty_cycle'" in emu.output(), 20), emu.output()
+    out = emu.output()
+    assert 'a subscriber has a RELIABILITY policy' in out and 'subscribe best effort' in out
+    assert 'a publisher has a RELIABILITY policy' in out and 'publish reliable' in out
+    assert pub is not None
+
+
+# --- external clock (use_sim_time) ----------------------------------------------------------------
+
+def test_use_sim_time_follows_an_external_clock(ros):
+    """As under a Gazebo simulation: model time follows /clock, stamps are that clock."""
+    from rosgraph_msgs.msg import Clock
+
+    emu = ros.start(params={'use_sim_time': True, 'safe_duty': 0.3, 'watchdog_timeout': 0.0,
+                            'diagnostics_period': 0.2})
+    c = ros.client()
+    pub = c.node.create_publisher(Clock, '/clock', 10)
+    t0 = 1000 * 10**9                                 # the simulation's clock: 1000 s
+    assert c.spin_until(lambda: pub.get_subscription_count() > 0, START), emu.output()
+
+    def tick(k):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(t0 + k * 1_000_000, 10**9)
+        pub.publish(msg)
+
+    k = 0
+    while not c.samples and k < 20000:
+        tick(k)
+        k += 1
+        c.spin_for(0.002)
+    assert c.samples, emu.output()
+    for _ in range(200):                             # 200 ms of simulated time, at any wall pace
+        tick(k)
+        k += 1
+        c.spin_for(0.002)
+    last_clock = t0 + (k - 1) * 1_000_000
+    c.spin_for(0.5)
+    stamps = [s.stamp_ns for s in c.samples]
+    assert t0 <= stamps[0] and stamps[-1] <= last_clock, (stamps[0], stamps[-1], last_clock)
+    assert stamps[-1] >= last_clock - 2_000_000         # caught up with the clock
+    # On the 1 ms grid of the external clock, in order (a best-effort sample may be lost on the way,
+    # so the count is checked against the node's own: samples_published).
+    assert all(b > a and (b - a) % 1_000_000 == 0 and (a - t0) % 1_000_000 == 0 for a, b in zip(stamps, stamps[1:]))
+    n = len(c.samples)
+    c.spin_for(0.3)                                  # the clock stands still: so does the model
+    assert len(c.samples) == n
+    diag = c.wait_for_diagnostics(timeout=10)
+    assert diag['time_mode'] == 'external_clock'
+    # every 1 ms of model time since the first /clock published (the first sample at model time 0)
+    assert int(diag['samples_published']) == round(float(diag['model_time_s']) * 1000) + 1
+
+
+def test_a_second_clock_and_use_sim_time_with_simulated_time_are_refused(ros):
+    first = ros.start('sim1', params={'time_mode': 'simulated', 'lockstep': True})
+    c = ros.client('sim1')
+    assert c.wait_for_emulator(START), first.output()
+    second = ros.start('sim2', params={'time_mode': 'simulated'})
+    both = ros.start('both', params={'time_mode': 'simulated', 'use_sim_time': True})
+    for emu, message in ((second, 'other publisher(s) of /clock found'),
+                         (both, 'use_sim_time: true follows another node')):
+        rc = emu.wait(START)
+        out = emu.output()
+        assert rc == 2 and message in out and 'Traceback' not in out, out
+    assert 'use_sim_time:=true' in second.output()

@@ -26,12 +26,13 @@ class _Recorded:
 def _fake_modules(share):
     mods = {}
     for name in ('launch', 'launch.actions', 'launch.substitutions', 'launch_ros', 'launch_ros.actions',
-                 'ament_index_python', 'ament_index_python.packages'):
+                 'launch_ros.parameter_descriptions', 'ament_index_python', 'ament_index_python.packages'):
         mods[name] = types.ModuleType(name)
     mods['launch'].LaunchDescription = type('LaunchDescription', (_Recorded,), {})
     mods['launch.actions'].DeclareLaunchArgument = type('DeclareLaunchArgument', (_Recorded,), {})
     mods['launch.substitutions'].LaunchConfiguration = type('LaunchConfiguration', (_Recorded,), {})
     mods['launch_ros.actions'].Node = type('Node', (_Recorded,), {})
+    mods['launch_ros.parameter_descriptions'].ParameterValue = type('ParameterValue', (_Recorded,), {})
     mods['ament_index_python.packages'].get_package_share_directory = (
         lambda pkg: str(share) if pkg == 'pcv_sim' else (_ for _ in ()).throw(LookupError(pkg)))
     return mods
@@ -49,14 +50,18 @@ def test_launch_file_starts_the_emulator_executable_with_the_shipped_params(monk
     entities = ld.args[0]
     args = {e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'}
     nodes = [e for e in entities if type(e).__name__ == 'Node']
-    assert set(args) == {'namespace', 'params_file'}
+    assert set(args) == {'namespace', 'params_file', 'use_sim_time'}
+    assert args['use_sim_time']['default_value'] == 'false'
     assert args['params_file']['default_value'] == str(tmp_path / 'share/pcv_sim/config/emulator.yaml')
     (node,) = nodes
     assert node.kwargs['package'] == 'pcv_sim'
     assert node.kwargs['executable'] == 'emulator'
     assert node.kwargs['name'] == 'emulator'
     assert node.kwargs['namespace'].args == ('namespace',)
-    assert [p.args for p in node.kwargs['parameters']] == [('params_file',)]
+    params_file, sim_time = node.kwargs['parameters']
+    assert params_file.args == ('params_file',)
+    value = sim_time['use_sim_time']
+    assert value.args[0].args == ('use_sim_time',) and value.kwargs == {'value_type': bool}
     # The executable and the params file it names exist: console script and installed config.
     setup = (REPO / 'setup.py').read_text()
     assert "'emulator = pcv_sim.node.emulator:main'" in setup

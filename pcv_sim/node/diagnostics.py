@@ -1,0 +1,186 @@
+"""The emulator's health as four statuses, one per concern, so an aggregator can tell causes apart.
+
+No ROS here: `DiagnosticsBuilder.build` returns plain `Status` values (level, message, key values
+as strings, SI units in the key names); the node turns them into a DiagnosticArray.
+
+REP 107 style: every status is named `<node full name>: <concern>` and carries the node's full
+name as hardware_id (one device). Levels:
+
+    timing     WARN when, over the last period, the late-step fraction exceeds
+               `diagnostics.late_fraction` or the model lagged wall time by more than
+               `diagnostics.max_lag` at a wake (how late the first sample of the batch leaves), or
+               steps were skipped.
+               A few late steps on a shared machine are normal and stay OK.
+    inputs     WARN while the watchdog has fired, or when inputs were rejected in the period.
+    model      ERROR while the model is faulted (no samples are published); OK otherwise.
+    recording  OK when off or recording; WARN when messages were dropped in the period; ERROR
+               when the recording failed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from pcv_sim.io.recorder import RecorderStatus
+from pcv_sim.node.device import INPUTS, ValveDevice, WatchdogState
+from pcv_sim.node.settings import NodeSettings
+from pcv_sim.simulation.clock import RealTimeSchedule
+
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Status"]
+
+OK, WARN, ERROR = 0, 1, 2
+CONCERNS = ("timing", "inputs", "model", "recording")
+
+
+@dataclass(frozen=True)
+class Status:
+    name: str
+    hardware_id: str
+    level: int
+    message: str
+    values: dict[str, str] = field(default_factory=dict)
+
+
+class DiagnosticsBuilder:
+    """Keeps the counts of the previous period; `build` once per diagnostics period."""
+
+    def __init__(self, node_name: str, now: float) -> None:
+        self.node_name = node_name
+        self._wall = now
+        self._steps = 0
+        self._counts: dict[str, int] = {}
+        self._dropped = 0
+
+    def restart(self, now: float, steps: int) -> None:
+        """Start the first period at `now` (the loop's start)."""
+        self._wall, self._steps = now, steps
+
+    def _status(self, concern: str, level: int, problems: list[str], ok: str, values: dict[str, Any]) -> Status:
+        return Status(f"{self.node_name}: {concern}", self.node_name, level, "; ".join(problems) if problems else ok,
+                      {k: str(v) for k, v in values.items()})
+
+    def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
+              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
+        dev, s = device, settings
+        wall = max(now - self._wall, 1e-9)
+        period_steps = dev.steps - self._steps
+        counts = {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}
+        if schedule is not None:
+            counts["late_steps"] = schedule.late_steps
+            counts["skipped_steps"] = schedule.skipped_steps
+        new = {k: v - self._counts.get(k, 0) for k, v in counts.items()}
+        self._wall, self._steps, self._counts = now, dev.steps, counts
+        return [self._timing(dev, s, schedule, new, wall, period_steps, time_mode or s.time_mode),
+                self._inputs(dev, s, new),
+                self._model(dev, samples_published),
+                self._recording(recorder)]
+
+    def _timing(self, dev: ValveDevice, s: NodeSettings, sched: RealTimeSchedule | None, new: dict[str, int],
+                wall: float, period_steps: int, time_mode: str) -> Status:
+        values: dict[str, Any] = {
+            "time_mode": time_mode,
+            "model_time_s": f"{dev.time:.4f}",
+            "real_time_factor": f"{period_steps * dev.dt / wall:.4f}",
+            "model_time_origin_ns": dev.origin_ns,
+        }
+        problems: list[str] = []
+        if sched is None:
+            values["lockstep"] = str(s.lockstep).lower()
+            values["real_time_factor_set"] = f"{s.real_time_factor:g}"
+            return self._status("timing", OK, problems, f"{time_mode} time", values)
+        late, skipped = new["late_steps"], new["skipped_steps"]
+        computed = max(period_steps - skipped, 1)
+        fraction = late / computed
+        lag, lag_after = sched.take_period_max()
+        if fraction > s.diagnostics_late_fraction:
+            problems.append(f"{late} of {computed} steps late ({100 * fraction:.1f} % > "
+                            f"{100 * s.diagnostics_late_fraction:g} %) in the last {wall:.1f} s")
+        # The first sample of a batch that catches up leaves the node `lag` after its model time.
+        if lag > s.diagnostics_max_lag:
+            problems.append(f"samples up to {lag * 1e3:.1f} ms behind wall time (> "
+                            f"{s.diagnostics_max_lag * 1e3:g} ms)")
+        if skipped:
+            problems.append(f"{skipped} steps skipped (model held; overrun {s.overrun})")
+        values.update({
+            "overrun": s.overrun,
+            "late_steps": sched.late_steps,
+            "skipped_steps": sched.skipped_steps,
+            "period_late_fraction": f"{fraction:.5f}",
+            "late_threshold_ms": f"{s.late_threshold * 1e3:g}",
+            "lag_ms": f"{sched.lag_after * 1e3:.3f}",
+            "max_lag_ms": f"{sched.max_lag * 1e3:.3f}",
+            "max_lag_after_step_ms": f"{sched.max_lag_after * 1e3:.3f}",
+            "period_max_lag_ms": f"{lag * 1e3:.3f}",
+            "period_max_lag_after_step_ms": f"{lag_after * 1e3:.3f}",
+            "wakes": sched.wakes,
+        })
+        return self._status("timing", WARN if problems else OK, problems, "on time", values)
+
+    def _inputs(self, dev: ValveDevice, s: NodeSettings, new: dict[str, int]) -> Status:
+        problems = []
+        if dev.watchdog_state == WatchdogState.FIRED:
+            problems.append(f"watchdog: no duty command for {s.watchdog_timeout:g} s, safe duty {dev.safe_duty:g}")
+        rejected = {k[len("rejected."):]: v for k, v in new.items() if k.startswith("rejected.") and v}
+        if rejected:
+            problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
+        last = dev.last_good
+        values: dict[str, Any] = {
+            "watchdog": dev.watchdog_state,
+            "watchdog_timeout_s": f"{s.watchdog_timeout:g}",
+            "watchdog_fired_count": dev.watchdog_fired,
+            "safe_duty": f"{dev.safe_duty:g}",
+            "duty_command": f"{dev.duty_command_in_force:g}",
+            "duty_effective": f"{last.duty:g}" if last else "",
+            "duty_applied_stamp_ns": dev.stamp_ns(dev.duty_applied_step) if dev.duty_applied_step is not None else "",
+            "watchdog_fired_stamp_ns": (dev.stamp_ns(dev.watchdog_fired_step)
+                                        if dev.watchdog_fired_step is not None else ""),
+            "load_flow_m3s": f"{dev.load_flow:g}",
+            "supply_pressure_pa": f"{dev.stepper.supply_pressure:g}",
+            "last_rejection": dev.counts.last_rejection,
+        }
+        for k in INPUTS:
+            values[f"accepted.{k}"] = dev.counts.accepted[k]
+            values[f"rejected.{k}"] = dev.counts.rejected[k]
+        ok = ("waiting for the first duty command" if dev.watchdog_state == WatchdogState.WAITING
+              else "commands arriving")
+        return self._status("inputs", WARN if problems else OK, problems, ok, values)
+
+    def _model(self, dev: ValveDevice, samples_published: int) -> Status:
+        last = dev.last_good
+        values: dict[str, Any] = {
+            "model": "fault" if dev.fault else "ok",
+            "fault_reason": dev.fault or "",
+            "integrator": dev.stepper.integrator,
+            "pressure_pa": f"{last.pressure:.1f}" if last else "",
+            "pressure_bar": f"{last.pressure / 1e5:.3f}" if last else "",
+            "current_a": f"{last.current:.5f}" if last else "",
+            "spool_position_m": f"{last.spool_position:.4e}" if last else "",
+            "samples_published": samples_published,
+        }
+        if dev.fault is not None:
+            return self._status("model", ERROR, [f"model fault: {dev.fault}; call the reset service"], "", values)
+        return self._status("model", OK, [], "running", values)
+
+    def _recording(self, st: RecorderStatus | None) -> Status:
+        if st is None:
+            return self._status("recording", OK, [], "off", {"recording": "off"})
+        new_dropped = st.dropped - self._dropped
+        self._dropped = st.dropped
+        problems = []
+        if st.error:
+            problems.append(f"recording failed: {st.error}")
+        if new_dropped:
+            problems.append(f"recording dropped {new_dropped} messages in the last period")
+        level = ERROR if st.error else WARN if new_dropped else OK
+        values = {
+            "recording": st.state,
+            "recording_path": str(st.path),
+            "recording_messages": st.messages,
+            "recording_bytes": st.bytes,
+            "recording_files": st.files,
+            "recording_queued": st.queued,
+            "recording_dropped": st.dropped,
+            "recording_error": st.error,
+        }
+        return self._status("recording", level, problems, st.state, values)
