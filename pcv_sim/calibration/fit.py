@@ -463,7 +463,7 @@ def calibrate(
     r_start = fun(z0)
     cost_before = 0.5 * float(r_start @ r_start)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=1.0,
-                        max_nfev=max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8)
+                        max_nfev=max_evaluations, xtol=1e-6, ftol=1e-6, gtol=1e-8)
     z = sol.x
     fitted = valve(z)
     runs = runs_at(z)
