@@ -285,7 +285,7 @@ def calibrate(
     lag_bounds: tuple[float, float] | None = LAG_BOUNDS,
     time_constant_bounds: tuple[float, float] | None = TIME_CONSTANT_BOUNDS,
     fit_offsets: bool = True,
-    max_evaluations: int = 40,
+    max_evaluations: int = 100,
     grid_step: float = 1e-4,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> CalibrationResult:

@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor lag model estimated per signal: a delay, a first-order time constant, both "
                         "(default) or none")
     p.add_argument("--no-offset", action="store_true", help="do not estimate sensor offsets (fix them at 0)")
-    p.add_argument("--max-evaluations", type=int, default=40, metavar="N",
+    p.add_argument("--max-evaluations", type=int, default=100, metavar="N",
                    help="model evaluations the optimiser may use (default: %(default)s)")
     p.add_argument("--report", type=Path, metavar="OUT.html|OUT.md", help="write an HTML or Markdown report with plots")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")

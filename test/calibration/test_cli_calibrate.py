@@ -10,7 +10,6 @@ import pytest
 
 from pcv_sim.calibration import write_rig_csv
 from pcv_sim.cli import main
-from pcv_sim.io.csv_import import import_csv
 from pcv_sim.params import default_params, load_params, replace_param
 
 NOISE = {"pressure": 0.3e5, "current": 0.005, "spool_position": 0.003e-3}
