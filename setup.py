@@ -35,6 +35,9 @@ setup(
         'rosbags',
         'matplotlib',
     ],
+    # The simulation core compiles with numba when it is installed (`pip install numba`); without
+    # it the same functions run as plain Python, correct but ~25x slower (BENCHMARKS.md).
+    extras_require={'compiled': ['numba']},
     zip_safe=True,
     maintainer='pcv_sim maintainers',
     maintainer_email='pcv_sim@example.com',

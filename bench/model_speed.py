@@ -1,57 +1,169 @@
-"""Benchmark: the real-time stepper's cost per 0.1 ms step, and the static sweep.
+"""Benchmark: the simulation core's cost per 0.1 ms step, compiled (numba) and as plain Python.
 
-    .venv-kilted/bin/python bench/model_speed.py [--repeats 7] [--steps 20000]
+    .venv-kilted/bin/python bench/model_speed.py [--repeats 5] [--steps 20000] [--json]
 
-Prints a Markdown table for BENCHMARKS.md. Median over repeats; each repeat runs the stepper
-at the 70 % rest point and through a 0.5 -> 0.9 -> 0.4 duty sequence (the realistic mix of
-pump-side and tank-side openings).
+Times are CPU time of the measuring process (`time.process_time`: on a shared machine the wall
+clock also counts waiting for a core). Every figure is measured twice in the same run: in this process (compiled, if numba is there)
+and in a child process with PCV_SIM_JIT=0 (the same source as plain Python, fewer steps).
+Prints the Markdown table for BENCHMARKS.md, or with --json every figure as JSON.
+
+- simplified valve, Heun (rk2): through a 0.5 -> 0.9 -> 0.4 -> 0.7 duty sequence
+- full valve (with the damping chamber), exponential Heun (erk2), same sequence; and its largest
+  pressure error on the reference bags' duty steps against the Radau-made bags
+- two simplified valves + the mass-spring piston composed (rk2)
+- replay of bags/pcv_step_levels with the emulator's integrator (model run + comparison; the
+  bag is read once outside the timing), simplified and full: real-time factor
+- first start: compiling the kernels into an empty cache, and loading them from the cache
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
-from pcv_sim.analysis.static import pressure_flow_curve
-from pcv_sim.model.valve import ValveModel
-from pcv_sim.params import load_params
-from pcv_sim.simulation.stepper import RealTimeStepper
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+#: CPU seconds of this process (single-threaded work): on a machine shared with other jobs the
+#: wall clock counts the time the process waited for a core; the CPU time is what a step costs.
+CLOCK = time.process_time
+BAGS = REPO / "bags"
 
 
-def per_step_us(integrator: str, steps: int) -> float:
-    params = load_params()
-    st = RealTimeStepper(params, integrator=integrator, duty=0.5)
-    chunk = steps // 3
-    t0 = time.perf_counter()
-    for duty in (0.9, 0.4, 0.7):
+def _valve(kind: str, steps: int) -> float:
+    from pcv_sim.params import load_params
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    st = RealTimeStepper(load_params(), duty=0.5, kind=kind)
+    st.advance(10)                                           # compiled or loaded before timing
+    chunk = max(1, steps // 4)
+    t0 = CLOCK()
+    for duty in (0.9, 0.4, 0.7, 0.5):
         st.set_duty(duty)
         st.advance(chunk)
-    return (time.perf_counter() - t0) / (3 * chunk) * 1e6
+    return (CLOCK() - t0) / (4 * chunk) * 1e6
+
+
+def _composite(steps: int) -> float:
+    from pcv_sim.params import load_params
+    from pcv_sim.plant.mass_spring import mass_spring
+    from pcv_sim.simulation.rest import rest_state
+    from pcv_sim.simulation.simulator import Simulator
+    from pcv_sim.simulation.system import compose
+    from pcv_sim.simulation.valve import valve_system
+
+    params = load_params()
+    plant = compose([valve_system(params, "simplified", "left"), valve_system(params, "simplified", "right"),
+                     mass_spring("piston", area=1e-4, mass=1.0, stiffness=2e5, damping=2000.0)],
+                    [("left.pressure", "piston.pressure_a"), ("right.pressure", "piston.pressure_b"),
+                     ("piston.flow_a", "left.load_flow"), ("piston.flow_b", "right.load_flow")])
+    rest = rest_state(params, "simplified", 0.5)
+    sim = Simulator(plant, 1e-4, "rk2")
+    sim.x[:] = np.concatenate([rest.state, rest.state, [0.0, 0.0]])
+    sim.W[:] = (rest.current, rest.current, 0.0)
+    sim.u[:] = (0.5, 200e5, 0.5, 200e5)
+    sim.advance(10)
+    chunk = max(1, steps // 4)
+    t0 = CLOCK()
+    for left, right in ((0.9, 0.4), (0.4, 0.9), (0.7, 0.5), (0.5, 0.5)):
+        sim.u[0], sim.u[2] = left, right
+        sim.advance(chunk)
+    return (CLOCK() - t0) / (4 * chunk) * 1e6
+
+
+def _replay(kind: str) -> tuple[float, float]:
+    """(real-time factor, largest pressure error in bar) of the levels bag on the emulator's engine."""
+    from pcv_sim.params import load_params
+    from pcv_sim.replay import load_recording, replay
+
+    rec = load_recording(BAGS / "pcv_step_levels")
+    params = load_params()
+    replay(rec, params, model=kind)                          # warm (compile/load) outside the timing
+    t0 = CLOCK()
+    r = replay(rec, params, model=kind)
+    wall = CLOCK() - t0
+    return r.duration_s / wall, r.scalar_metrics()["pressure_max_error_bar"]
+
+
+def measure(repeats: int, steps: int, *, replays: bool) -> dict[str, float]:
+    out: dict[str, float] = {}
+    out["simplified_rk2_us_per_step"] = statistics.median(_valve("simplified", steps) for _ in range(repeats))
+    out["full_erk2_us_per_step"] = statistics.median(_valve("full", steps) for _ in range(repeats))
+    out["two_valves_piston_rk2_us_per_step"] = statistics.median(_composite(steps) for _ in range(repeats))
+    if replays:
+        for kind in ("simplified", "full"):
+            runs = [_replay(kind) for _ in range(max(1, repeats // 2))]
+            out[f"replay_levels_{kind}_real_time_factor"] = statistics.median(r[0] for r in runs)
+            out[f"replay_levels_{kind}_pressure_max_error_bar"] = runs[0][1]
+    return out
+
+
+def _child(args: list[str], env: dict[str, str]) -> dict[str, float]:
+    proc = subprocess.run([sys.executable, __file__, *args], env=env, capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout)
+
+
+def _first_start() -> dict[str, float]:
+    """Seconds to the first step of a valve in a fresh process: into an empty cache (compiles) and
+    again from the filled cache (loads)."""
+    code = ("import time; t0 = time.perf_counter(); from pcv_sim.params import load_params; "
+            "from pcv_sim.simulation.stepper import RealTimeStepper; "
+            "st = RealTimeStepper(load_params(), duty=0.5); st.advance(10); print(time.perf_counter() - t0)")
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "PCV_SIM_CACHE": cache}
+        env.pop("NUMBA_CACHE_DIR", None)
+        for label in ("first_start_empty_cache_s", "first_start_cached_s"):
+            proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+            out[label] = float(proc.stdout.strip())
+    return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--json", action="store_true", help="print every figure as JSON")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    dt = load_params().simulation.time_step
-    print(f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}")
-    print("| integrator | µs per 0.1 ms step (median) | min | real-time factor (median) |")
-    print("|---|---|---|---|")
-    for integ in ("euler", "rk2", "rk4"):
-        runs = [per_step_us(integ, args.steps) for _ in range(args.repeats)]
-        med = statistics.median(runs)
-        print(f"| {integ}{' (default)' if integ == 'rk2' else ''} | {med:.2f} | {min(runs):.2f} | {dt * 1e6 / med:.1f}x |")
-    model = ValveModel(load_params())
-    times = []
-    for _ in range(3):
-        t0 = time.perf_counter()
-        for d in (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0):
-            pressure_flow_curve(model, d, 100)
-        times.append(time.perf_counter() - t0)
-    print(f"\nstatic sweep, 8 duties x 100 points: {statistics.median(times):.2f} s (median of 3)")
+    if args.child:
+        print(json.dumps(measure(args.repeats, args.steps, replays=False)))
+        return
+    from pcv_sim.jit import backend
+
+    compiled = measure(args.repeats, args.steps, replays=True)
+    env = {**os.environ, "PCV_SIM_JIT": "0"}
+    python = _child(["--child", "--repeats", "3", "--steps", str(max(400, args.steps // 50))], env)
+    start = _first_start()
+    result = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+              "backend": backend(), "compiled": compiled, "python_path": python, **start}
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return
+    dt_us = 100.0
+    print(f"machine: {result['machine']}, Python {result['python']}, {result['backend']}")
+    print("| figure | compiled | plain Python (PCV_SIM_JIT=0) | ratio | target |")
+    print("|---|---|---|---|---|")
+    rows = (("simplified valve, Heun, µs per 0.1 ms step", "simplified_rk2_us_per_step", "<= 1"),
+            ("full valve, exponential Heun, µs per step", "full_erk2_us_per_step", "<= 10"),
+            ("two valves + piston composed, µs per step", "two_valves_piston_rk2_us_per_step", "<= 3"))
+    for label, key, target in rows:
+        c, p = compiled[key], python[key]
+        print(f"| {label} | {c:.2f} ({dt_us / c:.0f}x real time) | {p:.1f} | {p / c:.0f}x | {target} |")
+    for kind, target in (("simplified", ">= 200x"), ("full", ">= 50x")):
+        print(f"| replay pcv_step_levels, {kind}: real-time factor (max pressure error) | "
+              f"{compiled[f'replay_levels_{kind}_real_time_factor']:.0f}x "
+              f"({compiled[f'replay_levels_{kind}_pressure_max_error_bar']:.4f} bar) | - | - | {target} |")
+    print(f"\nfirst start (fresh process to the first step): {start['first_start_empty_cache_s']:.1f} s compiling "
+          f"into an empty cache, {start['first_start_cached_s']:.2f} s from the cache")
 
 
 if __name__ == "__main__":

@@ -22,13 +22,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="Model of a solenoid proportional pressure control valve (reducing + relieving).",
     )
     parser.add_argument("--version", action="version", version=f"pcv_sim {__version__}")
-    parser.add_argument(
-        "--config", type=Path, default=None, help=f"valve parameter YAML (default: {DEFAULT_CONFIG.name} shipped with pcv_sim)"
-    )
+    config_help = f"valve parameter YAML (default: {DEFAULT_CONFIG.name} shipped with pcv_sim)"
+    parser.add_argument("--config", type=Path, default=None, help=config_help)
+    # The common options are accepted after the subcommand too (`pcv-sim step --config F`);
+    # SUPPRESS keeps a value given before the subcommand when none is given after it.
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", type=Path, default=argparse.SUPPRESS, help=config_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         mod = importlib.import_module(name)
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__, parents=[common])
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser

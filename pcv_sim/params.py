@@ -187,7 +187,16 @@ class CommandParams:
 @dataclass(frozen=True)
 class SimulationParams:
     time_step: float = _param("s", "Sec. 3", _positive)
-    integrator: str = _param("-", "docs/model.md", _one_of("euler", "rk2", "rk4"), kind="str")
+    integrator: str = _param("-", "docs/model.md", _one_of("auto", "euler", "rk2", "rk4", "erk2"), kind="str")
+    model: str = _param("-", "Sec. 4.2 / 4.3", _one_of("simplified", "full"), kind="str")
+
+    @property
+    def method(self) -> str:
+        """The integrator in effect: 'auto' is Heun (rk2) for the simplified model and the
+        exponential Heun (erk2) for the full one, whose chamber pole no explicit method survives."""
+        if self.integrator != "auto":
+            return self.integrator
+        return "erk2" if self.model == "full" else "rk2"
 
 
 _SECTIONS: dict[str, type] = {
@@ -245,6 +254,12 @@ class ValveParams:
                 f"spool.stroke_min_mm + solenoid.core_offset_mm = {core_min} mm: the core position "
                 "must stay >= 0 mm (the core's end position) over the stroke"
             )
+        sim = self.simulation
+        if sim.model == "full" and sim.method in ("euler", "rk2", "rk4"):
+            raise ParameterError(
+                f"simulation.integrator={sim.integrator!r} with simulation.model='full': the damping chamber's "
+                "pole (~-2.6e8 1/s) makes every explicit method diverge at any usable step; accepted are "
+                "'erk2' (exponential Heun) or 'auto'")
         dt = self.simulation.time_step
         if dt > 1e-3:
             raise ParameterError(f"simulation.time_step={dt}: accepted is 0 < time_step <= 1e-3 s")

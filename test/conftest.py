@@ -15,7 +15,7 @@ def clean_child_env(**extra):
     """Environment for a child process: no inherited ros_wheels_bootstrapper mark.
 
     The child then bootstraps itself (re-exec with LD_LIBRARY_PATH), whatever
-    interpreter it is; see DESIGN.md section 6.
+    interpreter it is; see docs/ros_wheels.md.
     """
     env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
     env.update(extra)
@@ -70,3 +70,33 @@ def colcon_install(tmp_path_factory):
         base=base, prefix=prefix, env=env, log=log, new_in_repo=new_in_repo,
         executable=lambda name: prefix / 'lib' / PACKAGE / name,
     )
+
+
+@pytest.fixture
+def cpu_load():
+    """Two CPU-bound processes beside the test for its duration: on this 2-core machine the node
+    then competes for a core, as it does on a shared machine. Ordering promises must hold so."""
+    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env())
+            for _ in range(2)]
+    try:
+        yield hogs
+    finally:
+        for h in hogs:
+            h.kill()
+        for h in hogs:
+            h.wait(5)
+
+
+@pytest.fixture(scope='session', autouse=True)
+def compiled_kernels():
+    """Compile the core's kernels (both valve models) once, before any test starts an emulator
+    process: the processes then load them from the disk cache (~1 s) instead of each compiling
+    them (several seconds, more on a busy machine), which would eat into their start timeouts."""
+    from pcv_sim.params import default_params
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    for kind in ('simplified', 'full'):
+        st = RealTimeStepper(default_params(), duty=0.5, kind=kind)
+        st.set_duty(0.6)
+        st.advance(2)
+        st.current

@@ -263,13 +263,51 @@ def test_version_in_process(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_version_as_a_module() -> None:
-    # DESIGN.md section 6: a child must not inherit the ros_wheels_bootstrapper mark.
+    # docs/ros_wheels.md: a child must not inherit the ros_wheels_bootstrapper mark.
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
     proc = subprocess.run([sys.executable, "-m", "pcv_sim", "--version"], env=env, capture_output=True,
                           text=True, timeout=60, cwd=Path(__file__).resolve().parent.parent)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == f"pcv_sim {__version__}"
 
+
+def test_reference_bags_refuses_a_file_as_out(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    # The bit-for-bit run of `pcv-sim reference-bags --out DIR` is test/replay/test_reproducible.py.
+    target = tmp_path / "file"
+    target.write_text("x")
+    assert main(["reference-bags", "--out", str(target)]) == 2
+    assert "is a file; expected a directory" in capsys.readouterr().err
+
+
+def test_duty_hint_only_where_percent_is_plausible(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["step", "--from", "1.5", "--to", "0.7"])
+    err = capsys.readouterr().err
+    assert "1.5 is outside 0..1" in err and "did you mean" not in err
+
+
+def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    from pcv_sim.cli import build_parser
+    from pcv_sim.commands import COMMANDS
+
+    required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"],
+                "calibrate": ["bag", "--fit", "spool.spring_preload", "-o", "out.yaml"]}
+    parser = build_parser()
+    names = [sys.modules[m].NAME for m in COMMANDS]
+    for name in names:                      # every subcommand takes --config after its name
+        args = parser.parse_args([name, *required.get(name, []), "--config", "f.yaml"])
+        assert args.config == Path("f.yaml"), name
+        assert parser.parse_args(["--config", "g.yaml", name, *required.get(name, [])]).config == Path("g.yaml")
+        assert parser.parse_args([name, *required.get(name, [])]).config is None
+    # and it is used: the as-printed calibration, as test_config_is_used does it before the command
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text(encoding="utf-8"))
+    data["calibration"]["net_area"] = None
+    path = tmp_path / "printed.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    out = run_json(capsys, "working-points", "--config", str(path))
+    assert out["calibrated"]["net_area_m2"] == pytest.approx(3.1e-6, rel=1e-9)
+    assert main(["linearize", "--config", str(tmp_path / "nope.yaml")]) == 2
+    assert "cannot read parameter file" in capsys.readouterr().err
 
 def test_linearize_damping_choice(capsys: pytest.CaptureFixture[str]) -> None:
     """Sec. 5: "positive, but low, phase margin" at P2: the paper's 223.6 Ns/m leaves a few degrees,

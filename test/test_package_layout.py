@@ -131,7 +131,7 @@ def test_rclpy_pub_sub_in_pytest(monkeypatch):
     from std_msgs.msg import Float64
 
     assert os.environ.get('_ROS_WHEELS_BOOTSTRAP_COMPLETE') == '1'
-    # Isolated from other ROS traffic on the machine (DESIGN.md section 5).
+    # Isolated from other ROS traffic on the machine (docs/ros_wheels.md).
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=100 + os.getpid() % 100)

@@ -9,5 +9,6 @@ COMMANDS = [
     "pcv_sim.commands.linearize",
     "pcv_sim.commands.replay",
     "pcv_sim.commands.import_csv",
+    "pcv_sim.commands.reference_bags",
     "pcv_sim.commands.calibrate",
 ]

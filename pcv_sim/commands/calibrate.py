@@ -32,13 +32,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="valve parameters to fit, by their path in the valve YAML, e.g. "
                         "spool.spring_preload,calibration.net_area or fluid.bulk_modulus=5e8:2e9 (bounds optional); "
                         "none: estimate only the sensors, to check how well the configured valve explains the bags")
-    p.add_argument("--config", type=Path, default=argparse.SUPPRESS, metavar="FILE",
-                   help="valve YAML to start from (as pcv-sim --config; default: the shipped config/valve.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FITTED.yaml", help="fitted valve YAML to write")
     p.add_argument("--model", choices=("simplified", "full"), default="simplified",
                    help="simplified: the emulator's model (default); full: with damping chamber (slower)")
     p.add_argument("--solver", choices=("auto", "stepper", "fast", "radau"), default="auto",
-                   help="as for replay (default: the emulator's stepper for simplified, radau for full)")
+                   help="as for replay (default: the emulator's own engine, for either model)")
     p.add_argument("--damping", type=damping_option, default=None, metavar="equivalent|paper|NS_PER_M",
                    help="simplified model's damping to start from (default: the config's)")
     p.add_argument("--signals", metavar="ROLES", help="outputs to fit, e.g. pressure,current (default: all recorded)")

@@ -28,7 +28,7 @@ def fraction(text: str) -> float:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number; a duty is a fraction 0..1") from None
     if not math.isfinite(v) or not 0.0 <= v <= 1.0:
-        hint = f" (did you mean {v / 100:g}? the duty is a fraction, not percent)" if 1.0 < v <= 100.0 else ""
+        hint = f" (did you mean {v / 100:g}? the duty is a fraction, not percent)" if 2.0 <= v <= 100.0 else ""
         raise argparse.ArgumentTypeError(f"{text} is outside 0..1{hint}")
     return v
 

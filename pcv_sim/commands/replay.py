@@ -2,7 +2,9 @@
 pressure when recorded), each command taking effect at its timestamp, and compare the model's
 pressure, current and spool position with the recorded ones: per duty step (rise time,
 overshoot, settling time, steady-state error) and over the whole run (RMSE, max error, NRMSE
-fit %). Exit status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
+fit %). Gaps in the recorded outputs (an emulator that skipped steps, a logger that lost samples)
+are listed, and the samples from each gap until --resync-ms after it are not compared. Exit
+status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from pathlib import Path
 
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.replay import ReplayError, check_thresholds, load_recording, parse_topic_map, replay
+from pcv_sim.replay.compare import RESYNC_S
 from pcv_sim.replay.report import plot_signals, render_html, render_markdown, render_text
 
 NAME = "replay"
@@ -38,10 +41,12 @@ def _limits(items: list[str] | None, flag: str) -> dict[str, float]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("bag", type=Path, metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap) or one .mcap file")
     p.add_argument("--model", choices=("full", "simplified"), default="full",
-                   help="full: with damping chamber, stiff Radau; simplified: the emulator's model (default: %(default)s)")
+                   help="full: with the damping chamber (Sec. 4.2); simplified: without (Sec. 4.3) "
+                        "(default: %(default)s)")
     p.add_argument("--solver", choices=("auto", "stepper", "fast", "radau"), default="auto",
-                   help="auto: radau (full) or the emulator's 0.1 ms stepper (simplified); fast: exponential "
-                        "Heun at 0.5 ms for long bags (simplified only) (default: %(default)s)")
+                   help="auto/stepper: the emulator's own engine (compiled, 0.1 ms: Heun for simplified, "
+                        "exponential Heun for full), so a bag of the emulator replays exactly; fast: the same; "
+                        "radau: the stiff variable-step reference (default: %(default)s)")
     p.add_argument("--topic", action="append", metavar="ROLE=/TOPIC",
                    help="where a signal is in the bag, e.g. pressure=/rig/p (roles: duty_cycle, load_flow, "
                         "supply_pressure, pressure, current, spool_position; aliases duty, position); repeatable")
@@ -49,10 +54,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot-dir", type=Path, metavar="DIR",
                    help="write the plots (PNG) here; default for a Markdown report: OUT_plots/ beside it")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")
+    p.add_argument("--resync-ms", type=float, default=RESYNC_S * 1e3, metavar="MS",
+                   help="after a gap in the recorded outputs, leave this long out of the comparison while "
+                        "model and device re-synchronise (default: %(default)g)")
     p.add_argument("--fail-above", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC > LIMIT, e.g. pressure_rmse_bar=0.5 (comma-separated or repeated); "
                         "metrics: <signal>_rmse_<u>, _max_error_<u>, _steady_state_error_<u>, _rise_time_error_ms, "
-                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm")
+                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm; gaps, gap_max_ms")
     p.add_argument("--fail-below", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC < LIMIT, e.g. pressure_fit_percent=99")
 
@@ -63,15 +71,22 @@ def run(args: argparse.Namespace) -> int:
     if args.report is not None and args.report.suffix.lower() not in (".md", ".html", ".htm"):
         msg = f"--report {str(args.report)!r}: the file name must end in .md or .html"
         raise ReplayError(msg)
+    if not (math.isfinite(args.resync_ms) and args.resync_ms >= 0):
+        msg = f"--resync-ms {args.resync_ms:g}: accepted is a finite number >= 0 (ms)"
+        raise ReplayError(msg)
     params = params_from(args)
     recording = load_recording(args.bag, parse_topic_map(args.topic))
-    result = replay(recording, params, model=args.model, solver=args.solver)
+    result = replay(recording, params, model=args.model, solver=args.solver, resync=args.resync_ms / 1e3)
     failures = check_thresholds(result, above, below)
     if not recording.closed_cleanly:
         print(f"pcv-sim replay: warning: {args.bag} was not closed properly; replaying its readable part",
               file=sys.stderr)
     for w in result.warnings:
         print(f"pcv-sim replay: warning: {w}", file=sys.stderr)
+    if result.gaps:
+        longest = max(g.duration for g in result.gaps) * 1e3
+        print(f"pcv-sim replay: warning: {len(result.gaps)} gap(s) in the recorded outputs (longest "
+              f"{longest:.1f} ms); not compared until {result.resync_s * 1e3:g} ms after each", file=sys.stderr)
 
     plots: dict[str, Path] = {}
     pngs: dict[str, bytes] = {}

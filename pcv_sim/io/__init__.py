@@ -6,7 +6,9 @@ from pcv_sim.io.bag import (
     FLUID_PRESSURE,
     BagContents,
     BagWriter,
+    Qos,
     TopicSeries,
+    detect_ros_distro,
     read_bag,
 )
 
@@ -16,6 +18,8 @@ __all__ = [
     "FLUID_PRESSURE",
     "BagContents",
     "BagWriter",
+    "Qos",
     "TopicSeries",
+    "detect_ros_distro",
     "read_bag",
 ]

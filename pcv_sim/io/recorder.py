@@ -12,11 +12,15 @@ What is written, and when (log time = model sample time, one clock for inputs an
   FluidPressure whose header stamp equals its log time.
 - Inputs (``duty_cycle``, ``load_flow``, ``supply_pressure``) at the start and then only when
   they change, as the model actually used them: the duty after the watchdog and the fall-rate
-  limiter. A value the model used over the step [t - dt, t] (seen in the call for step end t)
-  is stamped t - dt, the step at which it took effect. This needs a call at *every* model step,
-  whatever the output rate: the recorder decimates the outputs itself.
+  limiter. The call for step t carries the state at t and the inputs in force from t on (the
+  device's convention, `ValveDevice.run`), so a changed input is stamped t, the step at which
+  it took effect. This needs a call at *every* model step, whatever the output rate: the
+  recorder decimates the outputs itself.
 - :meth:`BagRecorder.start` writes every selected signal at the first stamp (the device at
   rest): a replay starts the model at rest at the first duty command.
+- The bag's metadata names the ROS distribution and, per topic, the QoS the node offers
+  (:data:`ROLE_QOS`: outputs best effort keep last 5, inputs reliable keep last 10), so that
+  ``ros2 bag play`` republishes each topic as the node does (docs/interface.md).
 
 Timing. The model loop must not wait for the disk. By default (``threaded=True``) a call only
 appends a tuple to a ``collections.deque`` (~1 µs per step with all signals); a writer thread
@@ -55,7 +59,7 @@ from typing import Final, Literal
 import numpy as np
 
 from pcv_sim.errors import BagError
-from pcv_sim.io.bag import BagWriter
+from pcv_sim.io.bag import COMMAND_QOS, SENSOR_DATA_QOS, BagWriter, Qos
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
@@ -73,6 +77,7 @@ from pcv_sim.io.topics import (
 )
 
 __all__ = [
+    "ROLE_QOS",
     "RECORDABLE",
     "SWITCH_INTERVAL",
     "BagRecorder",
@@ -80,6 +85,13 @@ __all__ = [
     "bag_name",
     "check_signals",
 ]
+
+#: The QoS the emulator offers per role (docs/interface.md): written into the bag as each
+#: topic's ``offered_qos_profiles`` so that ``ros2 bag play`` republishes it the same way.
+ROLE_QOS: Final[Mapping[str, Qos]] = {
+    **{r: SENSOR_DATA_QOS for r in OUTPUT_ROLES},
+    **{r: COMMAND_QOS for r in INPUT_ROLES},
+}
 
 #: Signals a recorder can write, by role (the device's topic names).
 RECORDABLE: Final = ROLES
@@ -165,6 +177,8 @@ class BagRecorder:
         chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
         fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
             the writer thread when threaded; inline it lands on a model step).
+        ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
+            (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
         when_full: What a call does when ``max_queue_s`` of data is waiting: ``drop`` (real
             time: count the messages as dropped) or ``wait`` for the writer thread (simulated
             time, where the model may run far faster than the writer: a complete bag).
@@ -188,6 +202,7 @@ class BagRecorder:
         chunk_size: int = 1 << 20,
         fsync: bool = True,
         when_full: Literal["drop", "wait"] = "drop",
+        ros_distro: str | None = None,
     ) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             msg = f"every {every!r}: accepted is an integer >= 1 (model steps between output samples)"
@@ -228,6 +243,8 @@ class BagRecorder:
         self._writer = BagWriter(
             self.path,
             topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
+            qos={self.topics[r]: ROLE_QOS[r] for r in self.signals},
+            ros_distro=ros_distro,
             flush_period_s=flush_period_s,
             split_size_bytes=split_size_bytes,
             chunk_size=chunk_size,
@@ -273,7 +290,7 @@ class BagRecorder:
             put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 
     def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None:
-        """One model step ended at ``t_ns``: inputs on change (stamped t - dt), outputs on the grid."""
+        """The device at step ``t_ns``: inputs on change (stamped t), outputs on the grid."""
         if self._origin is None:
             self.start(t_ns, signals)
             return
@@ -282,7 +299,7 @@ class BagRecorder:
             v = signals[key]
             if v != last[k]:
                 last[k] = v
-                self._put((_IN, k, t_ns - self.dt_ns, v))
+                self._put((_IN, k, t_ns, v))
         if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
             self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 

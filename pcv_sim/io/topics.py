@@ -1,4 +1,4 @@
-"""The device's topics (DESIGN.md section 3): names, message types and units, in one place.
+"""The device's topics (docs/interface.md): names, message types and units, in one place.
 
 The node uses the relative names (so ``--ros-args -r __ns:=/left`` moves a whole valve); a bag
 recorded by the emulator in the root namespace holds them as ``/<name>`` (:data:`BAG_TOPICS`).

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+from pcv_sim.jit import jit
+
 __all__ = [
     "segment_area",
     "pump_area",
@@ -31,6 +33,7 @@ __all__ = [
 ]
 
 
+@jit(inline=True)
 def segment_area(opening: float, radius: float) -> float:
     """Eq. 17, one hole: the area of a round hole of `radius` uncovered by `opening` (both m).
 
@@ -45,11 +48,13 @@ def segment_area(opening: float, radius: float) -> float:
     return 0.5 * radius * radius * (theta - math.sin(theta))
 
 
+@jit(inline=True)
 def pump_area(x: float, radius: float, count: int, gap_height: float) -> float:
     """Eq. 17: pump-side opening area A(x) (m^2): `count` holes plus a plane gap 2 r h_gap at each."""
     return count * (segment_area(x, radius) + 2.0 * radius * gap_height)
 
 
+@jit(inline=True)
 def tank_area(
     x: float, radius: float, count: int, gap_height: float, pilot_radius: float, hole_offset: float
 ) -> float:
@@ -61,11 +66,13 @@ def tank_area(
     return holes + segment_area(s, pilot_radius) + 2.0 * pilot_radius * gap_height
 
 
+@jit(inline=True)
 def gap_geometry_factor(x_mm: float, fit: tuple[float, ...]) -> float:
     """Eq. 21: g_g(x) = a1 exp(b1 x) + a2 exp(b2 x), x in mm."""
     return fit[0] * math.exp(fit[1] * x_mm) + fit[2] * math.exp(fit[3] * x_mm)
 
 
+@jit(inline=True)
 def gap_discharge_coefficient(g_g: float, area: float, perimeter: float, nu: float, rho: float, dp: float) -> float:
     """Eqs. 18-19 solved in closed form (reading R5): laminar gap flow.
 
@@ -76,29 +83,32 @@ def gap_discharge_coefficient(g_g: float, area: float, perimeter: float, nu: flo
     return g_g * g_g * 4.0 * area * math.sqrt(2.0 * abs(dp) / rho) / (perimeter * nu)
 
 
+@jit(inline=True)
 def hole_geometry_factor(x_mm: float, fit: tuple[tuple[float, ...], ...]) -> float:
     """Eq. 22: g(x) = sum a_k sin(b_k x + c_k), x in mm."""
     total = 0.0
-    for a, b, c in fit:
-        total += a * math.sin(b * x_mm + c)
+    for k in range(len(fit)):
+        total += fit[k][0] * math.sin(fit[k][1] * x_mm + fit[k][2])
     return total
 
 
+@jit(inline=True)
 def transition_exponent(s_mm: float, fit: tuple[float, ...]) -> float:
     """Eqs. 23 and 25: gamma(s) = (pi/2 - atan(k (s - s0))) * span / pi, between span and 0.
 
     gamma = 1/2 would be laminar (q ~ dp), gamma = 0 turbulent (q ~ sqrt(dp)).
     """
-    k, s0, span = fit
-    return (0.5 * math.pi - math.atan(k * (s_mm - s0))) * span / math.pi
+    return (0.5 * math.pi - math.atan(fit[0] * (s_mm - fit[1]))) * fit[2] / math.pi
 
 
+@jit(inline=True)
 def hole_discharge_coefficient(g: float, gamma: float, dp: float) -> float:
     """Eq. 20: C_q,hole = g(x) |dp|^gamma(x), dp in Pa (reading R6)."""
     adp = abs(dp)
     return g * adp**gamma if adp > 0.0 else 0.0
 
 
+@jit(inline=True)
 def blend(x_mm: float, steepness: float) -> float:
     """Eq. 27 (reading R7): logistic L(x) = 1 / (1 + exp(-k x_mm)), written without overflow."""
     z = steepness * x_mm
@@ -108,26 +118,30 @@ def blend(x_mm: float, steepness: float) -> float:
     return e / (1.0 + e)
 
 
+@jit(inline=True)
 def pump_discharge_coefficient(cq_gap: float, cq_hole: float, weight: float) -> float:
     """Eq. 26: C_q = C_q,gap (1 - L) + C_q,hole L, a smooth hand-over from gap to holes at x = 0."""
     return cq_gap * (1.0 - weight) + cq_hole * weight
 
 
+@jit(inline=True)
 def tank_geometry_factor(s_mm: float, fit: tuple[tuple[float, ...], ...]) -> float:
     """Eq. 24 (reading R8): g_r(s) = sum a exp(-((s - b)/c)^2), s = tank opening in mm."""
     total = 0.0
-    for a, b, c in fit:
-        z = (s_mm - b) / c
-        total += a * math.exp(-z * z)
+    for k in range(len(fit)):
+        z = (s_mm - fit[k][1]) / fit[k][2]
+        total += fit[k][0] * math.exp(-z * z)
     return total
 
 
+@jit(inline=True)
 def tank_discharge_coefficient(g_r: float, gamma_r: float, dp: float) -> float:
     """Eqs. 24-25 with Eq. 20's form: C_q,r = g_r |dp|^gamma_r (gap leakage lumped in)."""
     adp = abs(dp)
     return g_r * adp**gamma_r if adp > 0.0 else 0.0
 
 
+@jit(inline=True)
 def orifice_flow(cq: float, area: float, dp: float, rho: float) -> float:
     """Eq. 16: q = C_q A sqrt(2 |dp| / rho), signed like dp (m^3/s)."""
     q = cq * area * math.sqrt(2.0 * abs(dp) / rho)

@@ -8,6 +8,9 @@ reading R2). The paper's fits take the core position in mm; that is the only non
 from __future__ import annotations
 
 import math
+from typing import Any
+
+from pcv_sim.jit import jit
 
 __all__ = [
     "poly",
@@ -17,6 +20,7 @@ __all__ = [
     "dissipating_current",
     "dissipating_slope",
     "solve_current",
+    "solve_current_in",
     "dissipating_range",
     "flux_linkage_derivative",
     "solenoid_force",
@@ -26,7 +30,8 @@ __all__ = [
 ]
 
 
-def poly(coeffs: tuple[float, ...], z: float) -> float:
+@jit(inline=True)
+def poly(coeffs, z):  # noqa: ANN001, ANN201 - tuples or arrays (compiled per type)
     """Horner evaluation, highest power first (the order of Table 1)."""
     acc = 0.0
     for c in coeffs:
@@ -34,51 +39,45 @@ def poly(coeffs: tuple[float, ...], z: float) -> float:
     return acc
 
 
-def coefficients_at(
-    core_mm: float,
-    f1: tuple[float, ...],
-    f2: tuple[float, ...],
-    f3: tuple[float, ...],
-    force: tuple[tuple[float, ...], ...],
-) -> tuple[float, float, float, float, float, float, float]:
+@jit(inline=True)
+def coefficients_at(core_mm, f1, f2, f3, force):  # noqa: ANN001, ANN201
     """Eqs. 5-7 and 10-13 at one core position (mm): (f_1, f_2, f_3, p_fs1, p_fs2, p_fs3, p_fs4).
 
-    The same polynomials as `restoring_coefficients` and `solenoid_force`, unrolled: this runs
-    twice per real-time step.
+    The same polynomials as `restoring_coefficients` and `solenoid_force`, in one pass: this runs
+    twice per real-time step. `force` is 4 rows of 4 (tuples or a 4x4 array).
     """
     z = core_mm
-    a, b, c, d, e, f = f1
-    c1 = ((((a * z + b) * z + c) * z + d) * z + e) * z + f
-    a, b, c, d, e, f = f2
-    c2 = ((((a * z + b) * z + c) * z + d) * z + e) * z + f
-    a, b, c = f3
-    c3 = (a * z + b) * z + c
-    (a1, b1, c1_, d1), (a2, b2, c2_, d2), (a3, b3, c3_, d3), (a4, b4, c4_, d4) = force
-    k1 = ((a1 * z + b1) * z + c1_) * z + d1
-    k2 = ((a2 * z + b2) * z + c2_) * z + d2
-    k3 = ((a3 * z + b3) * z + c3_) * z + d3
-    k4 = ((a4 * z + b4) * z + c4_) * z + d4
+    c1 = poly(f1, z)
+    c2 = poly(f2, z)
+    c3 = poly(f3, z)
+    k1 = ((force[0][0] * z + force[0][1]) * z + force[0][2]) * z + force[0][3]
+    k2 = ((force[1][0] * z + force[1][1]) * z + force[1][2]) * z + force[1][3]
+    k3 = ((force[2][0] * z + force[2][1]) * z + force[2][2]) * z + force[2][3]
+    k4 = ((force[3][0] * z + force[3][1]) * z + force[3][2]) * z + force[3][3]
     return c1, c2, c3, k1, k2, k3, k4
 
 
+@jit(inline=True)
 def force_from_coefficients(i: float, k1: float, k2: float, k3: float, k4: float) -> float:
     """Eq. 9: F_s = p_fs1 i^5 + p_fs2 i^4 + p_fs3 i^3 + p_fs4 i^2 (N)."""
     return (((k1 * i + k2) * i + k3) * i + k4) * i * i
 
 
-def restoring_coefficients(
-    core_mm: float, f1: tuple[float, ...], f2: tuple[float, ...], f3: tuple[float, ...]
-) -> tuple[float, float, float]:
-    """Eqs. 5-7: f_1(x), f_2(x), f_3(x) of the restoring current, x = core position in mm."""
+def restoring_coefficients(core_mm: float, f1: Any, f2: Any,
+                           f3: Any) -> tuple[float, float, float]:
+    """Eqs. 5-7: f_1(x), f_2(x), f_3(x) of the restoring current, x = core position in mm (fits as
+    tuples or arrays)."""
     return poly(f1, core_mm), poly(f2, core_mm), poly(f3, core_mm)
 
 
+@jit(inline=True)
 def restoring_current(lam: float, c1: float, c2: float, c3: float) -> float:
     """Eq. 4: energy-restoring current i_R = f_1 lam^3 + f_2 lam^2 + f_3 lam (A); lam in Wb."""
     return ((c1 * lam + c2) * lam + c3) * lam
 
 
-def dissipating_current(v_l: float, pd: tuple[float, ...]) -> float:
+@jit(inline=True)
+def dissipating_current(v_l, pd):  # noqa: ANN001, ANN201
     """Eq. 8: energy-dissipating current i_d(V_L) = p_d1 V_L^3 + ... + p_d4 (A); V_L in V.
 
     It carries the magnetic hysteresis: the same flux linkage needs more current while the flux
@@ -120,10 +119,17 @@ def solve_current(
     g' = 1 + R d' >= 1, one root, and it lies in [i_R + d(lo), i_R + d(hi)]. Newton from the last
     current converges in 2-3 steps; bisection on that bracket backs it up.
     """
-    if v_range is None:
-        v_range = dissipating_range(pd)
-    p1, p2, p3, p4 = pd
-    v_lo, v_hi = v_range
+    lo, hi = dissipating_range(pd) if v_range is None else v_range
+    try:
+        return float(solve_current_in(i_r, v_s, resistance, pd, i_guess, lo, hi))
+    except ArithmeticError as err:
+        raise ArithmeticError(f"no coil current solves Eq. 2 for i_R={i_r!r} A, V_s={v_s!r} V ({err})") from None
+
+
+@jit(inline=True)
+def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):  # noqa: ANN001, ANN201
+    """`solve_current` with the clamp interval given (the compiled kernel's form)."""
+    p1, p2, p3, p4 = pd[0], pd[1], pd[2], pd[3]
     i = i_guess
     for _ in range(8):
         v_l = v_s - i * resistance
@@ -138,21 +144,27 @@ def solve_current(
         i -= step
         if -1e-12 < step < 1e-12:
             return i
-    return _bisect_current(i_r, v_s, resistance, pd, v_range)
+    return _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi)
 
 
-def _bisect_current(i_r: float, v_s: float, resistance: float, pd: tuple[float, ...], v_range: tuple[float, float]) -> float:
-    def g(i: float) -> float:
-        v_l = min(max(v_s - i * resistance, v_range[0]), v_range[1])
-        return i - i_r - dissipating_current(v_l, pd)
+@jit(inline=True)
+def _current_residual(i, i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
+    v_l = min(max(v_s - i * resistance, v_lo), v_hi)
+    return i - i_r - dissipating_current(v_l, pd)
 
-    lo = i_r + dissipating_current(v_range[0], pd) - 1e-9
-    hi = i_r + dissipating_current(v_range[1], pd) + 1e-9
-    if not (g(lo) <= 0.0 <= g(hi)) or not math.isfinite(lo + hi):
-        raise ArithmeticError(f"no coil current solves Eq. 2 for i_R={i_r!r} A, V_s={v_s!r} V")
+
+@jit(inline=True)
+def _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
+    lo = i_r + dissipating_current(v_lo, pd) - 1e-9
+    hi = i_r + dissipating_current(v_hi, pd) + 1e-9
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ArithmeticError("no coil current solves Eq. 2: the state is not finite")
+    if not (_current_residual(lo, i_r, v_s, resistance, pd, v_lo, v_hi) <= 0.0
+            <= _current_residual(hi, i_r, v_s, resistance, pd, v_lo, v_hi)):
+        raise ArithmeticError("no coil current solves Eq. 2 in its bracket")
     for _ in range(100):
         mid = 0.5 * (lo + hi)
-        if g(mid) > 0.0:
+        if _current_residual(mid, i_r, v_s, resistance, pd, v_lo, v_hi) > 0.0:
             hi = mid
         else:
             lo = mid
@@ -161,6 +173,7 @@ def _bisect_current(i_r: float, v_s: float, resistance: float, pd: tuple[float, 
     return 0.5 * (lo + hi)
 
 
+@jit(inline=True)
 def flux_linkage_derivative(v_s: float, i: float, resistance: float) -> float:
     """Eq. 3: d lambda / dt = V_L = V_s - i R (V = Wb/s)."""
     return v_s - i * resistance
@@ -171,7 +184,8 @@ def solenoid_force(i: float, core_mm: float, force: tuple[tuple[float, ...], ...
 
     Each of p_fs1..p_fs4 is a cubic in the core position (mm); F_s = p_fs1 i^5 + ... + p_fs4 i^2.
     """
-    return force_from_coefficients(i, *(poly(row, core_mm) for row in force))
+    k = [poly(row, core_mm) for row in force]
+    return force_from_coefficients(i, k[0], k[1], k[2], k[3])
 
 
 def solenoid_force_slope(i: float, core_mm: float, force: tuple[tuple[float, ...], ...]) -> tuple[float, float]:

@@ -165,7 +165,10 @@ class EmulatorClient:
         return list(self._call(self.param_client, request, timeout).results)
 
     def close(self) -> None:
-        self.executor.shutdown()
+        # Detach the node before the executor goes and before its handles are destroyed: a wait
+        # set still holding them is what rclpy's teardown segfaults have in common.
+        self.executor.remove_node(self.node)
+        self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
 
 

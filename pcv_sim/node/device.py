@@ -24,7 +24,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping, Protocol
 
-from pcv_sim.analysis.static import EquilibriumError
 from pcv_sim.errors import CommandError
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
@@ -146,8 +145,12 @@ class ValveDevice:
     # --- inputs ------------------------------------------------------------------------------
 
     def submit(self, name: str, value: float, at_step: int | None = None) -> str | None:
-        """Validate an input now; if valid it takes effect at step max(at_step, now). Returns the
-        reason it was refused (counted, and the last valid value stays), or None."""
+        """Validate an input now; if valid it takes effect at step max(at_step, now + 1). Returns
+        the reason it was refused (counted, and the last valid value stays), or None.
+
+        The present step has been shown already (sample, recorder): an input that arrives now
+        can act from the next step at the earliest, so that every sample shows the inputs in
+        force at its stamp."""
         try:
             if name == "duty_cycle":
                 value = check_duty(value, self.params.command.duty_range)
@@ -159,7 +162,7 @@ class ValveDevice:
                 raise ValueError(f"unknown input {name!r}; accepted are {', '.join(INPUTS)}")
         except CommandError as err:
             return self._reject(name, str(err))
-        step = self.steps if at_step is None else max(int(at_step), self.steps)
+        step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
         self._seq += 1
         bisect.insort(self._pending, (step, self._seq, name, value))
         return None
@@ -230,12 +233,17 @@ class ValveDevice:
         return self.origin_ns + (self.steps if step is None else step) * self.dt_ns
 
     def run(self, n: int) -> list[Sample]:
-        """Advance n steps; returns the samples at the multiples of sample_every reached."""
+        """Advance n steps; returns the samples at the multiples of sample_every reached.
+
+        Convention (the same in the recorder, replay and docs): the sample of step k is stamped
+        k * dt and shows the state at that instant with the inputs in force from step k on; an
+        input due at step k acts on the interval [k, k + 1) and on the sample of step k.
+        """
         out: list[Sample] = []
         end = self.steps + n
+        self._apply_due_inputs()
+        self._check_watchdog()
         while self.steps < end:
-            self._apply_due_inputs()
-            self._check_watchdog()
             stop = self._next_event(end)
             if self.fault is None:
                 try:
@@ -248,6 +256,10 @@ class ValveDevice:
                     self._model_fault(problem)
                     continue
             self.steps = stop
+            # A sample at step k shows the state at k and the inputs in force from k on: inputs
+            # and a watchdog timeout due at k act before it (right-continuous, as replay does).
+            self._apply_due_inputs()
+            self._check_watchdog()
             if self.fault is None:
                 try:
                     sample = self.sample() if stop % self.sample_every == 0 else None
@@ -261,9 +273,6 @@ class ValveDevice:
                     self.last_good = sample
                 if signals is not None:
                     self.recorder(self.stamp_ns(stop), signals)
-        # Events due at the end: the state (watchdog, command in force) is that of step `end`.
-        self._apply_due_inputs()
-        self._check_watchdog()
         return out
 
     def skip(self, n: int) -> None:
@@ -309,45 +318,12 @@ class ValveDevice:
         return f"{what} (cleared fault: {was})" if was else what
 
 
-_FALLBACK_DUTIES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
-_SETTLE_CHUNK = 100          # steps between convergence checks of the pre-roll
-_SETTLE_MAX = 2.0            # s of model time at most
-
-
 def rest_stepper(params: ValveParams, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None,
                  *, integrator: str | None = None) -> RealTimeStepper:
-    """A stepper at rest for these inputs: the static equilibrium if `RealTimeStepper.reset` finds one,
-    else (below ~0.3 duty the spool sits on its end stop, where `equilibrium_at_flow` finds none)
-    the state reached by running the model from a feasible equilibrium with these inputs until it
-    settles (over 10 ms: pressure within 1 Pa, spool within 1 nm, current within 1 uA; at most 2 s of
-    model time)."""
-    try:
-        stepper = RealTimeStepper(params, integrator=integrator, duty=duty)
-        if load_flow != 0.0 or supply_pressure is not None:
-            stepper.reset(duty, load_flow, supply_pressure)
-        return stepper
-    except EquilibriumError:
-        pass
-    for start in _FALLBACK_DUTIES:
-        try:
-            stepper = RealTimeStepper(params, integrator=integrator, duty=start)
-            break
-        except (EquilibriumError, CommandError):
-            continue
-    else:
-        raise EquilibriumError("the model has no rest equilibrium at any duty 0.3 .. 1 to start from")
-    stepper.set_duty(duty)
-    stepper.set_load_flow(load_flow)
-    if supply_pressure is not None:
-        stepper.set_supply_pressure(supply_pressure)
-    for _ in range(int(_SETTLE_MAX / (_SETTLE_CHUNK * stepper.dt))):
-        p, x, i = stepper.pressure, stepper.spool_position, stepper.current
-        stepper.advance(_SETTLE_CHUNK)
-        if not stepper.finite():
-            raise EquilibriumError(f"the model does not settle at duty {duty:g}, load flow {load_flow:g} m^3/s")
-        if abs(stepper.pressure - p) < 1.0 and abs(stepper.spool_position - x) < 1e-9 and abs(stepper.current - i) < 1e-6:
-            break
-    return stepper
+    """A stepper at rest for these inputs (`pcv_sim.simulation.rest.rest_state`: the static
+    equilibrium, or where the model settles when none exists, e.g. on the end stop at low duty)."""
+    return RealTimeStepper(params, integrator=integrator, duty=duty, load_flow=load_flow,
+                           supply_pressure=supply_pressure)
 
 
 def _positive_int(value: int, name: str) -> int:

@@ -309,15 +309,17 @@ class EmulatorNode(Node):
         """The step at which an input received at `info['received_timestamp']` takes effect."""
         if self._schedule is None:
             return None          # simulated time: at the present model time (the next chunk's start)
+        dev = self.device
+        # The message was received by now at the latest: the first step at or after this instant
+        # of the monotonic clock (the schedule's), immune to steps of the system clock.
+        taken = -(-round((time.monotonic() - self._schedule.t0) * 1e9) // dev.dt_ns)
         r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
         if not r_ns:
-            return None
-        dev = self.device
-        step = -(-(r_ns - dev.origin_ns) // dev.dt_ns)          # ceil: the first step stamped >= reception
-        # A clock step between the ROS (system) clock and the monotonic one must not push inputs far
-        # into the future: at most one wake period beyond what is due.
-        limit = self._schedule.slot + 2 * self._schedule.steps_per_wake
-        return min(step, limit)
+            return taken
+        # ceil: the first step stamped at or after the DDS reception time (system clock, as the stamps).
+        # Never later than `taken` (a system clock stepped forward); never earlier than the reception,
+        # whatever the wake-up lag (the schedule's slot may be far behind `now` under load).
+        return min(-(-(r_ns - dev.origin_ns) // dev.dt_ns), taken)
 
     def _input(self, name: str, value: float, info: Any) -> None:
         reason = self.device.submit(name, value, self._at_step(info))
@@ -566,11 +568,12 @@ class EmulatorNode(Node):
         """Simulated time: model time from 0, chunks of one publish period, /clock published.
 
         Each chunk: publish /clock and the sample at model time T, take the pending inputs, which
-        take effect at T (the start of the next chunk), then compute [T, T + 1/publish_rate].
+        take effect at T + dt (the sample at T has shown the inputs in force at T), then compute
+        [T, T + 1/publish_rate].
         With `lockstep` (default) the node waits, before computing a chunk, for one duty_cycle
         message received after the last sample was published: a controller that answers every
         sample with one command sees exactly the same run each time (its command for the sample
-        at T acts from T on). Without lockstep the chunks run back to back (paced by
+        at T acts from T + dt on). Without lockstep the chunks run back to back (paced by
         real_time_factor) and an input acts from the chunk after its arrival, which depends on
         wall-clock timing. If a sample goes unanswered for 0.5 s (e.g. the controller was not yet
         connected) it is published again.

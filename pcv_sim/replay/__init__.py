@@ -15,10 +15,11 @@ from pcv_sim.replay.compare import (
     replay,
 )
 from pcv_sim.replay.errors import ReplayError
-from pcv_sim.replay.recording import Recording, Series, load_recording, parse_topic_map
+from pcv_sim.replay.recording import Gap, Recording, Series, find_gaps, load_recording, parse_topic_map
 from pcv_sim.replay.simulate import InputTimeline, ModelRun, input_timeline, run_model
 
 __all__ = [
+    "Gap",
     "InputTimeline",
     "ModelRun",
     "Recording",
@@ -31,6 +32,7 @@ __all__ = [
     "ThresholdFailure",
     "check_thresholds",
     "detect_steps",
+    "find_gaps",
     "input_timeline",
     "load_recording",
     "parse_topic_map",

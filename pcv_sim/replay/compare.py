@@ -4,6 +4,19 @@
 compares it with the measured outputs, over the whole run (RMSE, max error, NRMSE fit %) and per
 duty step (rise time, overshoot, settling time, steady state; :func:`pcv_sim.analysis.metrics.step_metrics`).
 Errors are model minus measured. :func:`check_thresholds` turns limits into failures.
+
+Gaps (:class:`~pcv_sim.replay.recording.Gap`: the measured outputs pause, e.g. an emulator that
+skipped steps under load) are reported, and the run is not compared across them: the samples
+from a gap's end until :data:`RESYNC_S` after it are left out of RMSE, max error and fit, and a
+step whose analysis window touches a gap or that interval is not analysed. Why exclusion and not
+segments that each restart the model: a restart needs the device's state at the gap's end, and
+a bag holds only pressure, current and position, not the flux linkage, the spool velocity or
+the solenoid's hysteresis state, so a restarted model would start wrong too. Across a gap the
+device stood still while the model went on (or the samples were lost while both went on); with
+the same inputs afterwards both settle to the same trajectory, as fast as the valve forgets its
+state. Measured with the emulator's stepper (``bench/replay_gaps.py``, BENCHMARKS.md): after a
+55 ms skip anywhere in the transients of 0.5 -> 0.7 -> 0.4 duty steps, the difference is below
+0.05 bar 300 ms after the gap (up to 78 bar at its end, 0.14-6.9 bar 50 ms later).
 """
 
 from __future__ import annotations
@@ -12,7 +25,7 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -22,11 +35,12 @@ from pcv_sim.analysis.metrics import FitMetrics, StepMetrics, fit_metrics, step_
 from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, SPOOL_POSITION
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
-from pcv_sim.replay.recording import Recording
+from pcv_sim.replay.recording import Gap, Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
 
 __all__ = [
     "DISPLAY",
+    "RESYNC_S",
     "ReplayResult",
     "SignalResult",
     "Step",
@@ -38,6 +52,9 @@ __all__ = [
 ]
 
 _NS = 1_000_000_000
+#: s after a gap during which samples are not compared: the model and the device re-synchronise
+#: (to within 0.05 bar after a 55 ms skip, measured: module docstring).
+RESYNC_S: Final = 0.3
 
 
 @dataclass(frozen=True)
@@ -106,8 +123,9 @@ def _diff(a: float, b: float) -> float:
 @dataclass(frozen=True)
 class SignalResult:
     role: str
-    fit: FitMetrics        # SI units
-    samples: int
+    fit: FitMetrics        # SI units, over the compared samples
+    samples: int           # compared
+    excluded: int = 0      # left out after gaps (re-synchronisation)
 
 
 @dataclass(frozen=True)
@@ -140,6 +158,13 @@ class ReplayResult:
     elapsed_s: float
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    gaps: tuple[Gap, ...] = ()
+    resync_s: float = RESYNC_S
+
+    @property
+    def excluded_intervals(self) -> list[tuple[float, float]]:
+        """(start, end) in s of each skipped interval: the gap and its re-synchronisation."""
+        return [(g.start, g.end + self.resync_s) for g in self.gaps]
     in_force: InForce | None = None    # the damping and calibration the model ran with
 
     @property
@@ -148,7 +173,10 @@ class ReplayResult:
 
     def scalar_metrics(self) -> dict[str, float]:
         """Flat metrics in display units, the keys ``--fail-above``/``--fail-below`` accept."""
-        out: dict[str, float] = {}
+        out: dict[str, float] = {
+            "gaps": float(len(self.gaps)),
+            "gap_max_ms": max((g.duration for g in self.gaps), default=0.0) * 1e3,
+        }
         for role, sig in self.signals.items():
             d = DISPLAY[role]
             out[f"{role}_rmse_{d.key_unit}"] = sig.fit.rmse * d.scale
@@ -178,8 +206,16 @@ class ReplayResult:
             "topics": dict(self.topics),
             "input_changes": self.input_changes,
             "signals": {
-                r: {"samples": s.samples, **s.fit.as_dict()} for r, s in self.signals.items()
+                r: {"samples": s.samples, "excluded_samples": s.excluded, **s.fit.as_dict()}
+                for r, s in self.signals.items()
             },
+            "gaps": [
+                {"start_s": g.start, "end_s": g.end, "duration_s": g.duration,
+                 "missing_samples": g.missing, "signals": list(g.roles),
+                 "not_compared_until_s": g.end + self.resync_s}
+                for g in self.gaps
+            ],
+            "resync_s": self.resync_s,
             "steps": [
                 {
                     "index": sc.step.index,
@@ -249,8 +285,16 @@ def replay(
     solver: Solver = "auto",
     fast_step: float = 5e-4,
     min_hold: float = 0.02,
+    resync: float = RESYNC_S,
 ) -> ReplayResult:
-    """Drive ``model`` with the recording's inputs and compare it with the measured outputs."""
+    """Drive ``model`` with the recording's inputs and compare it with the measured outputs.
+
+    ``resync``: s after each gap of the recording whose samples are not compared (module
+    docstring)."""
+    if not (isinstance(resync, (int, float)) and math.isfinite(resync) and resync >= 0):
+        msg = f"resync {resync!r} s: accepted is a finite number >= 0"
+        raise ReplayError(msg)
+    skipped_ns = [(g.start_ns, g.end_ns + int(round(resync * _NS))) for g in recording.gaps]
     timeline, tl_notes = input_timeline(
         recording.inputs, 0.0, params.circuit.supply_pressure
     )
@@ -261,17 +305,34 @@ def replay(
     end_ns = recording.end_ns
     signals: dict[str, SignalResult] = {}
     traces = {}
+    gap_notes: list[str] = []
     for role in OUTPUT_ROLES:
         if role not in recording.measured:
             continue
         s = recording.measured[role]
         idx = np.searchsorted(sample_ns, s.t_ns)
         model_values = run.outputs[role][idx]
-        signals[role] = SignalResult(role, fit_metrics(s.value, model_values), len(s))
+        keep = np.ones(len(s), dtype=bool)
+        for a, b in skipped_ns:
+            keep &= ~((s.t_ns > a) & (s.t_ns <= b))
+        kept = int(np.count_nonzero(keep))
+        if kept:
+            fit = fit_metrics(s.value[keep], model_values[keep])
+        else:
+            fit = FitMetrics(math.nan, math.nan, math.nan)
+            gap_notes.append(f"{role}: every sample lies in a gap's re-synchronisation; nothing compared")
+        signals[role] = SignalResult(role, fit, kept, len(s) - kept)
         traces[role] = (s.t, s.value, model_values)
     steps, step_notes = detect_steps(timeline, end_ns, min_hold=min_hold)
     comparisons = []
+    skipped_s = [(a / _NS, b / _NS) for a, b in skipped_ns]
     for st in steps:
+        if any(a < st.t_end and st.t_start - min_hold < b for a, b in skipped_s):
+            step_notes.append(
+                f"step {st.index} at {st.t_start:.3f} s is not analysed: a gap or its "
+                f"re-synchronisation ({resync * 1e3:g} ms) falls in its window"
+            )
+            continue
         meas: dict[str, StepMetrics] = {}
         mod: dict[str, StepMetrics] = {}
         for role, (t, y_meas, y_mod) in traces.items():
@@ -301,7 +362,9 @@ def replay(
         input_changes=len(timeline),
         elapsed_s=elapsed,
         warnings=recording.warnings,
-        notes=recording.notes + tuple(tl_notes) + run.notes + tuple(step_notes),
+        notes=recording.notes + tuple(tl_notes) + run.notes + tuple(gap_notes) + tuple(step_notes),
+        gaps=recording.gaps,
+        resync_s=float(resync),
         in_force=in_force(params, model),
     )
 

@@ -6,9 +6,15 @@ namespace names (``/duty_cycle``, ``/pressure``, ...), else a single topic endin
 (``{"pressure": "/rig/p"}``), because rig bags use other names.
 
 Time: the bag's log time, except for FluidPressure messages, whose header stamp is the sample
-time (DESIGN.md section 3). Replay time 0 is the first duty command: the model starts at rest
+time (docs/interface.md). Replay time 0 is the first duty command: the model starts at rest
 there. Nothing is dropped without saying so: every exclusion is listed in ``notes``, every loss
 the bag reader found in ``warnings``.
+
+Gaps: where the measured outputs stop for more than :data:`GAP_FACTOR` times their usual sample
+period (an emulator that skipped steps under load, a logger that dropped samples), the recording
+lists a :class:`Gap`. The device's state did not follow the inputs through such an interval the
+way a continuous model does, so :func:`pcv_sim.replay.compare.replay` keeps the samples after a
+gap out of its metrics until the model could have re-synchronised (see there).
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -36,10 +43,14 @@ from pcv_sim.io.topics import (
 )
 from pcv_sim.replay.errors import ReplayError
 
-__all__ = ["Recording", "Series", "load_recording", "parse_topic_map"]
+__all__ = ["GAP_FACTOR", "Gap", "Recording", "Series", "find_gaps", "load_recording", "parse_topic_map"]
 
 _NS = 1_000_000_000
 _STAMP_OFFSET_NOTE_NS = 1_000_000  # report header stamps that differ from log times by > 1 ms
+#: A pause between two output samples longer than this many median sample periods is a gap. A
+#: 1 kHz recording has gaps from 5 ms on: far beyond the jitter of a logger, far below the
+#: 51-60 ms stalls of an emulator that skipped steps.
+GAP_FACTOR: Final = 5.0
 
 
 @dataclass(frozen=True)
@@ -61,12 +72,61 @@ class Series:
 
 
 @dataclass(frozen=True)
+class Gap:
+    """No output sample between ``start_ns`` (the last before) and ``end_ns`` (the first after),
+    relative ns; ``missing`` samples at the usual period would have been in between."""
+
+    start_ns: int
+    end_ns: int
+    missing: int
+    roles: tuple[str, ...]
+
+    @property
+    def start(self) -> float:
+        return self.start_ns / _NS
+
+    @property
+    def end(self) -> float:
+        return self.end_ns / _NS
+
+    @property
+    def duration(self) -> float:
+        """s"""
+        return (self.end_ns - self.start_ns) / _NS
+
+
+def find_gaps(measured: Mapping[str, Series], factor: float = GAP_FACTOR) -> tuple[Gap, ...]:
+    """Intervals where the measured outputs pause for more than ``factor`` median periods;
+    overlapping pauses of several signals make one gap."""
+    found: list[tuple[int, int, int, str]] = []
+    for role, s in measured.items():
+        if len(s) < 3:
+            continue
+        d = np.diff(s.t_ns)
+        period = float(np.median(d))
+        if period <= 0:
+            continue
+        for k in np.nonzero(d > factor * period)[0].tolist():
+            found.append((int(s.t_ns[k]), int(s.t_ns[k + 1]), int(round(d[k] / period)) - 1, role))
+    found.sort()
+    merged: list[Gap] = []
+    for start, end, missing, role in found:
+        if merged and start < merged[-1].end_ns:
+            g = merged[-1]
+            roles = g.roles if role in g.roles else (*g.roles, role)
+            merged[-1] = Gap(min(g.start_ns, start), max(g.end_ns, end), max(g.missing, missing), roles)
+        else:
+            merged.append(Gap(start, end, missing, (role,)))
+    return tuple(merged)
+
+
+@dataclass(frozen=True)
 class Recording:
     """What the replay drives the model with and compares it against.
 
     ``inputs`` holds the duty command (always) and the load flow / supply pressure when the
     bag has them; ``measured`` the outputs present (at least one). ``start_ns`` is the absolute
-    bag time of replay time 0.
+    bag time of replay time 0. ``gaps``: where the measured outputs pause (:func:`find_gaps`).
     """
 
     path: Path
@@ -77,6 +137,7 @@ class Recording:
     closed_cleanly: bool
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    gaps: tuple[Gap, ...] = ()
 
     @property
     def duty(self) -> Series:
@@ -263,7 +324,7 @@ def load_recording(
     out_of_range = np.nonzero((duty < 0.0) | (duty > 1.0))[0]
     if out_of_range.size:
         k = int(out_of_range[0])
-        hint = " (percent? the duty is a fraction 0..1)" if 1.0 < duty[k] <= 100.0 else ""
+        hint = " (percent? the duty is a fraction 0..1)" if 2.0 <= duty[k] <= 100.0 else ""
         msg = (
             f"duty_cycle: {out_of_range.size} value(s) on {topics[DUTY_CYCLE]} outside 0..1, "
             f"first {duty[k]:g} at message {k}{hint}"
@@ -304,6 +365,7 @@ def load_recording(
             f"duty command on {topics[DUTY_CYCLE]}"
         )
         raise ReplayError(msg)
+    gaps = find_gaps(measured)
     return Recording(
         path=Path(path),
         start_ns=start,
@@ -313,4 +375,5 @@ def load_recording(
         closed_cleanly=contents.closed_cleanly,
         warnings=contents.warnings,
         notes=tuple(notes),
+        gaps=gaps,
     )

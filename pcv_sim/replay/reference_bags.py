@@ -1,7 +1,7 @@
 """The reference bags in ``bags/``: the paper's dynamic test (Sec. 3.2) on the full model.
 
-    .venv-kilted/bin/python -m pcv_sim.replay.reference_bags            # rewrite bags/
-    .venv-kilted/bin/python -m pcv_sim.replay.reference_bags --out DIR  # elsewhere
+    pcv-sim reference-bags            # rewrite bags/
+    pcv-sim reference-bags --out DIR  # elsewhere
 
 Protocol (Sec. 3.2): zero load flow, 200 bar supply, duty steps at several levels and
 amplitudes, decreasing steps rate-limited. The paper gives no rate; its limiter was "tuned so
@@ -20,21 +20,17 @@ near a rig's resolution (pressure 1 Pa, current 2^-20 A ~ 0.95 uA, position 2^-3
 Bit-for-bit: timestamps are integers from a fixed start (2024-01-01T00:00:00Z); chunks end by
 size only (no wall-clock flushes: no flush thread, a frozen clock); the MCAP header names the
 library ``pcv_sim``; ``metadata.yaml``'s ``ros_distro`` is pinned to ``jazzy`` (the type store
-the message definitions come from) whatever ``ROS_DISTRO`` says. The bytes then depend only on
+the message definitions come from) whatever ``ROS_DISTRO`` says; the offered QoS is the
+emulator's (:data:`pcv_sim.io.recorder.ROLE_QOS`). The bytes then depend only on
 the code, the default config and the pinned packages (numpy, scipy for the numbers; mcap,
 zstandard/libzstd for the container and compression).
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import math
-import os
 import shutil
-import sys
 from bisect import bisect_right
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -42,13 +38,14 @@ from typing import Final
 import numpy as np
 
 from pcv_sim.io.bag import BagWriter
+from pcv_sim.io.recorder import ROLE_QOS
 from pcv_sim.io.topics import BAG_TOPICS, CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE, bag_topic
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 
-__all__ = ["FALL_RATE", "PROTOCOLS", "Protocol", "command_staircase", "deterministic_writer", "main", "write_reference_bag"]
+__all__ = ["FALL_RATE", "PROTOCOLS", "Protocol", "command_staircase", "deterministic_writer", "write_reference_bag", "write_reference_bags"]
 
 FALL_RATE: Final = 2.0                     # 1/s: decreasing duty falls at most 0.002 per 1 ms tick
 TICK_NS: Final = 1_000_000                 # command generator and output sample period, 1 ms
@@ -131,24 +128,12 @@ class _Staircase(DutyProfile):
         return sorted({0.0, t_end, *(tk for tk in self.times if tk < t_end)})
 
 
-@contextlib.contextmanager
-def _pinned_distro() -> Iterator[None]:
-    """BagWriter writes ROS_DISTRO into metadata.yaml: pin it for reproducible bytes."""
-    old = os.environ.get("ROS_DISTRO")
-    os.environ["ROS_DISTRO"] = ROS_DISTRO
-    try:
-        yield
-    finally:
-        if old is None:
-            del os.environ["ROS_DISTRO"]
-        else:
-            os.environ["ROS_DISTRO"] = old
-
-
 def deterministic_writer(path: Path, topics: dict[str, str]) -> BagWriter:
     """A BagWriter whose bytes depend only on what is written: chunks end by size, never by
     wall-clock time. For offline writing (no durability period is needed)."""
-    return BagWriter(path, topics=topics, flush_thread=False, clock=lambda: 0.0, chunk_size=CHUNK_SIZE)
+    qos = {bag_topic(role): q for role, q in ROLE_QOS.items() if bag_topic(role) in topics}
+    return BagWriter(path, topics=topics, qos=qos, ros_distro=ROS_DISTRO, flush_thread=False,
+                     clock=lambda: 0.0, chunk_size=CHUNK_SIZE)
 
 
 def _quantise(x: np.ndarray, q: float) -> np.ndarray:
@@ -173,7 +158,7 @@ def write_reference_bag(protocol: Protocol, out_dir: Path, params: ValveParams |
     path = out_dir / protocol.name
     changes = dict(zip(ticks, values))
     duty_t, p_t, i_t, x_t = (bag_topic(r) for r in (DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION))
-    with _pinned_distro(), deterministic_writer(path, dict(BAG_TOPICS)) as w:
+    with deterministic_writer(path, dict(BAG_TOPICS)) as w:
         w.write_float64(bag_topic(LOAD_FLOW), START_NS, 0.0)
         w.write_fluid_pressure(bag_topic(SUPPLY_PRESSURE), START_NS, params.circuit.supply_pressure, 0.0)
         p, i, x = (outputs[r].tolist() for r in (PRESSURE, CURRENT, SPOOL_POSITION))
@@ -187,21 +172,20 @@ def write_reference_bag(protocol: Protocol, out_dir: Path, params: ValveParams |
     return path
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pcv_sim.replay.reference_bags", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="directory for the bags (default: the repo's bags/)")
-    ap.add_argument("--only", choices=sorted(PROTOCOLS), action="append", help="write only this bag (repeatable)")
-    args = ap.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name in args.only or sorted(PROTOCOLS):
-        target = args.out / name
+def write_reference_bags(
+    out_dir: Path = DEFAULT_OUT, only: Iterable[str] | None = None, params: ValveParams | None = None
+) -> list[Path]:
+    """(Re)write the reference bags named in ``only`` (default: all) into ``out_dir``,
+    replacing bags of the same name there."""
+    names = list(only) if only else sorted(PROTOCOLS)
+    if unknown := [n for n in names if n not in PROTOCOLS]:
+        msg = f"unknown reference bag(s) {unknown}; accepted: {', '.join(sorted(PROTOCOLS))}"
+        raise ValueError(msg)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in names:
+        target = out_dir / name
         if target.exists():
             shutil.rmtree(target)
-        path = write_reference_bag(PROTOCOLS[name], args.out)
-        size = sum(f.stat().st_size for f in path.iterdir())
-        print(f"wrote {path} ({size / 1e3:.0f} kB)")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        paths.append(write_reference_bag(PROTOCOLS[name], out_dir, params))
+    return paths

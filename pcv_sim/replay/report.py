@@ -29,9 +29,28 @@ def _summary_rows(r: ReplayResult) -> list[list[str]]:
     rows = []
     for role, sig in r.signals.items():
         d = DISPLAY[role]
-        rows.append([d.label, d.unit, str(sig.samples), _f(sig.fit.rmse * d.scale), _f(sig.fit.max_error * d.scale),
-                     f"{sig.fit.nrmse_fit_percent:.4f}"])
+        rows.append([d.label, d.unit, str(sig.samples), str(sig.excluded), _f(sig.fit.rmse * d.scale),
+                     _f(sig.fit.max_error * d.scale), f"{sig.fit.nrmse_fit_percent:.4f}"])
     return rows
+
+
+def _gap_summary(r: ReplayResult) -> str:
+    if not r.gaps:
+        return "none"
+    d = [g.duration * 1e3 for g in r.gaps]
+    excluded = sum(s.excluded for s in r.signals.values())
+    return (f"{len(r.gaps)} ({min(d):.1f}-{max(d):.1f} ms, {sum(d):.1f} ms in all); not compared "
+            f"across them: {excluded} samples from each gap until {r.resync_s * 1e3:g} ms after it")
+
+
+def _gap_rows(r: ReplayResult) -> list[list[str]]:
+    return [[str(k), f"{g.start:.4f}", f"{g.end:.4f}", f"{g.duration * 1e3:.1f}", str(g.missing),
+             f"{g.end + r.resync_s:.4f}", ", ".join(g.roles)]
+            for k, g in enumerate(r.gaps, start=1)]
+
+
+_GAP_HEAD = ["gap", "last sample before [s]", "first sample after [s]", "duration [ms]", "missing samples",
+             "compared again from [s]", "signals"]
 
 
 def _step_rows(r: ReplayResult, role: str) -> list[list[str]]:
@@ -54,7 +73,7 @@ def _step_rows(r: ReplayResult, role: str) -> list[list[str]]:
     return rows
 
 
-_SUMMARY_HEAD = ["signal", "unit", "samples", "RMSE", "max error", "NRMSE fit %"]
+_SUMMARY_HEAD = ["signal", "unit", "samples compared", "not compared (gaps)", "RMSE", "max error", "NRMSE fit %"]
 _STEP_HEAD = ["step", "t [s]", "duty", "rise [ms] meas / model", "overshoot [%] meas / model",
               "settling [ms] meas / model", "steady state meas / model", "steady-state error"]
 
@@ -68,6 +87,7 @@ def _header_lines(r: ReplayResult) -> list[tuple[str, str]]:
         ("topics", ", ".join(f"{k}={v}" for k, v in r.topics.items())),
         ("bag closed properly", "yes" if r.closed_cleanly else "NO: the writer did not finish; "
                                                                 "the readable part was used"),
+        ("gaps in the measured outputs", _gap_summary(r)),
         ("replay speed", f"{r.elapsed_s:.2f} s, {r.real_time_factor:.1f}x real time"),
     ]
 
@@ -79,9 +99,15 @@ def render_text(r: ReplayResult, failures: list[ThresholdFailure] | None = None)
         lines.append(f"  {r.in_force.text()}")
     if not r.closed_cleanly:
         lines.append("  the bag was NOT closed properly: only its readable part was replayed")
+    if r.gaps:
+        lines.append(f"  gaps in the measured outputs: {_gap_summary(r)}")
+        lines += [f"    gap {row[0]}: {row[1]} -> {row[2]} s ({row[3]} ms, ~{row[4]} samples missing), "
+                  f"compared again from {row[5]} s" for row in _gap_rows(r)[:20]]
+        if len(r.gaps) > 20:
+            lines.append(f"    ... {len(r.gaps) - 20} more (--json or --report list them all)")
     lines.append(f"  {'signal':16s} {'unit':5s} {'RMSE':>10s} {'max error':>10s} {'fit %':>10s}")
     for row in _summary_rows(r):
-        lines.append(f"  {row[0]:16s} {row[1]:5s} {row[3]:>10s} {row[4]:>10s} {row[5]:>10s}")
+        lines.append(f"  {row[0]:16s} {row[1]:5s} {row[4]:>10s} {row[5]:>10s} {row[6]:>10s}")
     for w in r.warnings:
         lines.append(f"  warning: {w}")
     for n in r.notes:
@@ -107,6 +133,12 @@ def render_markdown(r: ReplayResult, plots: dict[str, Path], failures: list[Thre
         out += ["## Thresholds FAILED", ""] + [f"- {f}" for f in failures] + [""]
     if r.warnings:
         out += ["## Warnings from the bag reader", ""] + [f"- {w}" for w in r.warnings] + [""]
+    if r.gaps:
+        out += ["## Gaps (skipped intervals, not compared)", "",
+                f"The measured outputs pause {len(r.gaps)} time(s); samples from each gap until "
+                f"{r.resync_s * 1e3:g} ms after it are left out of the metrics (the model and the "
+                f"device re-synchronise), and steps touching them are not analysed.", "",
+                _md_table(_GAP_HEAD, _gap_rows(r)), ""]
     out += ["## Whole run (model minus measured)", "", _md_table(_SUMMARY_HEAD, _summary_rows(r)), ""]
     for role in r.signals:
         d = DISPLAY[role]
@@ -157,6 +189,12 @@ def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[Threshol
         parts.append("<h2>Warnings from the bag reader</h2><ul>")
         parts += [f"<li>{e(w)}</li>" for w in r.warnings]
         parts.append("</ul>")
+    if r.gaps:
+        parts += ["<h2>Gaps (skipped intervals, not compared)</h2>",
+                  f"<p>The measured outputs pause {len(r.gaps)} time(s); samples from each gap until "
+                  f"{r.resync_s * 1e3:g} ms after it are left out of the metrics (the model and the device "
+                  f"re-synchronise), and steps touching them are not analysed.</p>",
+                  _html_table(_GAP_HEAD, _gap_rows(r))]
     parts += ["<h2>Whole run (model minus measured)</h2>", _html_table(_SUMMARY_HEAD, _summary_rows(r))]
     for role in r.signals:
         d = DISPLAY[role]
@@ -198,9 +236,12 @@ def plot_signals(r: ReplayResult) -> dict[str, bytes]:
                                 label="settling band (measured)" if k == 0 else None)
         ax.set_ylabel(f"{d.label} [{d.unit}]")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best")
         ax.set_title(f"{Path(r.bag).name}: {d.label}, measured vs {r.model} model")
         ax_err.plot(t, (mod - meas) * d.scale, lw=0.9, color="C3")
+        for k, (a, b) in enumerate(r.excluded_intervals):   # gaps + re-synchronisation: not compared
+            for axis in (ax, ax_err):
+                axis.axvspan(a, b, color="0.85", zorder=0, label="not compared (gap)" if k == 0 and axis is ax else None)
+        ax.legend(loc="best")
         ax_err.set_ylabel(f"error [{d.unit}]")
         ax_err.set_xlabel("time since first duty command [s]")
         ax_err.grid(True, alpha=0.3)

@@ -12,13 +12,13 @@ __all__ = ["check_duty", "FallRateLimiter", "DutyProfile"]
 
 def check_duty(value: float, duty_range: tuple[float, ...] = (0.0, 1.0)) -> float:
     """A duty command as a fraction within `duty_range` (default 0..1), or CommandError saying
-    what is accepted (and that 70 means 0.7: the command is a fraction, not percent)."""
+    what is accepted (and, for 2..100, that 70 means 0.7: the command is a fraction, not percent)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CommandError(f"duty cycle {value!r}: accepted is a number, a fraction 0..1")
     v = float(value)
     if not math.isfinite(v):
         raise CommandError(f"duty cycle {value!r} is not finite: accepted is a fraction 0..1")
-    if 1.0 < v <= 100.0:
+    if 2.0 <= v <= 100.0:  # reads as percent; 1..2 is more likely a typo than 1-2 %
         raise CommandError(f"duty cycle {v:g} > 1: the command is a fraction 0..1, not percent (did you mean {v / 100:g}?)")
     lo, hi = duty_range
     if not lo <= v <= hi:
@@ -36,11 +36,14 @@ class FallRateLimiter:
         self.rate = rate
         self.value = initial
 
-    def update(self, command: float, dt: float) -> float:
+    def peek(self, command: float, dt: float) -> float:
+        """The duty for the next step of length dt toward `command`, from the last step's `value`."""
         if self.rate is None or command >= self.value:
-            self.value = command
-        else:
-            self.value = max(command, self.value - self.rate * dt)
+            return command
+        return max(command, self.value - self.rate * dt)
+
+    def update(self, command: float, dt: float) -> float:
+        self.value = self.peek(command, dt)
         return self.value
 
 

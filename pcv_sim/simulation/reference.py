@@ -1,30 +1,123 @@
-"""Stiff reference solutions with scipy (Radau/BDF/LSODA) on the same right-hand side.
+"""Stiff reference solutions with scipy (Radau/BDF/LSODA) on the core's own right-hand side.
 
-The full model's restrictor/chamber pole is about -2.6e8 1/s: no explicit method survives a
-0.1 ms step, so offline it runs here. The simplified model runs here too, as the yardstick for
-the fixed-step real-time stepper.
+`integrate_reference` runs any composite of systems (`pcv_sim.simulation.system`) with its
+compiled right-hand side under a stiff variable-step solver: the yardstick for every fixed-step
+integrator (the full model's damping chamber has a pole near -2.6e8 1/s). Inputs are a function
+of time with the instants where they jump or kink (`breakpoints`): the solver never steps across
+one. End stops (`System.stops`) are hybrid: the solver stops at a stop crossing (event), the
+impact sets the velocity to 0 (inelastic), and integration resumes; while the force pushes into
+the stop the right-hand side holds the position.
 
-End stops (Sec. 4.2) are hybrid: the solver stops at a stop crossing (event), the impact sets
-v = 0 (inelastic), and integration resumes; while the force pushes into the stop the
-right-hand side holds the spool (ValveModel.derivatives).
+`simulate_reference` is the valve's form of it: a duty profile (with the fall-rate limiter's
+ramps), constant load flow and supply pressure, samples on a regular grid.
 """
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from pcv_sim.analysis.static import zero_flow_equilibrium
 from pcv_sim.errors import PcvSimError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.simulation.duty import DutyProfile
+from pcv_sim.simulation.rest import rest_state
+from pcv_sim.simulation.simulator import Simulator
+from pcv_sim.simulation.system import Composite, System
 from pcv_sim.simulation.trajectory import Trajectory
+from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["simulate_reference", "ReferenceError"]
+__all__ = ["simulate_reference", "integrate_reference", "ReferenceError", "VALVE_ATOL"]
+
+#: Absolute tolerances of the valve's states: flux ~0.1 Wb, x ~1e-4 m, v ~1e-2 m/s, p, p_c ~1e7 Pa.
+VALVE_ATOL = (1e-9, 1e-12, 1e-9, 1e-3, 1e-3)
 
 
 class ReferenceError(PcvSimError, RuntimeError):
     """The stiff solver failed."""
+
+
+def integrate_reference(
+    plant: Composite | System,
+    x0: np.ndarray,
+    inputs: Callable[[float], np.ndarray],
+    breakpoints: list[float],
+    sample_times: np.ndarray,
+    *,
+    atol: np.ndarray | float = 1e-9,
+    rtol: float = 1e-8,
+    method: str = "Radau",
+    max_step: float = np.inf,
+    workspace: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """States (n_states x n_samples) and outputs (n_outputs x n_samples) at `sample_times`.
+
+    `inputs(t)` gives the external inputs in force at t (right-continuous); `breakpoints` are the
+    instants where they jump or kink, and the solver restarts there from the state at that
+    instant exactly. Outputs at a sample use the inputs in force at the sample time.
+    """
+    sim = Simulator(plant, 1e-4, "rk2")     # its compiled right-hand side; the step is not used
+    if workspace is not None:
+        sim.W[:] = workspace
+    stops = sim.plant.stops
+    events = []
+    for st in stops:
+        for bound, direction in ((st.lo, -1), (st.hi, 1)):
+            def event(t: float, y: np.ndarray, k: int = st.position, b: float = bound) -> float:
+                return float(y[k] - b)
+
+            event.terminal, event.direction = True, direction  # type: ignore[attr-defined]
+            events.append((event, st, bound))
+    sample_times = np.asarray(sample_times, dtype=float)
+    t_end = float(sample_times[-1])
+    bps = sorted({float(b) for b in breakpoints if sample_times[0] < b < t_end} | {float(sample_times[0]), t_end})
+    eps = 1e-9 * max(1e-4, float(np.min(np.diff(sample_times))) if len(sample_times) > 1 else 1e-4)
+    n_x = len(sim.plant.states)
+    out_x = np.full((n_x, len(sample_times)), np.nan)
+    y = np.array(x0, dtype=float)
+
+    def rhs(t: float, yy: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return sim.derivatives(t, yy, u)
+
+    for k, (t0, t1) in enumerate(zip(bps[:-1], bps[1:])):
+        u = np.asarray(inputs(0.5 * (t0 + t1)), dtype=float)     # constant or linear within: the mid value
+        kinked = not np.array_equal(u, np.asarray(inputs(t0), dtype=float))
+        last = k == len(bps) - 2
+        t = t0
+        while t < t1 - eps:
+            inside = (sample_times < t1 - eps) | (last & (sample_times <= t1 + eps))
+            own = np.nonzero((sample_times >= t - eps) & inside)[0]
+            t_eval = np.unique(np.clip(np.append(sample_times[own], t1), t, t1))
+
+            def fun(tt: float, yy: np.ndarray, u: np.ndarray = u, kinked: bool = kinked) -> np.ndarray:
+                return rhs(tt, yy, np.asarray(inputs(tt), float) if kinked else u)
+
+            sol = solve_ivp(fun, (t, t1), y, method=method, t_eval=t_eval, rtol=rtol, atol=atol,
+                            events=[e for e, _, _ in events] or None, max_step=max_step)
+            if sol.status < 0:
+                raise ReferenceError(f"{method} failed at t={t:.6g} s: {sol.message}")
+            for j, ts in enumerate(sol.t):
+                hit = np.nonzero(np.abs(sample_times[own] - ts) <= eps)[0]
+                if hit.size:
+                    out_x[:, own[hit[0]]] = sol.y[:, j]
+            if sol.status == 1:       # a stop was hit: inelastic impact, then carry on
+                which = next(i for i, te in enumerate(sol.t_events) if te.size)
+                _, st, bound = events[which]
+                t = float(sol.t_events[which][0])
+                y = np.array(sol.y_events[which][0])
+                y[st.position], y[st.velocity] = bound, 0.0
+            else:
+                y = sol.y[:, -1]
+                t = t1
+    outputs = np.empty((len(sim.plant.outputs), len(sample_times)))
+    for j, ts in enumerate(sample_times):
+        sim.x[:] = out_x[:, j]
+        sim.u[:] = inputs(float(ts))
+        sim.steps = 0
+        sim._outputs(float(ts), sim.x, sim.u, sim.P, sim.F, sim.W, sim.Y, sim.U)  # noqa: SLF001
+        outputs[:, j] = sim.Y
+    return out_x, outputs
 
 
 def simulate_reference(
@@ -39,78 +132,33 @@ def simulate_reference(
     method: str = "Radau",
     rtol: float = 1e-8,
 ) -> Trajectory:
-    """Simulate `profile` from t = 0 to t_end, sampled every `sample_time` s.
+    """The valve (`model.kind`) under `profile` from t = 0 to t_end, sampled every `sample_time` s.
 
-    Starts at the zero-flow equilibrium of the profile's first duty unless `initial_state` is
-    given. The input is integrated piecewise between the profile's breakpoints, so the solver
-    never steps across a jump.
+    Starts at rest for the profile's first duty unless `initial_state` is given. The duty is the
+    profile's effective one (the fall-rate limiter's ramps in continuous time).
     """
     ps = model.p_supply if supply_pressure is None else supply_pressure
+    d0 = profile.effective(0.0)
     if initial_state is None:
-        eq = zero_flow_equilibrium(model, profile.effective(0.0), ps)
-        initial_state = model.initial_state(profile.effective(0.0), eq.spool_position, eq.pressure)
-    i_last = [model.steady_current(profile.effective(0.0))]
-
-    def rhs(t: float, y: np.ndarray) -> list[float]:
-        dy, i = model.derivatives(t, tuple(y), profile.effective(t), load_flow, ps, i_last[0])
-        i_last[0] = i
-        return list(dy)
-
-    def hit_min(t: float, y: np.ndarray) -> float:
-        return y[1] - model.x_min
-
-    def hit_max(t: float, y: np.ndarray) -> float:
-        return y[1] - model.x_max
-
-    hit_min.terminal, hit_min.direction = True, -1  # type: ignore[attr-defined]
-    hit_max.terminal, hit_max.direction = True, 1  # type: ignore[attr-defined]
-
+        rest = rest_state(model.params, model.kind, d0, load_flow, ps)
+        x0, i0 = rest.state, rest.current
+    else:
+        x0, i0 = np.array(initial_state, float), model.steady_current(d0)
     n = int(round(t_end / sample_time)) + 1
     t_samples = np.arange(n) * sample_time
-    # Absolute tolerances per state: flux ~0.1 Wb, x ~1e-4 m, v ~1e-2 m/s, pressures ~1e7 Pa.
-    scale = {0: 1e-9, 1: 1e-12, 2: 1e-9, 3: 1e-3, 4: 1e-3}
-    atol = [scale[k] for k in range(len(initial_state))]
-    out_t, out_y = [], []
-    y = np.array(initial_state, dtype=float)
     bps = profile.breakpoints(t_end)
+    max_step = np.inf
     if model.switched:  # the coil voltage jumps at every PWM edge: on at k T, off at k T + D T
         edges = [k * model.pwm_period + off for k in range(int(t_end / model.pwm_period) + 1)
                  for off in (0.0, profile.effective(k * model.pwm_period) * model.pwm_period)]
         bps = sorted(set(bps) | {e for e in edges if 0.0 < e < t_end})
-    eps = 1e-9 * sample_time
-    for t0, t1 in zip(bps[:-1], bps[1:]):
-        t = t0
-        last = t1 >= t_end - eps
-        while t < t1 - eps:
-            # Samples owned by this segment: [t, t1), and t_end itself in the last one. t1 is
-            # always evaluated too, so the next segment starts from the state at t1 exactly.
-            own = t_samples[(t_samples >= t - eps) & ((t_samples < t1 - eps) | (last & (t_samples <= t1 + eps)))]
-            t_eval = np.unique(np.clip(np.append(own, t1), t, t1))
-            sol = solve_ivp(
-                rhs, (t, t1), y, method=method, t_eval=t_eval, rtol=rtol, atol=atol,
-                events=(hit_min, hit_max), max_step=model.pwm_period / 20 if model.switched else np.inf,
-            )
-            if sol.status < 0:
-                raise ReferenceError(f"{method} failed at t={t:.6g} s: {sol.message}")
-            keep = np.isin(sol.t, np.clip(own, t, t1))
-            out_t.append(sol.t[keep])
-            out_y.append(sol.y[:, keep])
-            if sol.status == 1:  # a stop was hit: inelastic impact (v = 0), then carry on
-                which = 0 if sol.t_events[0].size else 1
-                t = float(sol.t_events[which][0])
-                y = np.array(sol.y_events[which][0])
-                y[1], y[2] = (model.x_min, model.x_max)[which], 0.0
-            else:
-                y = sol.y[:, -1]
-                t = t1
-    ts = np.concatenate(out_t)
-    ys = np.concatenate(out_y, axis=1)
-    ts, idx = np.unique(ts, return_index=True)
-    ys = ys[:, idx]
-    currents = np.empty_like(ts)
-    i_guess = model.steady_current(profile.effective(0.0))
-    for k, tk in enumerate(ts):
-        i_guess = model.current(ys[0, k], ys[1, k], model.coil_voltage(profile.effective(tk), tk), i_guess)
-        currents[k] = i_guess
-    duty = np.array([profile.effective(tk) for tk in ts])
-    return Trajectory(ts, duty, currents, ys[3], ys[1])
+        max_step = model.pwm_period / 20
+
+    def inputs(t: float) -> np.ndarray:
+        return np.array([profile.effective(t), load_flow, ps])
+
+    xs, ys = integrate_reference(valve_system(model.params, model.kind), x0, inputs, bps, t_samples,
+                                 atol=np.array(VALVE_ATOL[:len(x0)]), rtol=rtol, method=method, max_step=max_step,
+                                 workspace=np.array([i0]))
+    duty = np.array([profile.effective(tk) for tk in t_samples])
+    return Trajectory(t_samples, duty, ys[1], xs[3], xs[1])

@@ -89,7 +89,7 @@ def test_calibrated_model_reproduces_the_working_points(calibrated_points, name:
 
 @pytest.mark.parametrize("name", ["P1", "P2"])
 def test_as_printed_pressure_is_about_10_bar_low(printed_points, name: str) -> None:  # noqa: ANN001
-    """DESIGN.md: with Table 1 as printed the balance is ~3 N short at both points; 3 N over the
+    """docs/model.md, Calibration: with Table 1 as printed the balance is ~3 N short at both points; 3 N over the
     net area 3.1e-6 m^2 is ~10 bar. Assert 5..15 bar low."""
     r = printed_points[name]
     assert -15 * BAR < r.pressure_error < -5 * BAR
@@ -105,7 +105,7 @@ def test_required_constants_favour_the_net_area(printed) -> None:  # noqa: ANN00
     offset_spread = abs(f1 - f2) / (0.5 * (abs(f1) + abs(f2)))
     assert area_spread < 0.02
     assert offset_spread > 5 * area_spread
-    # Both offsets are the "~3 N short" of DESIGN.md (the solenoid must give more), and both areas
+    # Both offsets are the "~3 N short" of docs/model.md (the solenoid must give more), and both areas
     # are below the printed 3.1e-6 m^2 (less area -> more pressure for the same force).
     assert 2.0 < f1 < 4.0 and 2.0 < f2 < 4.0
     assert a1 < 3.1e-6 and a2 < 3.1e-6

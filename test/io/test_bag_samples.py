@@ -10,6 +10,7 @@ from mcap.reader import make_reader
 
 from pcv_sim.errors import BagError
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter, read_bag
+from pcv_sim.io.bag import mcap_chunks
 
 T0 = 1_700_000_000_000_000_000
 TOPICS = {"/p": FLUID_PRESSURE, "/i": FLOAT64, "/x": FLOAT64, "/diag": "diagnostic_msgs/msg/DiagnosticArray"}
@@ -41,7 +42,7 @@ def _one_by_one(path: Path, frame_id: str) -> bytes:
 def _bulk(path: Path, frame_id: str, *, bulk: bool = True) -> bytes:
     t, (p, i, x) = _data()
     with _writer(path) as w:
-        w._bulk = bulk                                     # noqa: SLF001 - False: the fallback path
+        assert w.bulk is bulk
         for s in range(0, N, BATCH):
             sl = slice(s, s + BATCH)
             w.write_samples(t[sl], {"/p": p[sl], "/i": i[sl], "/x": x[sl]}, frame_id=frame_id)
@@ -58,12 +59,18 @@ def test_bulk_bytes_equal_message_by_message(tmp_path: Path, frame_id: str) -> N
     assert a == b.replace(b"b_0.mcap", b"a_0.mcap")
 
 
-def test_bulk_and_fallback_read_back(tmp_path: Path) -> None:
-    """The fallback (an mcap release without the expected Writer layout) writes the same file."""
+@pytest.mark.parametrize("differs", ["version", "layout"])
+def test_fallback_writes_the_same_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, differs: str) -> None:
+    """With an mcap release other than the checked one, or a Writer laid out differently, the
+    bulk path goes message by message through mcap's public API: the same file, read back."""
     t, (p, _, x) = _data()
-    files = {}
-    for name, bulk in (("u", True), ("v", False)):
-        files[name] = _bulk(tmp_path / name, "load_port", bulk=bulk)
+    files = {"u": _bulk(tmp_path / "u", "load_port")}
+    if differs == "version":
+        monkeypatch.setattr(mcap_chunks, "MCAP_VERSION", "1.7.0")
+    else:  # no private chunk builder where 1.6 has it
+        monkeypatch.setattr(mcap_chunks, "_BUILDER", "_Writer__no_such_builder")
+    files["v"] = _bulk(tmp_path / "v", "load_port", bulk=False)
+    for name in files:
         bag = read_bag(tmp_path / name, ["/p", "/i", "/x"])
         assert bag.closed_cleanly and not bag.warnings
         assert np.array_equal(bag["/p"].t_ns, t) and np.array_equal(bag["/p"].stamp_ns, t)
@@ -72,6 +79,17 @@ def test_bulk_and_fallback_read_back(tmp_path: Path) -> None:
             stats = make_reader(f).get_summary().statistics
         assert stats.message_count == 3 * N and stats.message_start_time == T0
     assert files["u"] == files["v"].replace(b"v_0.mcap", b"u_0.mcap")
+
+
+def test_attach_checks_version_and_layout() -> None:
+    import io
+
+    from mcap.writer import Writer
+
+    assert mcap_chunks.attach(Writer(io.BytesIO()), version="2.0.0") is None
+    assert mcap_chunks.attach(Writer(io.BytesIO()), version="unknown") is None
+    assert mcap_chunks.attach(object()) is None           # type: ignore[arg-type]
+    assert isinstance(mcap_chunks.attach(Writer(io.BytesIO()), version="1.6.9"), mcap_chunks.BulkChunks)
 
 
 def test_write_samples_refuses_bad_input(tmp_path: Path) -> None:

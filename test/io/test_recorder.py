@@ -34,11 +34,11 @@ def signals(k: int, duty: float = 0.5, q: float = 0.0, ps: float = 200e5) -> dic
 
 def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> None:
     """start() at step 0, then a call per step; script[k] changes inputs from step k on (as the
-    device does: the value used over step [k, k+1] shows in the call for step end k+1)."""
+    device does: the call for step k shows the inputs in force from step k on)."""
     inputs = {"duty": 0.5, "q": 0.0, "ps": 200e5}
     rec.start(T0, signals(0, **inputs))
     for k in range(1, n + 1):
-        inputs.update(script.get(k - 1, {}))
+        inputs.update(script.get(k, {}))
         rec(T0 + k * DT, signals(k, **inputs))
 
 

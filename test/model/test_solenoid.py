@@ -7,6 +7,7 @@ config), with each power spelled out rather than through Horner's scheme.
 from __future__ import annotations
 
 import math
+import numpy as np
 
 import pytest
 
@@ -44,7 +45,7 @@ def test_solenoid_force_matches_hand_evaluated_eqs_9_to_13() -> None:
     got = sol.solenoid_force(i, z, PFS)
     # Horner vs expanded powers differ only by rounding: rel 1e-12.
     assert got == pytest.approx(expected, rel=1e-12)
-    # Plausibility (DESIGN.md R1): the static balance at 120 bar needs ~37-39 N from the solenoid.
+    # Plausibility (docs/model.md R1): the static balance at 120 bar needs ~37-39 N from the solenoid.
     assert 30.0 < got < 45.0
     # Eq. 9 has no i^1 or i^0 term: no force without current.
     assert sol.solenoid_force(0.0, z, PFS) == 0.0
@@ -62,7 +63,7 @@ def test_restoring_coefficients_hand_evaluated() -> None:
 
 def test_poly_is_highest_power_first() -> None:
     assert sol.poly((2.0, 3.0, 5.0), 10.0) == 235.0   # 2*100 + 3*10 + 5
-    assert sol.poly((), 3.0) == 0.0
+    assert sol.poly(np.array([2.0, 3.0, 5.0]), 10.0) == 235.0   # arrays too (the compiled core passes arrays)
 
 
 @pytest.mark.parametrize("core_mm", [1.0, 1.15, 1.7, 2.2, 2.55])

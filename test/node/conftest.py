@@ -3,7 +3,7 @@
 Each test gets its own ROS_DOMAIN_ID (from the pid and a counter), discovery limited to
 localhost, and a namespace unique to the test, so parallel test runs on the machine do not see
 each other. The emulator runs as a separate process with this venv's python; the
-ros_wheels_bootstrapper mark is cleared from its environment (DESIGN.md section 6).
+ros_wheels_bootstrapper mark is cleared from its environment (docs/ros_wheels.md).
 """
 import itertools
 import os

@@ -45,12 +45,27 @@ def test_duty_takes_effect_at_the_given_step_like_the_offline_stepper():
     assert samples[-1].command == 0.7
 
 
-def test_an_input_for_a_past_step_takes_effect_now():
+def test_an_input_for_a_past_step_takes_effect_at_the_first_step_not_yet_shown():
     dev = device()
-    dev.run(50)
+    dev.run(50)                                 # the sample of step 50 is out: it showed duty 0.3
     dev.submit('duty_cycle', 0.6, at_step=10)
     dev.run(1)
-    assert dev.duty_applied_step == 50
+    assert dev.duty_applied_step == 51
+
+
+def test_a_sample_shows_the_inputs_in_force_at_its_step():
+    """Right-continuous: an input due at a sample's step acts on that sample (as replay computes it)."""
+    dev = device(watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.7, at_step=40)
+    samples = {s.step: s for s in dev.run(50)}
+    assert samples[30].duty == 0.3 and samples[40].duty == 0.7
+    ref = RealTimeStepper(PARAMS, duty=0.3)
+    ref.advance(40)
+    before = ref.current
+    ref.set_duty(0.7)
+    # The coil current is algebraic in the coil voltage (Eqs. 1-2): it jumps at the step itself.
+    assert samples[40].current == pytest.approx(ref.current, rel=1e-12)
+    assert samples[40].current - before > 0.05
 
 
 @pytest.mark.parametrize('name, value, match', [
@@ -62,7 +77,7 @@ def test_an_input_for_a_past_step_takes_effect_now():
     ('load_flow', math.nan, 'finite number in m\\^3/s'),
     ('load_flow', 5.0, 'not L/min'),
     ('supply_pressure', -1.0, r'supply pressure -1 Pa: accepted is'),
-    ('supply_pressure', 200.0e6, 'not bar'),
+    ('supply_pressure', 200.0e6, r'accepted is 1e\+05 \.\. 4e\+07 Pa \(1 \.\. 400 bar\)$'),
     ('supply_pressure', math.nan, 'supply pressure nan'),
 ])
 def test_bad_inputs_are_refused_counted_and_the_last_valid_value_stays(name, value, match):
@@ -187,7 +202,8 @@ def test_recorder_gets_every_nth_step_with_its_stamp():
     assert [t for t, _ in got] == [1_000_000_000 + k * 100_000 for k in range(1, 26)]
     assert set(got[0][1]) == {'duty_command', 'duty', 'load_flow', 'supply_pressure', 'pressure', 'current',
                               'spool_position'}
-    assert got[2][1]['duty_command'] == 0.3 and got[3][1]['duty_command'] == 0.5
+    # got[k - 1] is the call for step k: the duty due at step 3 shows from that call on.
+    assert got[1][1]['duty_command'] == 0.3 and got[2][1]['duty_command'] == 0.5
     dev.record_every = 10
     got.clear()
     dev.run(30)
@@ -235,7 +251,8 @@ def test_model_parameters_cover_the_scalar_and_vector_keys():
     ({'model.orifice.hole_count': 12.5}, r'model\.orifice\.hole_count: .*integer'),
     ({'model.spool.chamber_area': 7e-5}, r'net area'),
     ({'model.spool.mas': 1.0}, r'unknown model parameter'),
-    ({'model.simulation.integrator': 'rk45'}, r"one of 'euler', 'rk2', 'rk4'"),
+    ({'model.simulation.integrator': 'rk45'}, r"one of 'auto', 'euler', 'rk2', 'rk4', 'erk2'"),
+        ({'model.simulation.model': 'full', 'model.simulation.integrator': 'rk2'}, r'explicit method diverge'),
 ])
 def test_invalid_model_parameters_are_refused_with_the_reason(changes, match):
     with pytest.raises(ParameterError, match=match):

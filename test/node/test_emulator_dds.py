@@ -173,14 +173,16 @@ def test_simulated_time_is_deterministic_and_follows_the_lockstep_semantics(ros)
     second = _simulated_run(ros, 'run2')
     assert first == second                           # bit for bit, stamps and values
     assert [t for t, _ in first] == [k * 1_000_000 for k in range(len(first))]   # model time from 0
-    # Semantics: the command answering the sample at T acts on [T, T + 1 ms].
+    # Semantics: the command answering the sample at T acts from the next step, T + 0.1 ms (the
+    # sample at T showed the inputs in force at T).
     ref = RealTimeStepper(PARAMS, duty=0.3)
     ref.current
     ref.current
     expected = [(0, ref.pressure)]
     for k in range(1, len(first)):
+        ref.advance(1)
         ref.set_duty(_duty_at((k - 1) * 1_000_000))
-        ref.advance(SAMPLE_EVERY)
+        ref.advance(SAMPLE_EVERY - 1)
         ref.current
         expected.append((k * 1_000_000, ref.pressure))
     assert max(abs(a[1] - b[1]) for a, b in zip(first, expected)) <= 1.0

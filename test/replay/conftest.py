@@ -22,11 +22,11 @@ REFERENCE_BAGS = ("pcv_step_levels", "pcv_step_amplitudes")
 
 @pytest.fixture(scope="session", autouse=True)
 def regeneration(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
-    """`python -m pcv_sim.replay.reference_bags --out TMP` running in a child process."""
+    """`pcv-sim reference-bags --out TMP` running in a child process."""
     out = tmp_path_factory.mktemp("regenerated")
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pcv_sim.replay.reference_bags", "--out", str(out)],
+        [sys.executable, "-m", "pcv_sim", "reference-bags", "--out", str(out)],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
     handle = SimpleNamespace(out=out, proc=proc)
@@ -43,7 +43,15 @@ def params():  # noqa: ANN201
 
 @pytest.fixture(scope="session")
 def full_results(params):  # noqa: ANN001, ANN201
-    """Full-model replays of every reference bag (the slowest part: ~10 s together)."""
+    """Full-model replays of every reference bag on the stiff reference solver (Radau), the way
+    the bags were made (the slowest part: ~10 s together)."""
+    return {name: replay(load_recording(BAGS / name), params, model="full", solver="radau")
+            for name in REFERENCE_BAGS}
+
+
+@pytest.fixture(scope="session")
+def full_stepper_results(params):  # noqa: ANN001, ANN201
+    """Full-model replays on the emulator's engine (the default): exponential Heun at 0.1 ms."""
     return {name: replay(load_recording(BAGS / name), params, model="full") for name in REFERENCE_BAGS}
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from pcv_sim.cli import main
 from pcv_sim.errors import BagError
+from pcv_sim.params import DEFAULT_CONFIG
 from pcv_sim.replay import ReplayError, load_recording, replay
 
 from .conftest import BAGS
@@ -116,7 +117,7 @@ def test_samples_before_the_first_command_are_reported(tmp_path, params):  # noq
     assert any("5 sample(s) before the first duty command not compared" in n for n in rec2.notes)
 
 
-def test_thresholds_and_options(capsys):  # noqa: ANN001
+def test_thresholds_and_options(tmp_path, capsys):  # noqa: ANN001
     bag = str(BAGS / "pcv_step_levels")
     assert main(["replay", bag, "--model", "simplified", "--fail-above", "pressure_rmse_psi=1"]) == 2
     err = capsys.readouterr().err
@@ -125,8 +126,10 @@ def test_thresholds_and_options(capsys):  # noqa: ANN001
     assert "expected METRIC=NUMBER" in capsys.readouterr().err
     assert main(["replay", bag, "--report", "out.pdf"]) == 2
     assert "must end in .md or .html" in capsys.readouterr().err
-    assert main(["replay", bag, "--model", "full", "--solver", "fast"]) == 2
-    assert "only on the stiff solver" in capsys.readouterr().err
+    limited = tmp_path / "limited.yaml"
+    limited.write_text(DEFAULT_CONFIG.read_text().replace("duty_fall_rate_limit: null", "duty_fall_rate_limit: 2.0"))
+    assert main(["--config", str(limited), "replay", bag, "--solver", "radau"]) == 2
+    assert "only the stepper applies it" in capsys.readouterr().err
 
 
 def test_html_report_and_plot_dir(tmp_path, capsys):  # noqa: ANN001

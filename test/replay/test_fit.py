@@ -36,6 +36,20 @@ def test_full_model_reproduces_reference_bag(full_results, name):  # noqa: ANN00
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
+def test_full_model_at_the_fixed_step_stays_within_a_tenth_of_a_bar(full_stepper_results, name):  # noqa: ANN001
+    # The emulator's full model (exponential Heun on the chamber, 0.1 ms) against the bags made
+    # with Radau: within 0.1 bar on every duty step (the core's accuracy goal). Measured:
+    # max 0.0009 bar (levels), 0.0097 bar (amplitudes), the same as the simplified model.
+    r = full_stepper_results[name]
+    m = r.scalar_metrics()
+    assert r.model == "full" and r.solver == "stepper"
+    assert m["pressure_max_error_bar"] < 0.1
+    assert m["pressure_fit_percent"] > 99.99
+    assert m["current_max_error_a"] < 1e-3
+    assert m["spool_position_max_error_mm"] < 1e-3
+
+
+@pytest.mark.parametrize("name", REFERENCE_BAGS)
 def test_simplified_model_difference_is_the_documented_one(simplified_results, name):  # noqa: ANN001
     # docs/model.md R20: with B_simplified = 'equivalent' the simplified model follows the full
     # one within ~0.01 bar on duty steps; the stepper's Heun at 0.1 ms adds ~0.01 bar.

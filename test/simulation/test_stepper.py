@@ -49,14 +49,12 @@ def test_duty_step_matches_the_reference(params, references, start: float, end: 
     traj = RealTimeStepper(params, duty=start).run(DutyProfile.step(start, end, T_STEP), T_END)
     assert traj.t == pytest.approx(ref.t, abs=1e-12)
     assert np.max(np.abs(traj.pressure - ref.pressure)) < 0.1 * BAR
-    # The current jumps at the step by ~p_d3 * dV_s (R27). The stepper's sample at the step
-    # instant still reports the duty that held over the step before it, the reference the new
-    # one: skip that one sample.
+    # The current jumps at the step by ~p_d3 * dV_s (R27). Both show the new duty at the step
+    # instant (right-continuous samples), so they agree there too.
     k = int(round(T_STEP / 1e-4))
-    keep = np.ones_like(traj.t, dtype=bool)
-    keep[k] = False
-    assert traj.duty[k] == start and ref.duty[k] == end
-    assert np.max(np.abs(traj.current - ref.current)[keep]) < 1e-3          # A; ~0.1 % of 1 A
+    assert traj.duty[k - 1] == start and traj.duty[k] == end and ref.duty[k] == end
+    assert abs(traj.current[k] - traj.current[k - 1]) > 0.02 * abs(end - start) / 0.2
+    assert np.max(np.abs(traj.current - ref.current)) < 1e-3          # A; ~0.1 % of 1 A
     assert np.max(np.abs(traj.spool_position - ref.spool_position)) < 1e-3 * 1e-3   # 1 um of a 1.4 mm stroke
     # Both end at the static zero-flow equilibrium of the new duty (an independent computation).
     # 0.14 s after the step the slowest pole (-45 1/s, test_linear) leaves exp(-45 * 0.14) = 0.2 %
@@ -79,7 +77,7 @@ def test_load_flow_step_matches_the_reference(params, q_lpm: float) -> None:  # 
     assert np.max(np.abs(traj.pressure - ref.pressure)) < 0.1 * BAR
     # Drawing flow lowers the pressure at first, pushing flow in raises it (Eq. 15).
     assert np.sign(traj.pressure[50] - traj.pressure[0]) == -np.sign(q_lpm)
-    # Explicit Euler at the same step is visibly worse (DESIGN.md section 2): > 0.1 bar.
+    # Explicit Euler at the same step is visibly worse (docs/model.md, numerics): > 0.1 bar.
     st_e = RealTimeStepper(params, integrator="euler", duty=0.7)
     st_e.set_load_flow(q_lpm * LPM)
     euler = st_e.run(hold, 0.1)
@@ -113,9 +111,10 @@ def test_fall_rate_limiter_ramps_falls_and_passes_rises(params) -> None:  # noqa
         st.advance(1)
         duties.append(st.duty)
     k = np.arange(1, 2501)
-    # Falls at 2 /s: 0.8 - 2 * k * 0.1 ms, until it reaches the 0.4 command after 0.2 s.
-    assert np.asarray(duties) == pytest.approx(np.maximum(0.4, 0.8 - 2.0 * k * 1e-4), abs=1e-12)
-    assert duties[1999] == pytest.approx(0.4, abs=1e-12) and duties[-1] == 0.4
+    # Falls at 2 /s until it reaches the 0.4 command after 0.2 s. After k steps `duty` is the
+    # duty in force over step k (from t = k * 0.1 ms on): 0.8 - 2 * (k + 1) * 0.1 ms.
+    assert np.asarray(duties) == pytest.approx(np.maximum(0.4, 0.8 - 2.0 * (k + 1) * 1e-4), abs=1e-12)
+    assert duties[1998] == pytest.approx(0.4, abs=1e-12) and duties[-1] == 0.4
     st.set_duty(0.9)
     st.advance(1)
     assert st.duty == 0.9          # a rise passes at once
@@ -217,9 +216,9 @@ def test_model_time_is_a_step_count(params) -> None:  # noqa: ANN001
         ("set_load_flow", math.nan, r"load flow nan: accepted is a finite number in m\^3/s"),
         ("set_load_flow", 5.0, r"load flow 5 m\^3/s is beyond .*the unit is m\^3/s, not L/min"),
         ("set_load_flow", -0.01, r"load flow -0\.01 m\^3/s is beyond"),
-        ("set_supply_pressure", 500e5, r"supply pressure 5e\+07 Pa: accepted is 1e\+05 \.\. 4e\+07 Pa \(the unit is Pa, not bar"),
+        ("set_supply_pressure", 500e5, r"supply pressure 5e\+07 Pa: accepted is 1e\+05 \.\. 4e\+07 Pa \(1 \.\. 400 bar\)$"),
         ("set_supply_pressure", 0.0, r"supply pressure 0 Pa: accepted is 1e\+05 \.\. 4e\+07 Pa"),
-        ("set_supply_pressure", -200e5, r"\(the unit is Pa, not bar\)"),
+        ("set_supply_pressure", -200e5, r"\(1 \.\. 400 bar\)$"),
         ("set_supply_pressure", math.inf, r"supply pressure inf: accepted is a finite number in Pa"),
     ],
 )

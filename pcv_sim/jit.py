@@ -1,0 +1,96 @@
+"""Compiled kernels with one source: numba when it is installed and enabled, plain Python otherwise.
+
+Every function of the physics that the simulation core runs is written once, in the subset of
+Python that numba compiles (floats, tuples and numpy arrays, `math`), and decorated with `jit`.
+With numba the decorator compiles it on first use and caches the machine code on disk (under
+`cache_root()`, keyed by a digest of the package's sources), so a process that starts later
+loads it instead of compiling; without
+numba, or with the environment variable `PCV_SIM_JIT=0`, the same function runs as written. A
+test runs both paths on the same inputs and checks that they agree to rounding.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Callable, TypeVar
+
+__all__ = ["ENV_VAR", "enabled", "jit", "backend", "cache_root", "source_digest"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: Set to 0 (or false/no/off) to run every kernel as plain Python.
+ENV_VAR = "PCV_SIM_JIT"
+
+
+def _wanted() -> bool:
+    return os.environ.get(ENV_VAR, "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def cache_root() -> Path:
+    """Where compiled kernels are kept: $PCV_SIM_CACHE, else ~/.cache/pcv_sim (else the temp dir)."""
+    env = os.environ.get("PCV_SIM_CACHE")
+    if env:
+        return Path(env)
+    home = Path.home() if os.environ.get("HOME") else Path(tempfile.gettempdir())
+    return home / ".cache" / "pcv_sim"
+
+
+def source_digest() -> str:
+    """A digest of pcv_sim's own sources. numba's cache only notices changes in the file that
+    defines a function, not in the functions it calls; keying the cache directory on every
+    source file means an edit anywhere in the package can never run stale machine code."""
+    h = hashlib.sha1()
+    pkg = Path(__file__).resolve().parent
+    for path in sorted(pkg.rglob("*.py")):
+        h.update(str(path.relative_to(pkg)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _numba() -> Any:
+    if not _wanted():
+        return None
+    if "NUMBA_CACHE_DIR" not in os.environ:      # must be set before numba is imported
+        os.environ["NUMBA_CACHE_DIR"] = str(cache_root() / "numba" / source_digest())
+    try:
+        import numba  # noqa: PLC0415 - optional dependency
+    except ImportError:
+        return None
+    return numba
+
+
+_NUMBA = _numba()
+#: Contraction (FMA) and reciprocals only. Never reassociation (C_q,gap (1 - L) + C_q,hole L with
+#: C_q,gap ~ 1e19 far from the gap region cancels to 0 when reordered), never 'nnan'/'ninf' (the
+#: compiler could drop the finiteness checks that turn a diverging model into a fault).
+#: error_model numpy: a division by zero gives inf/nan (caught by those checks), no exception.
+_FASTMATH = {"contract", "arcp", "nsz"}
+
+
+def enabled() -> bool:
+    """True when kernels are compiled with numba (installed and not disabled by PCV_SIM_JIT)."""
+    return _NUMBA is not None
+
+
+def backend() -> str:
+    """'numba <version>' or 'python' (for logs, diagnostics and benchmarks)."""
+    return f"numba {_NUMBA.__version__}" if _NUMBA is not None else "python"
+
+
+def jit(fn: F | None = None, *, inline: bool = False) -> Any:
+    """Compile `fn` with numba (nopython, cached, releasing the GIL) or return it unchanged.
+
+    `@jit(inline=True)` for the physics the integrator loops call: numba then inlines the function
+    into its caller, which saves the call's argument passing (a tuple of a dozen arrays and their
+    reference counts per call: ~60 % of a step's cost otherwise) at the price of a longer first
+    compilation (BENCHMARKS.md, Model).
+    """
+    if fn is None:
+        return lambda f: jit(f, inline=inline)
+    if _NUMBA is None:
+        return fn
+    return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
+                       inline="always" if inline else "never")(fn)

@@ -1,0 +1,243 @@
+"""The valve's equations over arrays: the one source that the compiled core and the analysis run.
+
+A valve is described to the kernel by a parameter vector `p` (floats, SI, at the indices below)
+and a tuple of tables `f` (the paper's curve fits), both made by `pack` from `ValveParams`.
+State, inputs and outputs are float arrays (SI units):
+
+    x  simplified (Sec. 4.3): lambda (Wb), x (m), v (m/s), p (Pa)
+       full (Sec. 4.2):       lambda, x, v, p, p_c (Pa): with the damping chamber
+    u  duty (0..1), load flow q_l (m^3/s, + drawn from the load port), supply pressure p_s (Pa)
+    y  pressure (Pa), current (A), spool position (m)
+    w  workspace: the last coil current (A), the Newton start of the next Eq. 2 solve
+
+Every function here is compiled by `pcv_sim.jit` (or runs as Python); the equation functions it
+calls (`solenoid`, `orifice`, `flow_force`) are compiled the same way. Each line names its
+equation; the readings of the printed text are in docs/model.md.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pcv_sim.jit import jit
+from pcv_sim.model import flow_force as ff
+from pcv_sim.model import orifice as orf
+from pcv_sim.model import solenoid as sol
+from pcv_sim.params import ValveParams
+from pcv_sim.units import MM_PER_M
+
+__all__ = [
+    "STATES", "INPUTS", "OUTPUTS", "STATE_OUTPUTS", "pack", "edges", "rhs", "state_output", "output",
+    "project", "coil_current", "chamber_rate", "static_force",
+]
+
+STATES = {
+    "simplified": ("flux_linkage", "spool_position", "spool_velocity", "pressure"),
+    "full": ("flux_linkage", "spool_position", "spool_velocity", "pressure", "chamber_pressure"),
+}
+INPUTS = ("duty_cycle", "load_flow", "supply_pressure")
+OUTPUTS = ("pressure", "current", "spool_position")
+#: Outputs that depend on the state alone (no direct feedthrough): the ones a composition may
+#: route into another system's input. The current is algebraic in the coil voltage (Eq. 2).
+STATE_OUTPUTS = ("pressure", "spool_position")
+
+# --- the parameter vector p -----------------------------------------------------------------
+R_COIL, V_SUPPLY, CORE_OFFSET_MM, V_LO, V_HI, SWITCHED, PWM_PERIOD = 0, 1, 2, 3, 4, 5, 6
+MASS, A_C, A_CC, A_NET, K_SPRING, F0, DAMPING, X_MIN, X_MAX = 7, 8, 9, 10, 11, 12, 13, 14, 15
+R_HOLE, N_HOLES, H_GAP, R_PILOT, TANK_OFFSET, BLEND_K, GAP_PERIMETER = 16, 17, 18, 19, 20, 21, 22
+RHO, BETA, NU, VOLUME, P_TANK, K_D, V_C, FULL = 23, 24, 25, 26, 27, 28, 29, 30
+PUMP_JET_CAP, TANK_JET_CAP, G_CLOSED, GAMMA_CLOSED, COS_CLOSED, A_CLOSED = 31, 32, 33, 34, 35, 36
+N_PARAMS = 37
+
+# --- the tables f ---------------------------------------------------------------------------
+T_F1, T_F2, T_F3, T_PD, T_FORCE, T_GAP, T_HOLE, T_HOLE_EXP, T_TANK, T_TANK_EXP, T_PUMP_JET, T_TANK_JET = range(12)
+
+
+def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """(p, f) of a valve for the kernel: `kind` is 'simplified' or 'full'."""
+    if kind not in STATES:
+        raise ValueError(f"model kind {kind!r}: accepted are 'simplified' and 'full'")
+    s, o, fit, sp = params.solenoid, params.orifice, params.fits, params.spool
+    v_lo, v_hi = sol.dissipating_range(s.dissipating)
+    arr = np.ascontiguousarray
+
+    def table(rows: tuple[tuple[float, ...], ...]) -> np.ndarray:
+        return arr(np.array(rows, dtype=np.float64))
+
+    f = (
+        arr(np.array(s.restoring_f1, float)), arr(np.array(s.restoring_f2, float)),
+        arr(np.array(s.restoring_f3, float)), arr(np.array(s.dissipating, float)), table(s.force),
+        arr(np.array(fit.gap_geometry, float)), table(fit.hole_geometry), arr(np.array(fit.hole_exponent, float)),
+        table(fit.tank_geometry), arr(np.array(fit.tank_exponent, float)), table(fit.pump_jet), table(fit.tank_jet),
+    )
+    p = np.zeros(N_PARAMS)
+    p[R_COIL], p[V_SUPPLY], p[CORE_OFFSET_MM] = s.coil_resistance, s.supply_voltage, s.core_offset_mm
+    p[V_LO], p[V_HI] = max(v_lo, -1e300), min(v_hi, 1e300)
+    p[SWITCHED], p[PWM_PERIOD] = float(s.pwm == "switched"), 1.0 / s.pwm_frequency
+    p[MASS], p[A_C], p[A_CC], p[A_NET] = sp.mass, sp.pressure_area, params.chamber_area, params.net_area
+    p[K_SPRING], p[F0] = sp.spring_stiffness, sp.spring_preload
+    p[DAMPING] = sp.viscous_friction if kind == "full" else params.simplified_damping
+    p[X_MIN], p[X_MAX] = sp.stroke_min_mm / MM_PER_M, sp.stroke_max_mm / MM_PER_M
+    p[R_HOLE], p[N_HOLES], p[H_GAP] = o.hole_radius, o.hole_count, o.gap_height
+    p[R_PILOT], p[TANK_OFFSET], p[BLEND_K] = o.tank_pilot_hole_radius, o.tank_hole_offset, o.blend_steepness_per_mm
+    # Wetted perimeter of the pump-side leakage slots (Eq. 18, reading R5): n rectangles 2r x h.
+    p[GAP_PERIMETER] = o.hole_count * 2.0 * (2.0 * o.hole_radius + o.gap_height)
+    p[RHO], p[BETA], p[NU] = params.fluid.density, params.fluid.bulk_modulus, params.fluid.kinematic_viscosity
+    p[VOLUME], p[P_TANK] = params.circuit.load_volume, params.circuit.tank_pressure
+    p[K_D], p[V_C] = params.damping.restrictor_conductance, params.damping.chamber_volume
+    p[FULL] = float(kind == "full")
+    p[PUMP_JET_CAP], p[TANK_JET_CAP] = fit.pump_jet_cap, fit.tank_jet_cap
+    # The tank edge's fits at its closing point, which hold for all x >= 0 (reading R22).
+    p[G_CLOSED] = orf.tank_geometry_factor(0.0, f[T_TANK])
+    p[GAMMA_CLOSED] = orf.transition_exponent(0.0, f[T_TANK_EXP])
+    p[COS_CLOSED] = ff.jet_cosine(0.0, f[T_TANK_JET], fit.tank_jet_cap)
+    p[A_CLOSED] = orf.tank_area(0.0, o.hole_radius, o.hole_count, o.gap_height, o.tank_pilot_hole_radius,
+                                o.tank_hole_offset)
+    return p, f
+
+
+@jit(inline=True)
+def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
+    """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform."""
+    if p[SWITCHED] != 0.0:
+        # Phase in periods; edges fall on sample instants, so round away float noise there.
+        phase = t / p[PWM_PERIOD]
+        phase -= math.floor(phase + 1e-9)
+        return p[V_SUPPLY] if phase < duty - 1e-9 else 0.0
+    return duty * p[V_SUPPLY]
+
+
+@jit(inline=True)
+def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
+    """Eqs. 16-27 and 30-32 at spool x (m and mm), load pressure and supply pressure (Pa):
+    (pump flow + pump -> load, tank flow + load -> tank, pump flow force, tank flow force)."""
+    rho, nu = p[RHO], p[NU]
+    r, n, h = p[R_HOLE], p[N_HOLES], p[H_GAP]
+    # Pump side: gap leakage and holes blended by the logistic (Eqs. 17-23, 26-27).
+    dp_p = p_s - p_load
+    a_p = orf.pump_area(x, r, n, h)
+    weight = orf.blend(x_mm, p[BLEND_K])
+    cq_p = orf.gap_discharge_coefficient(orf.gap_geometry_factor(x_mm, f[T_GAP]), a_p, p[GAP_PERIMETER], nu, rho,
+                                         dp_p)
+    if weight > 1e-15:  # far inside the gap region the hole term carries no weight: skip its cost
+        cq_hole = orf.hole_discharge_coefficient(orf.hole_geometry_factor(x_mm, f[T_HOLE]),
+                                                 orf.transition_exponent(x_mm, f[T_HOLE_EXP]), dp_p)
+        cq_p = orf.pump_discharge_coefficient(cq_p, cq_hole, weight)
+    q_p = orf.orifice_flow(cq_p, a_p, dp_p, rho)
+    f_p = ff.flow_force(cq_p, a_p, dp_p, ff.jet_cosine(x_mm, f[T_PUMP_JET], p[PUMP_JET_CAP]))
+    # Tank side: fits in the opening |x| for x < 0; for x >= 0 frozen at the closing edge (R22).
+    dp_t = p_load - p[P_TANK]
+    if x_mm < 0.0:
+        a_t = orf.tank_area(x, r, n, h, p[R_PILOT], p[TANK_OFFSET])
+        cq_t = orf.tank_discharge_coefficient(orf.tank_geometry_factor(-x_mm, f[T_TANK]),
+                                              orf.transition_exponent(-x_mm, f[T_TANK_EXP]), dp_t)
+        cos_t = ff.jet_cosine(-x_mm, f[T_TANK_JET], p[TANK_JET_CAP])
+    else:
+        cq_t = orf.tank_discharge_coefficient(p[G_CLOSED], p[GAMMA_CLOSED], dp_t)
+        cos_t = p[COS_CLOSED]
+        a_t = p[A_CLOSED]
+    q_t = orf.orifice_flow(cq_t, a_t, dp_t, rho)
+    f_t = ff.flow_force(cq_t, a_t, dp_t, cos_t)
+    return q_p, q_t, f_p, f_t
+
+
+@jit(inline=True)
+def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
+    """Eqs. 1-8: the coil current for flux linkage lam at spool x (m) and coil voltage v_s."""
+    c1, c2, c3, _, _, _, _ = sol.coefficients_at(x * MM_PER_M + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
+                                                 f[T_FORCE])
+    return sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, p[R_COIL], f[T_PD], i_guess,
+                                p[V_LO], p[V_HI])
+
+
+@jit(inline=True)
+def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
+    """Eq. 14 at rest (v = 0, p_c = p): the net force on the spool (N, + toward +x) with coil
+    current i at spool x (m), load and supply pressure (Pa): what the static characteristic and
+    the rest states solve (pcv_sim.model.statics)."""
+    x_mm = x * MM_PER_M
+    _, _, _, k1, k2, k3, k4 = sol.coefficients_at(x_mm + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3], f[T_FORCE])
+    _, _, f_p, f_t = edges(x, x_mm, p_load, p_s, p, f)
+    return (sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * p_load + p[A_CC] * p_load
+            - p[K_SPRING] * x - (f_p - f_t) - p[F0])
+
+
+@jit(inline=True)
+def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
+    """d(state)/dt into dx; the coil current into w[0]. Eqs. 1-3 (solenoid), 14 (spool), 15 and
+    28-29 (continuity, chamber).
+
+    Continuity (reading R13): the spool's motion displaces the load side by A_c v and the
+    chamber by A_cc v. Simplified model: the chamber is rigid and lossless, its flow A_cc v
+    comes from the load volume, so the load side sees (A_c - A_cc) v. The end stops (Sec. 4.2)
+    are inelastic: at a stop with the force pushing into it the spool stays (`project` does
+    the impact).
+    """
+    lam, xs, v, pl = x[0], x[1], x[2], x[3]
+    duty, q_l, p_s = u[0], u[1], u[2]
+    v_s = coil_voltage(duty, t, p)
+    x_mm = xs * MM_PER_M
+    c1, c2, c3, k1, k2, k3, k4 = sol.coefficients_at(x_mm + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
+                                                     f[T_FORCE])
+    i = sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, p[R_COIL], f[T_PD], w[0],
+                             p[V_LO], p[V_HI])                                            # Eqs. 1-8
+    w[0] = i
+    q_p, q_t, f_p, f_t = edges(xs, x_mm, pl, p_s, p, f)
+    # Eq. 14 without the chamber and damping terms, which differ per variant.
+    force = sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * pl - p[K_SPRING] * xs - (f_p - f_t) - p[F0]
+    dx[0] = sol.flux_linkage_derivative(v_s, i, p[R_COIL])                               # Eq. 3
+    c_load = p[BETA] / p[VOLUME]
+    if p[FULL] != 0.0:
+        p_c = x[4]
+        q_c = p[K_D] * (pl - p_c)                                                         # Eq. 28
+        force += p[A_CC] * p_c - p[DAMPING] * v                                           # Eq. 14
+        dx[4] = p[BETA] / p[V_C] * (q_c - p[A_CC] * v)                                    # Eq. 29
+        dx[3] = c_load * (q_p - q_t - q_c - q_l + p[A_C] * v)                            # Eq. 15
+    else:
+        force += p[A_CC] * pl - p[DAMPING] * v                                            # Eq. 14, p_c = p
+        dx[3] = c_load * (q_p - q_t - q_l + p[A_NET] * v)                                 # Eq. 15
+    # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop.
+    if (xs <= p[X_MIN] and v <= 0.0 and force <= 0.0) or (xs >= p[X_MAX] and v >= 0.0 and force >= 0.0):
+        dx[1] = 0.0
+        dx[2] = 0.0
+    else:
+        dx[1] = v
+        dx[2] = force / p[MASS]
+
+
+@jit(inline=True)
+def chamber_rate(p):  # noqa: ANN001, ANN201
+    """The damping chamber's pole K_d beta / V_c (1/s, ~2.6e8): the exact linear decay of p_c in
+    Eq. 29, which the exponential integrator treats exactly (0 for the simplified model)."""
+    return p[K_D] * p[BETA] / p[V_C] if p[FULL] != 0.0 else 0.0
+
+
+@jit(inline=True)
+def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
+    """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
+    y[0] = x[3]
+    y[2] = x[1]
+
+
+@jit(inline=True)
+def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
+    """All outputs at time t with the inputs in force from t on: the coil current is algebraic
+    in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
+    y[0] = x[3]
+    y[1] = coil_current(x[0], x[1], coil_voltage(u[0], t, p), w[0], p, f)
+    y[2] = x[1]
+
+
+@jit(inline=True)
+def project(x, p):  # noqa: ANN001, ANN201
+    """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2)."""
+    if x[1] < p[X_MIN]:
+        x[1] = p[X_MIN]
+        if x[2] < 0.0:
+            x[2] = 0.0
+    elif x[1] > p[X_MAX]:
+        x[1] = p[X_MAX]
+        if x[2] > 0.0:
+            x[2] = 0.0

@@ -1,0 +1,7 @@
+"""Plants that valves drive, as systems of the simulation core (`pcv_sim.simulation.system`).
+
+`mass_spring`: a spring-loaded piston between two valve load ports (the smallest plant: the
+core's composition test and the example of how a new system plugs in).
+"""
+
+__all__ = ["mass_spring"]

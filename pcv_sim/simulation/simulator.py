@@ -1,0 +1,109 @@
+"""A composite of systems at a fixed step: its state, its held inputs, batches of compiled steps.
+
+`Simulator` is what every fixed-step user runs (the emulator's device, replay, the rig, the
+benchmarks): one state vector for all systems, inputs held over each step (zero-order hold),
+`advance(n)` running n steps of the chosen integrator in compiled code, and `outputs()` giving
+every output at the present time with the inputs in force from now on (right-continuous).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pcv_sim.simulation.compile import INTEGRATORS, compiled_module, exponential_weights
+from pcv_sim.simulation.system import Composite, System, compose
+
+__all__ = ["Simulator"]
+
+
+class Simulator:
+    """Fixed-step simulation of a `Composite` (or one `System`)."""
+
+    def __init__(self, plant: Composite | System, dt: float, integrator: str = "rk2") -> None:
+        if isinstance(plant, System):
+            plant = compose([plant])
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"integrator {integrator!r}: accepted are {', '.join(INTEGRATORS)}")
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"time step {dt!r} s: accepted is a finite number > 0")
+        self.plant = plant
+        self.dt = float(dt)
+        self.integrator = integrator
+        module = compiled_module(plant)
+        self._module = module
+        self._advance = getattr(module, f"advance_{integrator}")
+        self._run = getattr(module, f"run_{integrator}")
+        self._outputs = module.outputs
+        self._derivs = module.derivs
+        self._project = module.project
+        systems = plant.systems
+        nx = len(plant.states)
+        self.x = np.zeros(nx)
+        self.u = np.zeros(len(plant.inputs))
+        self.P = np.ascontiguousarray(np.concatenate([s.p for s in systems]).astype(np.float64))
+        self.F = tuple(s.f for s in systems)
+        self.W = np.zeros(sum(s.workspace for s in systems))
+        for s, off in zip(systems, plant.offsets("workspace")):
+            self.W[off:off + len(s.w0)] = s.w0
+        self.Y = np.zeros(len(plant.outputs))
+        self.U = np.zeros(sum(len(s.inputs) for s in systems))
+        self._scratch = tuple(np.zeros(nx) for _ in range(5))
+        self._weights = exponential_weights(plant.rates, self.dt)
+        self.steps = 0
+
+    @property
+    def time(self) -> float:
+        """Model time (s): an integer count of steps, so it never drifts."""
+        return self.steps * self.dt
+
+    def advance(self, n: int = 1) -> None:
+        """n fixed steps with the present inputs (held)."""
+        if n <= 0:
+            return
+        s1, s2, s3, s4, xt = self._scratch
+        e, a, b = self._weights
+        self._advance(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
+                      s1, s2, s3, s4, xt, e, a, b)
+        self.steps += n
+
+    def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
+        """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:
+        external inputs `change_values[c]` act from step `change_steps[c]` on (sorted); returns
+        every output (rows) at each sample step, with the inputs due at that step in force."""
+        change_steps = np.ascontiguousarray(change_steps, dtype=np.int64)
+        change_values = np.ascontiguousarray(change_values, dtype=np.float64).reshape(len(change_steps), len(self.u))
+        sample_steps = np.ascontiguousarray(sample_steps, dtype=np.int64)
+        if sample_steps.size and sample_steps[0] < self.steps:
+            raise ValueError(f"sample step {int(sample_steps[0])} is before the present step {self.steps}")
+        out = np.empty((len(sample_steps), len(self.Y)))
+        s1, s2, s3, s4, xt = self._scratch
+        e, a, b = self._weights
+        self.steps = int(self._run(self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
+                                   s1, s2, s3, s4, xt, e, a, b, change_steps, change_values, sample_steps, out))
+        return out
+
+    def outputs(self) -> np.ndarray:
+        """Every output at the present time (inputs in force from now on); a view, overwritten later."""
+        self._outputs(self.time, self.x, self.u, self.P, self.F, self.W, self.Y, self.U)
+        return self.Y
+
+    def derivatives(self, t: float, x: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """d(state)/dt at (t, x) with inputs u (default: those held now): for stiff reference solvers."""
+        dx = np.empty(len(x))
+        self._derivs(t, np.ascontiguousarray(x, dtype=np.float64), self.u if u is None else u, self.P, self.F,
+                     self.W, self.Y, self.U, dx)
+        return dx
+
+    def project(self, x: np.ndarray) -> None:
+        """Apply the systems' hybrid constraints (end stops) to x in place."""
+        self._project(x, self.P)
+
+    def finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.x)))
+
+    def set_parameters(self, system: int, p: np.ndarray) -> None:
+        """Replace one system's parameter vector (same layout) in place."""
+        off = self.plant.offsets("p")
+        if len(p) != off[system + 1] - off[system]:
+            raise ValueError("parameter vector of another length than the system's")
+        self.P[off[system]:off[system + 1]] = p

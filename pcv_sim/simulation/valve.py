@@ -1,0 +1,33 @@
+"""The valve as a `System` of the simulation core (equations: `pcv_sim.model.kernel`).
+
+Signals (SI): inputs duty_cycle (0..1), load_flow (m^3/s, + drawn from the load port),
+supply_pressure (Pa); outputs pressure (Pa), current (A), spool_position (m); pressure and
+spool position depend on the state alone and can be connected to other systems.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pcv_sim.model import kernel
+from pcv_sim.params import ValveParams
+from pcv_sim.simulation.system import Kernel, Stop, System
+
+__all__ = ["valve_system", "KINDS"]
+
+KINDS = ("simplified", "full")
+
+
+def valve_system(params: ValveParams, kind: str = "simplified", name: str = "valve") -> System:
+    """The valve model (`simplified`: Sec. 4.3, 4 states; `full`: Sec. 4.2 with the damping chamber)."""
+    p, f = kernel.pack(params, kind)
+    states = kernel.STATES[kind]
+    rates = [0.0] * len(states)
+    if kind == "full":
+        rates[4] = float(kernel.chamber_rate(p))      # Eq. 29's linear part, integrated exactly
+    return System(
+        name=name, states=states, inputs=kernel.INPUTS, outputs=kernel.OUTPUTS,
+        state_outputs=kernel.STATE_OUTPUTS, kernel=Kernel("pcv_sim.model.kernel"), p=p, f=f,
+        workspace=1, stiff_rates=np.array(rates),
+        stops=(Stop(1, 2, p[kernel.X_MIN], p[kernel.X_MAX]),),
+    )
