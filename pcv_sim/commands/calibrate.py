@@ -16,7 +16,15 @@ import yaml
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.calibration import CalibrationError, calibrate, fit_parameter
 from pcv_sim.calibration.fit import LAG_BOUNDS, TIME_CONSTANT_BOUNDS
-from pcv_sim.calibration.report import fitted_yaml, plot_fit, render_html, render_markdown, render_text, step_rows
+from pcv_sim.calibration.report import (
+    fitted_yaml,
+    plot_fit,
+    render_html,
+    render_markdown,
+    render_text,
+    step_fits,
+    step_rows,
+)
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
 from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
@@ -99,12 +107,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.output}", file=sys.stderr)
     state = in_force(result.params, args.model)
 
-    steps = []
+    per_bag = []
     if args.report is not None or args.json:
         for b, rec in enumerate(recordings):
             timeline, _ = input_timeline(rec.inputs, 0.0, params.circuit.supply_pressure)
             found, _ = detect_steps(timeline, rec.end_ns)
-            steps.append((str(args.bags[b]), step_rows(result, b, found)))
+            per_bag.append((str(args.bags[b]), step_fits(result, b, found)))
+    steps = [(bag, step_rows(fits)) for bag, fits in per_bag]
     if args.report is not None:
         pngs = plot_fit(result, [str(b) for b in args.bags])
         args.report.parent.mkdir(parents=True, exist_ok=True)
@@ -123,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         data = result.as_dict()
         data.update(output=str(args.output), in_force=state.as_dict(), converged=converged,
-                    steps=[{"bag": bag, "rows": rows} for bag, rows in steps])
+                    steps=[{"bag": bag, "steps": [f.as_dict() for f in fits]} for bag, fits in per_bag])
         emit_json(data)
     else:
         print(render_text(result))

@@ -36,7 +36,12 @@ def test_calibrate_writes_a_config_replay_accepts(rig_bag: Path, tmp_path: Path,
     assert est["name"] == "spool.spring_preload" and est["interval_95"][0] <= 1.5 <= est["interval_95"][1]
     assert data["converged"] is True and data["in_force"]["calibration_kind"] == "both"
     assert {s["role"] for s in data["signals"]} == {"pressure", "current", "spool_position"}
-    assert data["steps"][0]["rows"]          # per step before / after
+    steps = data["steps"][0]["steps"]        # per step and signal, before / after, SI
+    assert {s["signal"] for s in steps} == {"pressure", "current", "spool_position"}
+    pressure = [s for s in steps if s["signal"] == "pressure"]
+    assert [s["duty_to"] for s in pressure] == [0.8, 0.5]
+    # The fit closes the steady-state gap the wrong preload and the sensor offset made.
+    assert all(abs(s["steady_state_error_after"]) < abs(s["steady_state_error_before"]) for s in pressure)
     fitted = load_params(out)
     assert fitted.spool.spring_preload == pytest.approx(est["value"], rel=1e-5)
     html = report.read_text()
