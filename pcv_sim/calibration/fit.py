@@ -243,8 +243,21 @@ class CalibrationResult:
     warnings: tuple[str, ...] = ()
     traces: Mapping[tuple[int, str], tuple[npt.NDArray[np.float64], ...]] = field(default_factory=dict, repr=False)
 
+    def scalar_metrics(self) -> dict[str, float]:
+        """After the fit, per signal over the bags: the worst NRMSE fit % and RMSE, in display
+        units, keyed as replay's metrics (``pressure_fit_percent``, ``pressure_rmse_bar``, ...)."""
+        units = {"pressure": ("bar", 1e-5), "current": ("a", 1.0), "spool_position": ("mm", 1e3)}
+        out: dict[str, float] = {}
+        for s in self.signals:
+            unit, scale = units[s.role]
+            fit_key, rmse_key = f"{s.role}_fit_percent", f"{s.role}_rmse_{unit}"
+            out[fit_key] = min(out.get(fit_key, math.inf), s.fit_after_percent)
+            out[rmse_key] = max(out.get(rmse_key, -math.inf), s.rmse_after * scale)
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         return {
+            "metrics_after": self.scalar_metrics(),
             "model": self.model, "solver": self.solver, "status": self.status, "status_code": self.status_code,
             "evaluations": self.evaluations, "simulations": self.simulations, "elapsed_s": self.elapsed_s,
             "cost_before": self.cost_before, "cost_after": self.cost_after,

@@ -106,3 +106,22 @@ def test_calibrate_sensors_only(rig_bag: Path, tmp_path: Path, capsys: pytest.Ca
     data = json.loads(capsys.readouterr().out)
     assert data["parameters"] == [] and len(data["sensor_lags_s"]) == 3
     assert load_params(out) == default_params()          # nothing fitted: the config as it was
+
+
+def test_calibrate_thresholds(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--fail-below / --fail-above gate on the metrics after the fit (worst over the bags), as
+    replay's do on a plain replay: exit 1 when crossed, the failures named."""
+    out = str(tmp_path / "f.yaml")
+    base = ["calibrate", str(rig_bag), "--fit", "none", "--solver", "fast", "-o", out, "--signals", "pressure"]
+    assert main([*base, "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["metrics_after"]["pressure_fit_percent"]
+    assert main([*base, "--fail-below", f"pressure_fit_percent={fit + 0.01}"]) == 1
+    assert "FAILED: pressure_fit_percent = " in capsys.readouterr().err
+    assert main([*base, "--fail-below", f"pressure_fit_percent={fit - 0.01}", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["failed"] == []
+    assert main([*base, "--fail-above", "pressure_rmse_bar=0.01"]) == 1
+    assert main([*base, "--fail-below", "flux_fit=1"]) == 2
+    assert "unknown metric 'flux_fit' for --fail-below; this fit has: pressure_fit_percent, pressure_rmse_bar" \
+        in capsys.readouterr().err
+    assert main([*base, "--fail-below", "x"]) == 2
+    assert "expected METRIC=NUMBER" in capsys.readouterr().err
