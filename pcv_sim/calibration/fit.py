@@ -309,10 +309,13 @@ def calibrate(
 
     ``roles``: the outputs to fit (default: every output the bags have). ``lag_bounds=None``
     fixes the delays at 0, ``time_constant_bounds=None`` the sensors' time constants,
-    ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
-    also sampled on this grid from 0.5 ms before to 1.5 ms after each input change, for the lagged
-    comparison. ``progress(evaluation, cost,
-    elapsed_s)`` is called after each model evaluation.
+    ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is also sampled on this grid
+    from 0.5 ms before to 1.5 ms after each duty step, for the lagged comparison.
+    ``progress(evaluation, cost, elapsed_s)`` is called after each model evaluation.
+
+    Raises:
+        CalibrationError: no recording or signal, nothing to fit, a key named twice, or the
+            model refusing a trial value (narrow that parameter's bounds).
     """
     if not recordings:
         raise CalibrationError("no recording to calibrate against")
