@@ -247,8 +247,21 @@ class CalibrationResult:
     warnings: tuple[str, ...] = ()
     traces: Mapping[tuple[int, str], tuple[npt.NDArray[np.float64], ...]] = field(default_factory=dict, repr=False)
 
+    def scalar_metrics(self) -> dict[str, float]:
+        """After the fit, per signal over the bags: the worst NRMSE fit % and RMSE, in display
+        units, keyed as replay's metrics (``pressure_fit_percent``, ``pressure_rmse_bar``, ...)."""
+        units = {"pressure": ("bar", 1e-5), "current": ("a", 1.0), "spool_position": ("mm", 1e3)}
+        out: dict[str, float] = {}
+        for s in self.signals:
+            unit, scale = units[s.role]
+            fit_key, rmse_key = f"{s.role}_fit_percent", f"{s.role}_rmse_{unit}"
+            out[fit_key] = min(out.get(fit_key, math.inf), s.fit_after_percent)
+            out[rmse_key] = max(out.get(rmse_key, -math.inf), s.rmse_after * scale)
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         return {
+            "metrics_after": self.scalar_metrics(),
             "model": self.model, "solver": self.solver, "status": self.status, "status_code": self.status_code,
             "evaluations": self.evaluations, "simulations": self.simulations, "elapsed_s": self.elapsed_s,
             "cost_before": self.cost_before, "cost_after": self.cost_after,
@@ -289,7 +302,7 @@ def calibrate(
     lag_bounds: tuple[float, float] | None = LAG_BOUNDS,
     time_constant_bounds: tuple[float, float] | None = TIME_CONSTANT_BOUNDS,
     fit_offsets: bool = True,
-    max_evaluations: int = 40,
+    max_evaluations: int = 100,
     grid_step: float = 1e-4,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> CalibrationResult:
@@ -300,10 +313,13 @@ def calibrate(
 
     ``roles``: the outputs to fit (default: every output the bags have). ``lag_bounds=None``
     fixes the delays at 0, ``time_constant_bounds=None`` the sensors' time constants,
-    ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is
-    also sampled on this grid from 0.5 ms before to 1.5 ms after each input change, for the lagged
-    comparison. ``progress(evaluation, cost,
-    elapsed_s)`` is called after each model evaluation.
+    ``fit_offsets=False`` the offsets. ``grid_step`` (s): the model is also sampled on this grid
+    from 0.5 ms before to 1.5 ms after each duty step, for the lagged comparison.
+    ``progress(evaluation, cost, elapsed_s)`` is called after each model evaluation.
+
+    Raises:
+        CalibrationError: no recording or signal, nothing to fit, a key named twice, or the
+            model refusing a trial value (narrow that parameter's bounds).
     """
     if not recordings:
         raise CalibrationError("no recording to calibrate against")
@@ -467,7 +483,7 @@ def calibrate(
     r_start = fun(z0)
     cost_before = 0.5 * float(r_start @ r_start)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=1.0,
-                        max_nfev=max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8)
+                        max_nfev=max_evaluations, xtol=1e-6, ftol=1e-6, gtol=1e-8)
     z = sol.x
     fitted = valve(z)
     runs = runs_at(z)

@@ -12,17 +12,19 @@ import io
 import math
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 
-from pcv_sim.analysis.metrics import step_metrics
+from pcv_sim.analysis.metrics import StepMetrics, step_metrics
 from pcv_sim.calibration.fit import CalibrationError, CalibrationResult
 from pcv_sim.params import params_from_mapping
 from pcv_sim.replay.compare import DISPLAY, Step
 
-__all__ = ["fitted_yaml", "render_html", "render_markdown", "render_text", "plot_fit", "step_rows"]
+__all__ = ["StepFit", "fitted_yaml", "plot_fit", "render_html", "render_markdown", "render_text", "step_fits", "step_rows"]
 
 
 def _yaml_float(v: float) -> str:
@@ -120,10 +122,29 @@ def _signal_rows(r: CalibrationResult) -> list[list[str]]:
     return rows
 
 
-def step_rows(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[list[str]]:
-    """Per step and signal of bag ``bag``: steady state and rise time, measured / model before /
-    model after (the sensor model applied: what the fit compared), in the measured band."""
-    rows = []
+@dataclass(frozen=True)
+class StepFit:
+    """One step of one signal: step metrics of the measurement and of the model before and
+    after the fit (the fitted sensor applied), all read in the measured band. SI units."""
+
+    step: Step
+    role: str
+    measured: StepMetrics
+    before: StepMetrics
+    after: StepMetrics
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"index": self.step.index, "t_start_s": self.step.t_start, "duty_from": self.step.duty_from,
+                "duty_to": self.step.duty_to, "signal": self.role, "measured": self.measured.as_dict(),
+                "before": self.before.as_dict(), "after": self.after.as_dict(),
+                "steady_state_error_before": self.before.final - self.measured.final,
+                "steady_state_error_after": self.after.final - self.measured.final}
+
+
+def step_fits(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[StepFit]:
+    """Per step and signal of bag ``bag``: step metrics measured / model before / model after
+    (the fitted sensor applied: what the fit compared), all in the measured band."""
+    out = []
     for st in steps:
         for role in DISPLAY:
             if (bag, role) not in r.traces:
@@ -132,16 +153,26 @@ def step_rows(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[lis
             inside = (t >= st.t_start) & (t <= st.t_end)
             if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
                 continue
-            d = DISPLAY[role]
-            m = step_metrics(t, meas, st.t_start, st.t_end, band_min=d.band_min)
-            b, a = (step_metrics(t, y, st.t_start, st.t_end, band_min=max(d.band_min, m.band)) for y in (before, after))
-            rows.append([
-                str(st.index), f"{st.duty_from:g} -> {st.duty_to:g}", d.label,
-                f"{_f(m.final * d.scale, 5)} / {_f(b.final * d.scale, 5)} / {_f(a.final * d.scale, 5)}",
-                f"{_f((b.final - m.final) * d.scale, 3)} -> {_f((a.final - m.final) * d.scale, 3)}",
-                f"{_f(m.rise_time * 1e3, 3)} / {_f(b.rise_time * 1e3, 3)} / {_f(a.rise_time * 1e3, 3)}",
-                f"{_f(m.settling_time * 1e3, 3)} / {_f(b.settling_time * 1e3, 3)} / {_f(a.settling_time * 1e3, 3)}",
-            ])
+            band = DISPLAY[role].band_min
+            m = step_metrics(t, meas, st.t_start, st.t_end, band_min=band)
+            b, a = (step_metrics(t, y, st.t_start, st.t_end, band_min=max(band, m.band)) for y in (before, after))
+            out.append(StepFit(st, role, m, b, a))
+    return out
+
+
+def step_rows(fits: Sequence[StepFit]) -> list[list[str]]:
+    """The step fits as table rows in display units (bar, A, mm; ms)."""
+    rows = []
+    for f in fits:
+        d = DISPLAY[f.role]
+        m, b, a = f.measured, f.before, f.after
+        rows.append([
+            str(f.step.index), f"{f.step.duty_from:g} -> {f.step.duty_to:g}", d.label,
+            f"{_f(m.final * d.scale, 5)} / {_f(b.final * d.scale, 5)} / {_f(a.final * d.scale, 5)}",
+            f"{_f((b.final - m.final) * d.scale, 3)} -> {_f((a.final - m.final) * d.scale, 3)}",
+            f"{_f(m.rise_time * 1e3, 3)} / {_f(b.rise_time * 1e3, 3)} / {_f(a.rise_time * 1e3, 3)}",
+            f"{_f(m.settling_time * 1e3, 3)} / {_f(b.settling_time * 1e3, 3)} / {_f(a.settling_time * 1e3, 3)}",
+        ])
     return rows
 
 

@@ -3,11 +3,13 @@ inputs hold) by bounded, robust nonlinear least squares, estimating each signal'
 offset as nuisance parameters. Writes a valve YAML that --config, replay and the emulator's
 valve_config accept as is, and optionally a report (fit per signal and per step before and after,
 95 % intervals, correlations, warnings for parameters the data cannot separate).
-Exit status: 0 done, 1 the fit did not converge (the YAML is written all the same), 2 bad input."""
+Exit status: 0 done, 1 the fit did not converge or a --fail-above/--fail-below limit was crossed
+(the YAML is written all the same), 2 bad input."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -16,7 +18,15 @@ import yaml
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.calibration import CalibrationError, calibrate, fit_parameter
 from pcv_sim.calibration.fit import LAG_BOUNDS, TIME_CONSTANT_BOUNDS
-from pcv_sim.calibration.report import fitted_yaml, plot_fit, render_html, render_markdown, render_text, step_rows
+from pcv_sim.calibration.report import (
+    fitted_yaml,
+    plot_fit,
+    render_html,
+    render_markdown,
+    render_text,
+    step_fits,
+    step_rows,
+)
 from pcv_sim.commands.common import emit_json, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
 from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
@@ -45,10 +55,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor lag model estimated per signal: a delay, a first-order time constant, both "
                         "(default) or none")
     p.add_argument("--no-offset", action="store_true", help="do not estimate sensor offsets (fix them at 0)")
-    p.add_argument("--max-evaluations", type=int, default=40, metavar="N",
+    p.add_argument("--max-evaluations", type=int, default=100, metavar="N",
                    help="model evaluations the optimiser may use (default: %(default)s)")
+    p.add_argument("--fail-above", action="append", metavar="METRIC=LIMIT",
+                   help="exit 1 if a metric after the fit exceeds LIMIT, e.g. pressure_rmse_bar=0.5 "
+                        "(metrics: <signal>_fit_percent, <signal>_rmse_<bar|a|mm>, worst over the bags)")
+    p.add_argument("--fail-below", action="append", metavar="METRIC=LIMIT",
+                   help="exit 1 if a metric after the fit is below LIMIT, e.g. pressure_fit_percent=99 "
+                        "(with --fit none: a check of the configured valve against the recordings)")
     p.add_argument("--report", type=Path, metavar="OUT.html|OUT.md", help="write an HTML or Markdown report with plots")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON (SI units) instead of text")
+
+
+def _limits(items: list[str] | None, flag: str) -> dict[str, float]:
+    """``["pressure_fit_percent=99,current_rmse_a=0.01"]`` -> {metric: limit}."""
+    out: dict[str, float] = {}
+    for part in (p for item in items or [] for p in item.split(",")):
+        key, sep, value = part.partition("=")
+        try:
+            limit = float(value)
+        except ValueError:
+            limit = math.nan
+        if not sep or not key.strip() or not math.isfinite(limit):
+            raise CalibrationError(f"{flag} {part!r}: expected METRIC=NUMBER, e.g. pressure_fit_percent=99")
+        out[key.strip()] = limit
+    return out
 
 
 def _progress(k: int, cost: float, elapsed: float) -> None:
@@ -63,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"-o {str(args.output)!r}: the fitted valve YAML's name must end in .yaml or .yml")
     if args.max_evaluations < 2:
         raise CalibrationError(f"--max-evaluations {args.max_evaluations}: accepted is an integer >= 2")
+    above, below = _limits(args.fail_above, "--fail-above"), _limits(args.fail_below, "--fail-below")
     roles = None
     if args.signals:
         roles = []
@@ -99,12 +131,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.output}", file=sys.stderr)
     state = in_force(result.params, args.model)
 
-    steps = []
+    per_bag = []
     if args.report is not None or args.json:
         for b, rec in enumerate(recordings):
             timeline, _ = input_timeline(rec.inputs, 0.0, params.circuit.supply_pressure)
             found, _ = detect_steps(timeline, rec.end_ns)
-            steps.append((str(args.bags[b]), step_rows(result, b, found)))
+            per_bag.append((str(args.bags[b]), step_fits(result, b, found)))
+    steps = [(bag, step_rows(fits)) for bag, fits in per_bag]
     if args.report is not None:
         pngs = plot_fit(result, [str(b) for b in args.bags])
         args.report.parent.mkdir(parents=True, exist_ok=True)
@@ -120,16 +153,26 @@ def run(args: argparse.Namespace) -> int:
             args.report.write_text(render_html(result, steps, pngs, state.text()), "utf-8")
         print(f"wrote {args.report}", file=sys.stderr)
     converged = result.status_code > 0
+    metrics = result.scalar_metrics()
+    failures = []
+    for kind, limits in (("above", above), ("below", below)):
+        for key, limit in limits.items():
+            if key not in metrics:
+                raise CalibrationError(f"unknown metric {key!r} for --fail-{kind}; this fit has: {', '.join(sorted(metrics))}")
+            value = metrics[key]
+            if (value > limit) if kind == "above" else (value < limit):
+                failures.append(f"{key} = {value:.6g} {'>' if kind == 'above' else '<'} {limit:g}")
     if args.json:
         data = result.as_dict()
-        data.update(output=str(args.output), in_force=state.as_dict(), converged=converged,
-                    steps=[{"bag": bag, "rows": rows} for bag, rows in steps])
+        data.update(output=str(args.output), in_force=state.as_dict(), converged=converged, failed=failures,
+                    steps=[{"bag": bag, "steps": [f.as_dict() for f in fits]} for bag, fits in per_bag])
         emit_json(data)
     else:
         print(render_text(result))
         print(f"  in force: {state.text()}")
+    for f in failures:
+        print(f"pcv-sim calibrate: FAILED: {f}", file=sys.stderr)
     if not converged:
         print(f"pcv-sim calibrate: the fit did not converge in {result.evaluations} evaluations "
               f"({result.status}); raise --max-evaluations or narrow the bounds", file=sys.stderr)
-        return 1
-    return 0
+    return 1 if failures or not converged else 0

@@ -10,7 +10,6 @@ import pytest
 
 from pcv_sim.calibration import write_rig_csv
 from pcv_sim.cli import main
-from pcv_sim.io.csv_import import import_csv
 from pcv_sim.params import default_params, load_params, replace_param
 
 NOISE = {"pressure": 0.3e5, "current": 0.005, "spool_position": 0.003e-3}
@@ -37,7 +36,12 @@ def test_calibrate_writes_a_config_replay_accepts(rig_bag: Path, tmp_path: Path,
     assert est["name"] == "spool.spring_preload" and est["interval_95"][0] <= 1.5 <= est["interval_95"][1]
     assert data["converged"] is True and data["in_force"]["calibration_kind"] == "both"
     assert {s["role"] for s in data["signals"]} == {"pressure", "current", "spool_position"}
-    assert data["steps"][0]["rows"]          # per step before / after
+    steps = data["steps"][0]["steps"]        # per step and signal, before / after, SI
+    assert {s["signal"] for s in steps} == {"pressure", "current", "spool_position"}
+    pressure = [s for s in steps if s["signal"] == "pressure"]
+    assert [s["duty_to"] for s in pressure] == [0.8, 0.5]
+    # The fit closes the steady-state gap the wrong preload and the sensor offset made.
+    assert all(abs(s["steady_state_error_after"]) < abs(s["steady_state_error_before"]) for s in pressure)
     fitted = load_params(out)
     assert fitted.spool.spring_preload == pytest.approx(est["value"], rel=1e-5)
     html = report.read_text()
@@ -102,3 +106,22 @@ def test_calibrate_sensors_only(rig_bag: Path, tmp_path: Path, capsys: pytest.Ca
     data = json.loads(capsys.readouterr().out)
     assert data["parameters"] == [] and len(data["sensor_lags_s"]) == 3
     assert load_params(out) == default_params()          # nothing fitted: the config as it was
+
+
+def test_calibrate_thresholds(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--fail-below / --fail-above gate on the metrics after the fit (worst over the bags), as
+    replay's do on a plain replay: exit 1 when crossed, the failures named."""
+    out = str(tmp_path / "f.yaml")
+    base = ["calibrate", str(rig_bag), "--fit", "none", "--solver", "fast", "-o", out, "--signals", "pressure"]
+    assert main([*base, "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["metrics_after"]["pressure_fit_percent"]
+    assert main([*base, "--fail-below", f"pressure_fit_percent={fit + 0.01}"]) == 1
+    assert "FAILED: pressure_fit_percent = " in capsys.readouterr().err
+    assert main([*base, "--fail-below", f"pressure_fit_percent={fit - 0.01}", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["failed"] == []
+    assert main([*base, "--fail-above", "pressure_rmse_bar=0.01"]) == 1
+    assert main([*base, "--fail-below", "flux_fit=1"]) == 2
+    assert "unknown metric 'flux_fit' for --fail-below; this fit has: pressure_fit_percent, pressure_rmse_bar" \
+        in capsys.readouterr().err
+    assert main([*base, "--fail-below", "x"]) == 2
+    assert "expected METRIC=NUMBER" in capsys.readouterr().err

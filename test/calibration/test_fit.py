@@ -94,8 +94,8 @@ def test_two_bags_and_the_written_yaml(tmp_path: Path) -> None:
     bags = [_rig_bag(tmp_path, truth, "a", seed=3, duties=[0.4, 0.8], hold_s=0.2),
             _rig_bag(tmp_path, truth, "b", seed=4, duties=[0.7, 0.3], hold_s=0.2)]
     p0 = default_params()
-    # The emulator's stepper, which made the recordings: the fast solver's own error (a few
-    # 0.01 bar) would bias the area by about its interval.
+    # The engine that made the recordings (the emulator's stepper): another solver's own error
+    # of a few 0.01 bar would bias the area by about its interval.
     res = calibrate([load_recording(b) for b in bags], p0, [fit_parameter(p0, "calibration.net_area")])
     (est,) = res.parameters
     assert abs(est.value - 2.95e-6) <= est.half_width_95

@@ -5,7 +5,6 @@ time of a noisy trace used to come out 4x the truth)."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 
