@@ -3,7 +3,8 @@
     .venv-kilted/bin/python bench/model_speed.py [--repeats 5] [--steps 20000] [--json]
 
 Times are CPU time of the measuring process (`time.process_time`: on a shared machine the wall
-clock also counts waiting for a core). Every figure is measured twice in the same run: in this process (compiled, if numba is there)
+clock also counts waiting for a core). Every figure is measured twice in the same run: in this process
+(compiled, if numba is there)
 and in a child process with PCV_SIM_JIT=0 (the same source as plain Python, fewer steps).
 Prints the Markdown table for BENCHMARKS.md, or with --json every figure as JSON.
 

@@ -123,7 +123,7 @@ def main() -> int:
     lag_ms = (src - stamps) / 1e6
 
     latencies = []
-    for value, sent in commands:
+    for _value, sent in commands:
         if sent < src[0] or sent > src[-1] - 100_000_000:
             continue
         k = int(np.searchsorted(stamps, sent - 2_000_000))     # from just before the command

@@ -246,8 +246,9 @@ def write_calibration(path: Path, values: dict[str, float | None]) -> None:
         if m is None:
             msg = f"{path}: no section {section!r} to write {key} into"
             raise ParameterError(msg)
+        new = _yaml_value(value)
         block, n = re.subn(rf"(?m)^(\s+{re.escape(name)}:[ \t]*)[^#\n]*?([ \t]*(#.*)?)$",
-                           lambda mm: f"{mm.group(1)}{_yaml_value(value)}{mm.group(2)}", m.group(1), count=1)
+                           lambda mm, new=new: f"{mm.group(1)}{new}{mm.group(2)}", m.group(1), count=1)
         if n != 1:
             msg = f"{path}: expected one '{name}:' line under {section}, found none"
             raise ParameterError(msg)
@@ -257,7 +258,8 @@ def write_calibration(path: Path, values: dict[str, float | None]) -> None:
 
 def report(title: str, results: list[WorkingPointResult]) -> str:
     """The working-point comparison as text lines (bar, mm, L/min)."""
-    lines = [title, "  point  i model/table [A]   p at table x: model/table [bar]   x at table p: model/table [mm]   q_l [L/min]  branch"]
+    lines = [title, "  point  i model/table [A]   p at table x: model/table [bar]   "
+                    "x at table p: model/table [mm]   q_l [L/min]  branch"]
     for r in results:
         lines.append(
             f"  {r.name:5s}  {r.model_current:.3f}/{r.table_current:.3f}        "

@@ -388,7 +388,7 @@ def calibrate(
 
     def simulate(p: ValveParams) -> list[dict[str, npt.NDArray[np.float64]]]:
         counts["simulations"] += 1
-        outs = []
+        outs: list[dict[str, npt.NDArray[np.float64]]] = []
         for b, rec in enumerate(recordings):
             if not sample_ns[b].size:
                 outs.append({})

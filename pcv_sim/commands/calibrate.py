@@ -163,10 +163,10 @@ def run(args: argparse.Namespace) -> int:
             if (value > limit) if kind == "above" else (value < limit):
                 failures.append(f"{key} = {value:.6g} {'>' if kind == 'above' else '<'} {limit:g}")
     if args.json:
-        data = result.as_dict()
-        data.update(output=str(args.output), in_force=state.as_dict(), converged=converged, failed=failures,
+        out = result.as_dict()
+        out.update(output=str(args.output), in_force=state.as_dict(), converged=converged, failed=failures,
                     steps=[{"bag": bag, "steps": [f.as_dict() for f in fits]} for bag, fits in per_bag])
-        emit_json(data)
+        emit_json(out)
     else:
         print(render_text(result))
         print(f"  in force: {state.text()}")

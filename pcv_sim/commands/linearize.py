@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
                   f"K_cps = {lin.K_cps:.4g} m^3/(s Pa), L = {lin.inductance * 1e3:.1f} mH")
             print("  eigenvalues [1/s]: " + ", ".join(f"{e.real:.1f}{e.imag:+.1f}j" for e in lin.eigenvalues)
                   + ("  (stable)" if np.all(lin.eigenvalues.real < 0) else "  (UNSTABLE)"))
+            assert m is not None                     # linearize() always computes the margins
             at = "DC" if m.phase_crossover == 0.0 else f"{m.phase_crossover:.0f} rad/s"
             print(f"  loop gain: gain margin {m.gain_margin_db:.1f} dB at {at}, "
                   f"phase margin {m.phase_margin_deg:.1f} deg at {m.gain_crossover:.0f} rad/s")
@@ -70,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
             ax_m.semilogx(w, 20 * np.log10(np.abs(resp)), style, label=name)
             ax_p.semilogx(w, np.degrees(np.unwrap(np.angle(resp))), style, label=name)
             mg = lin.margins
+            assert mg is not None
             ax_m.plot([mg.gain_crossover], [0.0], "o")
             ax_p.plot([mg.gain_crossover], [mg.phase_margin_deg - 180.0], "o")
         ax_m.axhline(0, color="k", lw=0.5)

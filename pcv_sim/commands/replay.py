@@ -111,9 +111,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.report}", file=sys.stderr)
 
     if args.json:
-        data = result.as_dict()
-        data["thresholds"] = {"above": above, "below": below, "failed": [str(f) for f in failures]}
-        emit_json(data)
+        out = result.as_dict()
+        out["thresholds"] = {"above": above, "below": below, "failed": [str(f) for f in failures]}
+        emit_json(out)
     else:
         print(render_text(result, failures))
     return 1 if failures else 0

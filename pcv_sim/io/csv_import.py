@@ -280,8 +280,8 @@ def import_csv(
             msg = f"columns {roles}: a time and a duty column are needed; accepted: {_accepted_columns()}"
         raise CsvImportError(msg)
     if not any(r in OUTPUT_ROLES for r in named):
-        seen = f" (header names seen: {first}, understood: {named})" if columns is None and header_roles else ""
-        msg = f"columns {roles}: at least one of pressure, current, position is needed to compare{seen}"
+        names_seen = f" (header names seen: {first}, understood: {named})" if columns is None and header_roles else ""
+        msg = f"columns {roles}: at least one of pressure, current, position is needed to compare{names_seen}"
         raise CsvImportError(msg)
     unit_of = {r: _SI[r] for r in named}
     unit_of.update({r: u for r, u in header_units.items() if r in unit_of})

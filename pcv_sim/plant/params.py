@@ -25,7 +25,7 @@ def ranged(unit: str, lo: float, hi: float, description: str, *, kind: str = "fl
     return field(metadata={"unit": unit, "lo": lo, "hi": hi, "description": description, "kind": kind})
 
 
-def check_value(path: str, f: dataclasses.Field, value: Any) -> Any:  # type: ignore[type-arg]
+def check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
     """Convert and check one value of field `f`; ParameterError naming `path` if refused."""
     meta = f.metadata
     unit, lo, hi, kind = meta["unit"], meta["lo"], meta["hi"], meta["kind"]

@@ -45,7 +45,8 @@ from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 
-__all__ = ["FALL_RATE", "PROTOCOLS", "Protocol", "command_staircase", "deterministic_writer", "write_reference_bag", "write_reference_bags"]
+__all__ = ["FALL_RATE", "PROTOCOLS", "Protocol", "command_staircase", "deterministic_writer", "write_reference_bag",
+           "write_reference_bags"]
 
 FALL_RATE: Final = 2.0                     # 1/s: decreasing duty falls at most 0.002 per 1 ms tick
 TICK_NS: Final = 1_000_000                 # command generator and output sample period, 1 ms

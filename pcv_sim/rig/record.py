@@ -106,7 +106,7 @@ def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") ->
     for a in ax:
         a.grid(True, alpha=0.3)
         a.legend(loc="best", fontsize=8)
-    for t_ev, text in run.log:
+    for t_ev, _text in run.log:
         for a in ax:
             a.axvline(t_ev, color="0.6", lw=0.8, ls=":")
     if title:

@@ -29,6 +29,8 @@ naming the key and what is accepted (the CLI exits 2).
 
 from __future__ import annotations
 
+import functools
+
 import importlib
 import importlib.util
 import inspect
@@ -353,7 +355,7 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
             raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
     if not callable(obj):
         raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
-    return obj  # type: ignore[no-any-return]
+    return obj
 
 
 # --- running ---------------------------------------------------------------------------------------
@@ -365,15 +367,15 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
         t = float(e["t"])
         if "duty" in e:
             for valve, d in e["duty"].items():
-                rig.schedule(t, lambda v=valve, d=d: rig.set_duty(v, d))
+                rig.schedule(t, functools.partial(rig.set_duty, valve, d))
         elif "force" in e:
-            rig.schedule(t, lambda f=e["force"]: rig.set_external_force(f))
+            rig.schedule(t, functools.partial(rig.set_external_force, e["force"]))
         elif "fault" in e:
             values = {str(k): v for k, v in e.items() if k not in ("t", "fault", "target")}
             f = parse_fault(e["fault"], e["target"], values, valves=rig.valve_names, signals=signals)
-            rig.schedule(t, lambda f=f: rig.inject(f))
+            rig.schedule(t, functools.partial(rig.inject, f))
         else:
-            rig.schedule(t, lambda k=e["clear"], tg=e["target"]: rig.clear(tg, k))
+            rig.schedule(t, functools.partial(rig.clear, e["target"], e["clear"]))
 
 
 def _window(run: RigRun, a: Mapping[str, Any]) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 Signals (SI): inputs duty_cycle (0..1), load_flow (m^3/s, + drawn from the load port),
 supply_pressure (Pa), load_volume (m^3: the oil volume at the load port, Eq. 15's V; a single
-valve is fed `circuit.load_volume`, a valve on a cylinder its chamber's volume); outputs pressure (Pa), current (A), spool_position (m); pressure and
-spool position depend on the state alone and can be connected to other systems.
+valve is fed `circuit.load_volume`, a valve on a cylinder its chamber's volume); outputs
+pressure (Pa), current (A), spool_position (m); pressure and spool position depend on the state
+alone and can be connected to other systems.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ def write_bag(path: Path, names: dict[str, str], *, until_s: float = 1.0, types:
         decl[topic] = types.get(sig, FLUID_PRESSURE if sig == "pressure" else FLOAT64)
     w = BagWriter(path, topics=decl, flush_thread=False, clock=lambda: 0.0)
     rows = {}
-    for sig, topic in names.items():
+    for sig in names:
         s = src[DEVICE[sig]]
         keep = s.t_ns <= t0 + int(until_s * 1e9)
         rows[sig] = list(zip(s.t_ns[keep].tolist(), s.value[keep].tolist()))

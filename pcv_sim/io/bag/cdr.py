@@ -191,9 +191,11 @@ def message_records(
     rows = np.zeros(n, dtype=row)
     ut = t.astype(np.uint64)
     starts = []
+    offsets = row.fields
+    assert offsets is not None                  # a structured dtype has fields
     for k, (channel_id, msgtype, first_seq, v) in enumerate(columns):
-        start = row.fields[f"op{k}"][1]
-        end = row.fields[f"op{k + 1}"][1] if k + 1 < len(columns) else row.itemsize
+        start = offsets[f"op{k}"][1]
+        end = offsets[f"op{k + 1}"][1] if k + 1 < len(columns) else row.itemsize
         starts.append(start)
         rows[f"op{k}"] = Opcode.MESSAGE
         rows[f"len{k}"] = end - start - 9
