@@ -1,6 +1,7 @@
 """The ROS 2 side of pcv_sim: the `emulator` node and the `demo` client.
 
-`emulator` and `demo` import rclpy; `device` and `settings` do not (they are tested without ROS).
+`emulator` (the process), `adapter` (the node), `client` and `demo` import rclpy; `device`,
+`settings`, `parameters` and `diagnostics` do not (they are tested without ROS).
 """
 
-__all__ = ["device", "settings"]
+__all__ = ["device", "diagnostics", "parameters", "settings"]

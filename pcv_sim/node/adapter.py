@@ -98,6 +98,7 @@ CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
+ROSOUT_LINGER = 3.0                         # s a node that cannot start waits for a /rosout subscriber
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
@@ -127,8 +128,20 @@ class EmulatorNode(Node):
             # Start-up errors also go to /rosout (a launch file's user may only see that), then the
             # half-built node is destroyed here: nobody else holds it.
             self.get_logger().error(f"invalid parameters: {err}")
+            self._linger_for_rosout()
             self.destroy_node()
             raise
+
+    def _linger_for_rosout(self) -> None:
+        """Give /rosout subscribers (rqt_console, a log aggregator) the chance to get the last message
+        before the node goes: up to ROSOUT_LINGER s to discover one, then a moment for delivery
+        (the rosout writer keeps its last messages for late joiners while it exists)."""
+        end = time.monotonic() + ROSOUT_LINGER
+        while time.monotonic() < end:
+            if self.count_subscribers("/rosout") > 0:
+                time.sleep(0.5)
+                return
+            time.sleep(0.02)
 
     def _setup(self, argv: list[str] | None) -> None:
         self._argv = list(sys.argv if argv is None else argv)

@@ -26,7 +26,7 @@ from pcv_sim.params import yaml_load_unique
 
 __all__ = [
     "ROS_OWN_PARAMETERS", "Override", "check_params_files", "command_line_overrides", "is_ros_own",
-    "override_not_taken", "parse_override_value", "params_files", "unknown_parameters_message",
+    "override_not_taken", "parse_override_value", "params_files", "refuse_unknown", "unknown_parameters_message",
 ]
 
 #: Parameters rclpy declares itself on every node: never "unknown".
