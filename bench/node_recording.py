@@ -57,7 +57,7 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
 
     from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
     _PerMessageRecorder = _per_message_recorder()
-    from pcv_sim.node.device import ValveDevice
+    from pcv_sim.device.valve import ValveDevice
     from pcv_sim.params import load_params
     from pcv_sim.simulation.clock import RealTimeSchedule
 

@@ -4,7 +4,7 @@ One frozen dataclass per section of the YAML file. Each field carries its unit, 
 the check that makes it physical; `load_params` refuses unknown keys, wrong types and
 non-physical values with a message naming the key and what is accepted.
 
-The same declarations serve the ROS node: its settings (`pcv_sim.node.settings.NodeSettings`)
+The same declarations serve the ROS node: its settings (`pcv_sim.device.settings.NodeSettings`)
 are fields declared with `setting(default, unit, description, check, ...)`, and every value, a
 valve YAML key, a `model.*` ROS parameter or a node setting, is converted and checked by
 `check_value` from its field's metadata. The node names model keys `model.<section>.<key>`

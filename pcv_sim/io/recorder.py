@@ -1,7 +1,7 @@
 """Recording the emulated device into a bag, from inside the node, without ROS.
 
 :class:`BagRecorder` is the device's recorder (the ``recorder(t_ns, signals)`` hook of
-:class:`pcv_sim.node.device.ValveDevice`, called at every model step) on top of
+:class:`pcv_sim.device.valve.ValveDevice`, called at every model step) on top of
 :class:`pcv_sim.io.bag.BagWriter`. It writes the device topics (:mod:`pcv_sim.io.topics`) with
 the node's namespace, so a bag of the emulator in ``/left`` holds ``/left/pressure`` etc.
 
@@ -99,7 +99,7 @@ RECORDABLE: Final = ROLES
 #: woken model loop waits for the writer thread to hand over the interpreter lock.
 SWITCH_INTERVAL: Final = 1e-3
 
-# Device signal (pcv_sim.node.device.SIGNALS) each role is recorded from.
+# Device signal (pcv_sim.device.valve.SIGNALS) each role is recorded from.
 _SOURCE: Final = {
     DUTY_CYCLE: "duty",             # effective: after watchdog and fall-rate limiter
     LOAD_FLOW: "load_flow",

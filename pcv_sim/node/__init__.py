@@ -1,7 +1,6 @@
-"""The ROS 2 side of pcv_sim: the `emulator` node and the `demo` client.
-
-`emulator` (the process), `adapter` (the node), `client` and `demo` import rclpy; `device`,
-`settings`, `parameters` and `diagnostics` do not (they are tested without ROS).
+"""The ROS 2 side of pcv_sim: the `emulator` process (`emulator`), its node (`adapter`), a client
+(`client`) and the `demo`. All of them import rclpy; what they adapt lives in `pcv_sim.device`
+(the device, its settings, parameter plumbing and diagnostics), which does not.
 """
 
-__all__ = ["device", "diagnostics", "parameters", "settings"]
+__all__ = ["adapter", "client", "demo", "emulator"]

@@ -3,7 +3,7 @@
 Started by `pcv_sim.node.emulator` (the `emulator` executable), which owns the process: signals,
 exit status.
 
-A thin adapter: ROS parameters in, `ValveDevice` (pcv_sim.node.device) in the middle, messages
+A thin adapter: ROS parameters in, `ValveDevice` (pcv_sim.device.valve) in the middle, messages
 out. Topic names are relative, so a namespace runs one valve per steering chamber.
 
     in   duty_cycle       std_msgs/Float64            PWM duty, fraction 0..1           reliable
@@ -33,12 +33,12 @@ The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz
     External clock (use_sim_time): the steps up to each new /clock run when it arrives; see
     `_run_external_clock`.
 
-Parameters are declared from `pcv_sim.node.settings` (one declaration each); what rcl leaves
-silent is checked by `pcv_sim.node.parameters`; diagnostics are built by `pcv_sim.node.diagnostics`.
+Parameters are declared from `pcv_sim.device.settings` (one declaration each); what rcl leaves
+silent is checked by `pcv_sim.device.parameters`; diagnostics are built by `pcv_sim.device.diagnostics`.
 QoS incompatibility events are polled with the services (no executor runs their callbacks).
 
 Recorder hook: `EmulatorNode.set_recorder(recorder, every)` makes the device call
-`recorder(t_ns, signals)` at every `every`-th model step (see pcv_sim.node.device.SIGNALS); a
+`recorder(t_ns, signals)` at every `every`-th model step (see pcv_sim.device.valve.SIGNALS); a
 `close()` method, if the recorder has one, is called at shutdown.
 
 Recording (`record.enabled`): a `pcv_sim.io.recorder.BagRecorder` on that hook, called at every
@@ -76,13 +76,13 @@ from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
 from pcv_sim.io.topics import (
     CLOCK, CURRENT, DIAGNOSTICS, DUTY_CYCLE, LOAD_FLOW, PRESSURE, RESET, SPOOL_POSITION, SUPPLY_PRESSURE,
 )
-from pcv_sim.node.diagnostics import DiagnosticsBuilder
-from pcv_sim.node.device import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
-from pcv_sim.node.settings import (
+from pcv_sim.device.diagnostics import DiagnosticsBuilder
+from pcv_sim.device.valve import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
+from pcv_sim.device.settings import (
     MODEL_PREFIX, NODE_PARAMETERS, NodeSettings, check_node_value, model_parameters, params_with,
     settings_with,
 )
-from pcv_sim.node.parameters import (
+from pcv_sim.device.parameters import (
     Override, check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
     unknown_parameters_message,
 )
@@ -188,7 +188,7 @@ class EmulatorNode(Node):
         self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
                            if self.simulated else None)
         inp = self._input_events
-        self._inputs = [
+        self._inputs: list[tuple[Any, Callable[..., None]]] = [
             (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
                                       event_callbacks=inp(DUTY_CYCLE)), self._on_duty),
             (self.create_subscription(Float64, LOAD_FLOW, self._on_load_flow, COMMAND_QOS,
@@ -229,7 +229,7 @@ class EmulatorNode(Node):
 
         Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
         take (rcl drops one whose type differs from the params file's), and names nobody declares
-        (unless allow_unknown_parameters) are refused too (see pcv_sim.node.parameters)."""
+        (unless allow_unknown_parameters) are refused too (see pcv_sim.device.parameters)."""
         check_params_files(self._argv)
         cli = command_line_overrides(self._argv, self.get_name())
         values = {}
@@ -614,10 +614,11 @@ class EmulatorNode(Node):
     def _publish_clock(self) -> None:
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
+        assert self._pub_clock is not None          # created in simulated time, the only caller
         self._pub_clock.publish(msg)
 
     def diagnostics(self, now: float) -> list[DiagnosticStatus]:
-        """The device's health, one status per concern (see pcv_sim.node.diagnostics)."""
+        """The device's health, one status per concern (see pcv_sim.device.diagnostics)."""
         rec = self.recorder.status() if self.recorder is not None else None
         out = []
         for st in self._diag.build(now, device=self.device, settings=self.settings, schedule=self._schedule,
@@ -673,15 +674,17 @@ class EmulatorNode(Node):
         next_diag = mono() + s.diagnostics_period
         self._publish([dev.sample()])
         wake = 0
+        cpu = time.thread_time
         while not stop.requested:
             now = mono()
+            c0 = cpu()
             self._drain()
             plan = sched.plan(now)
             if plan.skipped:
                 dev.skip(plan.skipped)
                 st = self.settings
                 bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
-                         else f"one wake period, overrun: skip")
+                         else "one wake period, overrun: skip")
                 self.get_logger().warning(
                     f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
                     f"skipped {plan.skipped} steps, the model state was held over them",
@@ -694,6 +697,7 @@ class EmulatorNode(Node):
                 self._poll_services()
             elif self._job is not None:
                 self._pump()
+            sched.note_wake_cpu(cpu() - c0)
             if now >= next_diag:
                 self._publish_diagnostics(now)
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)

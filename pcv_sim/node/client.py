@@ -76,8 +76,8 @@ class EmulatorClient:
             if name in outputs:
                 self.node.create_subscription(Float64, name, self._scalar(name), qos)
         self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
-        self.reset_client = self.node.create_client(Trigger, RESET)
-        self.param_client = self.node.create_client(SetParameters, f"{self.emulator_name}/set_parameters")
+        self.reset_client: Any = self.node.create_client(Trigger, RESET)
+        self.param_client: Any = self.node.create_client(SetParameters, f"{self.emulator_name}/set_parameters")
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
 

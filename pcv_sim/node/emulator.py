@@ -38,7 +38,7 @@ class Stop:
 
 
 def _parameter_help() -> str:
-    from pcv_sim.node.settings import MODEL_PREFIX, NODE_PARAMETERS  # noqa: PLC0415 - after the handlers
+    from pcv_sim.device.settings import MODEL_PREFIX, NODE_PARAMETERS  # noqa: PLC0415 - after the handlers
 
     lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file config/emulator.yaml):"]
     for spec in NODE_PARAMETERS:
@@ -52,7 +52,7 @@ def _parameter_help() -> str:
 def main(args: list[str] | None = None) -> int:
     """Console entry point `emulator`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
     stop = Stop()
-    previous: dict[int, Callable[..., Any] | int | None] = {}
+    previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
     for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports below is a clean stop
         previous[sig] = signal.signal(sig, stop)
     try:

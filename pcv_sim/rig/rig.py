@@ -6,7 +6,7 @@ Each valve's load port is one cylinder chamber: the valve's pressure state feeds
 `rig.time_step` (0.1 ms) with the valves' integrator (Heun for the simplified model), so the
 load flow is never a step late.
 
-Inputs follow the emulator's rules (`pcv_sim.node.device`): a duty command is validated on
+Inputs follow the emulator's rules (`pcv_sim.device.valve`): a duty command is validated on
 arrival (`CommandError` naming what is accepted; the last valid one stays) and acts from the
 present step on, i.e. at the first step at or after its reception; the watchdog runs in model
 time: `watchdog_timeout` s after a valve's last valid command took effect its duty falls to

@@ -97,6 +97,7 @@ class RealTimeSchedule:
         self.lag_after = 0.0
         self.period_max_lag = 0.0       # maxima since the last `take_period_max()` (diagnostics)
         self.period_max_lag_after = 0.0
+        self.max_wake_cpu = 0.0         # s, the most CPU time the loop thread spent in one wake
 
     @property
     def started(self) -> bool:
@@ -152,6 +153,12 @@ class RealTimeSchedule:
         self.max_lag_after = max(self.max_lag_after, self.lag_after)
         self.period_max_lag_after = max(self.period_max_lag_after, self.lag_after)
         return self.lag_after
+
+    def note_wake_cpu(self, seconds: float) -> None:
+        """Record the loop thread's CPU time for one wake (its own work, whatever the machine's
+        load: what a stall inside the loop, e.g. a computation that belongs in a worker, shows)."""
+        if seconds > self.max_wake_cpu:
+            self.max_wake_cpu = seconds
 
     def take_period_max(self) -> tuple[float, float]:
         """(max lag before, max lag after a batch) since the last call; starts a new period."""

@@ -1,6 +1,6 @@
 """BagRecorder without ROS: direct calls with scripted signals, and the real ValveDevice.
 
-The recorder is called at every model step with the device's signals (pcv_sim.node.device.SIGNALS);
+The recorder is called at every model step with the device's signals (pcv_sim.device.valve.SIGNALS);
 inputs go into the bag on change, stamped with the step at which they took effect, outputs at every
 `every`-th step. Bags are real files (tmp_path), read back with pcv_sim's reader.
 """
@@ -17,7 +17,7 @@ import pytest
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
 from pcv_sim.io.recorder import RECORDABLE, BagRecorder, bag_name, check_signals
-from pcv_sim.node.device import ValveDevice
+from pcv_sim.device.valve import ValveDevice
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 

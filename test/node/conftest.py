@@ -59,7 +59,7 @@ class Emulator:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(5)
-            raise AssertionError(f'emulator did not stop on {sig!r} within {timeout} s:\n{self.output()}')
+            raise AssertionError(f'emulator did not stop on {sig!r} within {timeout} s:\n{self.output()}') from None
 
 
 class RosTest:

@@ -2,7 +2,6 @@
 import math
 import signal
 
-import pytest
 
 from pcv_sim.params import load_params
 from pcv_sim.simulation.stepper import RealTimeStepper

@@ -72,7 +72,7 @@ def test_params_file_matches_the_node_parameters():
     """config/emulator.yaml: every node parameter with its default, under `/**` (any name/namespace)."""
     import yaml
 
-    from pcv_sim.node.settings import NODE_PARAMETERS
+    from pcv_sim.device.settings import NODE_PARAMETERS
 
     data = yaml.safe_load((REPO / 'config' / 'emulator.yaml').read_text())
     params = data['/**']['ros__parameters']

@@ -5,8 +5,8 @@ import re
 import pytest
 
 from pcv_sim.errors import ParameterError
-from pcv_sim.node.device import ValveDevice, WatchdogState, rest_stepper
-from pcv_sim.node.settings import (
+from pcv_sim.device.valve import ValveDevice, WatchdogState, rest_stepper
+from pcv_sim.device.settings import (
     NodeSettings, check_node_value, model_parameters, params_with, settings_with,
 )
 from pcv_sim.params import load_params, params_to_mapping
@@ -200,7 +200,7 @@ def test_a_finite_runaway_is_a_fault_before_any_sample_shows_it():
 
 
 def test_physical_limits():
-    from pcv_sim.node.device import PhysicalLimits
+    from pcv_sim.device.valve import PhysicalLimits
 
     lim = PhysicalLimits.of(PARAMS)
     assert (lim.pressure_min, lim.pressure_max) == (-1e5, 800e5)         # -1 bar .. 2 x 400 bar

@@ -22,9 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from pcv_sim.device.settings import NodeSettings
+from pcv_sim.device.valve import INPUTS, ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.node.device import INPUTS, ValveDevice, WatchdogState
-from pcv_sim.node.settings import NodeSettings
 from pcv_sim.simulation.clock import RealTimeSchedule
 
 __all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Status"]
@@ -110,6 +110,7 @@ class DiagnosticsBuilder:
             "late_threshold_ms": f"{s.late_threshold * 1e3:g}",
             "lag_ms": f"{sched.lag_after * 1e3:.3f}",
             "max_lag_ms": f"{sched.max_lag * 1e3:.3f}",
+            "max_wake_cpu_ms": f"{sched.max_wake_cpu * 1e3:.3f}",
             "max_lag_after_step_ms": f"{sched.max_lag_after * 1e3:.3f}",
             "period_max_lag_ms": f"{lag * 1e3:.3f}",
             "period_max_lag_after_step_ms": f"{lag_after * 1e3:.3f}",

@@ -275,6 +275,7 @@ class ValveDevice:
 
     def _check_watchdog(self) -> None:
         if (self.watchdog_state == WatchdogState.OK and self._timeout_steps
+                and self.duty_applied_step is not None
                 and self.steps >= self.duty_applied_step + self._timeout_steps):
             self.watchdog_state = WatchdogState.FIRED
             self.watchdog_fired_step = self.steps
@@ -288,7 +289,7 @@ class ValveDevice:
             stop = min(stop, s + self.record_every - s % self.record_every)
         if self._pending:
             stop = min(stop, self._pending[0][0])
-        if self.watchdog_state == WatchdogState.OK and self._timeout_steps:
+        if self.watchdog_state == WatchdogState.OK and self._timeout_steps and self.duty_applied_step is not None:
             stop = min(stop, self.duty_applied_step + self._timeout_steps)
         return stop
 
@@ -348,7 +349,7 @@ class ValveDevice:
                 if sample is not None:
                     out.append(sample)
                     self.last_good = sample
-                if signals is not None:
+                if signals is not None and self.recorder is not None:
                     self.recorder(self.stamp_ns(stop), signals)
         return out
 
