@@ -111,6 +111,7 @@ class DiagnosticsBuilder:
             "lag_ms": f"{sched.lag_after * 1e3:.3f}",
             "max_lag_ms": f"{sched.max_lag * 1e3:.3f}",
             "max_wake_cpu_ms": f"{sched.max_wake_cpu * 1e3:.3f}",
+            "period_max_wake_cpu_ms": f"{sched.take_period_wake_cpu() * 1e3:.3f}",
             "max_lag_after_step_ms": f"{sched.max_lag_after * 1e3:.3f}",
             "period_max_lag_ms": f"{lag * 1e3:.3f}",
             "period_max_lag_after_step_ms": f"{lag_after * 1e3:.3f}",

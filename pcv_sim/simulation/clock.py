@@ -98,6 +98,7 @@ class RealTimeSchedule:
         self.period_max_lag = 0.0       # maxima since the last `take_period_max()` (diagnostics)
         self.period_max_lag_after = 0.0
         self.max_wake_cpu = 0.0         # s, the most CPU time the loop thread spent in one wake
+        self.period_max_wake_cpu = 0.0  # the same since the last `take_period_wake_cpu()`
 
     @property
     def started(self) -> bool:
@@ -159,6 +160,13 @@ class RealTimeSchedule:
         load: what a stall inside the loop, e.g. a computation that belongs in a worker, shows)."""
         if seconds > self.max_wake_cpu:
             self.max_wake_cpu = seconds
+        if seconds > self.period_max_wake_cpu:
+            self.period_max_wake_cpu = seconds
+
+    def take_period_wake_cpu(self) -> float:
+        """The largest CPU time of one wake since the last call (diagnostics); starts a new period."""
+        out, self.period_max_wake_cpu = self.period_max_wake_cpu, 0.0
+        return out
 
     def take_period_max(self) -> tuple[float, float]:
         """(max lag before, max lag after a batch) since the last call; starts a new period."""

@@ -26,7 +26,9 @@ def test_resets_and_model_changes_do_not_stall_the_loop(ros):
     c = ros.client()
     assert c.wait_for_emulator(START)
     c.send_duty(0.6)
-    first = _diag_after(c)
+    _diag_after(c)
+    first = _diag_after(c)            # the period before starts after the first one (start-up work)
+    n_diag = len(c.diagnostics)
     n0 = len(c.samples)
     for k in range(4):
         response = c.reset()
@@ -34,7 +36,8 @@ def test_resets_and_model_changes_do_not_stall_the_loop(ros):
         assert c.set_parameters({'model.spool.mass': 0.045 if k % 2 == 0 else 0.04})[0].successful
     last = _diag_after(c)
     assert last['skipped_steps'] == first['skipped_steps'], (first['skipped_steps'], last['skipped_steps'])
-    assert float(last['max_wake_cpu_ms']) < 10.0, last['max_wake_cpu_ms']
+    during = [float(d['period_max_wake_cpu_ms']) for d in c.diagnostics[n_diag:]]
+    assert len(during) >= 2 and max(during) < 10.0, during
     stamps = [s.stamp_ns for s in c.samples[n0:]]
     assert len(stamps) > 100 and all(b > a for a, b in zip(stamps, stamps[1:]))
 
