@@ -94,6 +94,10 @@ def _range(lo: float, hi: float) -> Check:
     return check
 
 
+#: Public name of the plausible-range check, for other parameter sections (plant, rig).
+plausible_range = _range
+
+
 def _one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)

@@ -27,6 +27,7 @@ from pcv_sim.jit import jit
 from pcv_sim.model import flow_force as ff
 from pcv_sim.model import orifice as orf
 from pcv_sim.model import solenoid as sol
+from pcv_sim.model import stops
 from pcv_sim.params import ValveParams
 from pcv_sim.units import MM_PER_M
 
@@ -230,7 +231,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     if p[STUCK] != 0.0:
         dx[1] = 0.0
         dx[2] = 0.0
-    elif (xs <= p[X_MIN] and v <= 0.0 and force <= 0.0) or (xs >= p[X_MAX] and v >= 0.0 and force >= 0.0):
+    elif stops.held(xs, v, force, p[X_MIN], p[X_MAX]):
         dx[1] = 0.0
         dx[2] = 0.0
     else:
@@ -264,11 +265,4 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
 @jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2)."""
-    if x[1] < p[X_MIN]:
-        x[1] = p[X_MIN]
-        if x[2] < 0.0:
-            x[2] = 0.0
-    elif x[1] > p[X_MAX]:
-        x[1] = p[X_MAX]
-        if x[2] > 0.0:
-            x[2] = 0.0
+    stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])

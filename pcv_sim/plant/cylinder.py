@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from pcv_sim.jit import jit
+from pcv_sim.model import stops
 from pcv_sim.plant.params import CylinderParams
 from pcv_sim.simulation.system import Kernel, Stop, System
 
@@ -69,7 +70,7 @@ def net_force(x, u, p):  # noqa: ANN001, ANN201
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     """dx/dt = v, m dv/dt = net_force; held at an end stop while the force pushes into it."""
     force = net_force(x, u, p)
-    if (x[0] <= p[X_MIN] and x[1] <= 0.0 and force <= 0.0) or (x[0] >= p[X_MAX] and x[1] >= 0.0 and force >= 0.0):
+    if stops.held(x[0], x[1], force, p[X_MIN], p[X_MAX]):
         dx[0] = 0.0
         dx[1] = 0.0
     else:
@@ -98,14 +99,7 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
 @jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
     """Inelastic end stops: position clamped to the stroke, velocity into the stop zeroed."""
-    if x[0] < p[X_MIN]:
-        x[0] = p[X_MIN]
-        if x[1] < 0.0:
-            x[1] = 0.0
-    elif x[0] > p[X_MAX]:
-        x[0] = p[X_MAX]
-        if x[1] > 0.0:
-            x[1] = 0.0
+    stops.impact(x, 0, 1, p[X_MIN], p[X_MAX])
 
 
 def cylinder_system(params: CylinderParams, name: str = "cylinder") -> System:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcv_sim.jit import jit
+from pcv_sim.model import stops
 from pcv_sim.simulation.system import Kernel, Stop, System
 
 __all__ = ["mass_spring"]
@@ -28,7 +29,7 @@ AREA, MASS, STIFFNESS, DAMPING, X_MIN, X_MAX = 0, 1, 2, 3, 4, 5
 @jit(inline=True)
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     force = p[AREA] * (u[0] - u[1]) - p[STIFFNESS] * x[0] - p[DAMPING] * x[1]
-    if (x[0] <= p[X_MIN] and x[1] <= 0.0 and force <= 0.0) or (x[0] >= p[X_MAX] and x[1] >= 0.0 and force >= 0.0):
+    if stops.held(x[0], x[1], force, p[X_MIN], p[X_MAX]):
         dx[0] = 0.0
         dx[1] = 0.0
     else:
@@ -51,14 +52,7 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
 
 @jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
-    if x[0] < p[X_MIN]:
-        x[0] = p[X_MIN]
-        if x[1] < 0.0:
-            x[1] = 0.0
-    elif x[0] > p[X_MAX]:
-        x[0] = p[X_MAX]
-        if x[1] > 0.0:
-            x[1] = 0.0
+    stops.impact(x, 0, 1, p[X_MIN], p[X_MAX])
 
 
 def mass_spring(name: str = "piston", *, area: float, mass: float, stiffness: float, damping: float,

@@ -9,11 +9,12 @@ could have), so they catch unit slips (mm for m, bar for Pa, L for m^3) rather t
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, TypeVar
 
 from pcv_sim.errors import ParameterError
+from pcv_sim.params import check_value as params_check_value
+from pcv_sim.params import plausible_range
 
 __all__ = ["CylinderParams", "ranged", "section_from_mapping", "check_value"]
 
@@ -21,27 +22,19 @@ T = TypeVar("T")
 
 
 def ranged(unit: str, lo: float, hi: float, description: str, *, kind: str = "float") -> Any:
-    """A field with its unit, its plausible range [lo, hi] and what it is."""
-    return field(metadata={"unit": unit, "lo": lo, "hi": hi, "description": description, "kind": kind})
+    """A field with its unit, its plausible range [lo, hi] and what it is, declared the way every
+    parameter of the package is (`pcv_sim.params`), so one validator checks them all."""
+    return field(metadata={"unit": unit, "source": description, "description": description,
+                           "check": plausible_range(lo, hi), "kind": kind})
 
 
-def check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
-    """Convert and check one value of field `f`; ParameterError naming `path` if refused."""
-    meta = f.metadata
-    unit, lo, hi, kind = meta["unit"], meta["lo"], meta["hi"], meta["kind"]
-    accepted = f"a number in {lo:g} .. {hi:g} {unit}" if kind == "float" else f"an integer in {lo:g} .. {hi:g}"
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind == "int" and not isinstance(value, int)):
-        hint = ""
-        if isinstance(value, str):
-            try:
-                float(value)
-                hint = " (YAML reads 1e9 as text: write 1.0e+9)"
-            except ValueError:
-                pass
-        raise ParameterError(f"{path}: got {value!r} ({type(value).__name__}); accepted is {accepted}{hint}")
-    if not math.isfinite(float(value)) or not lo <= value <= hi:
-        raise ParameterError(f"{path}: got {value!r}; accepted is {accepted} ({meta['description']})")
-    return int(value) if kind == "int" else float(value)
+def check_value(path: str, f: dataclasses.Field, value: Any) -> Any:  # type: ignore[type-arg]
+    """Convert and check one value of field `f` (`pcv_sim.params.check_value`); ParameterError
+    naming `path`, the plausible range and what the parameter is if refused."""
+    try:
+        return params_check_value(path, f.metadata, value)
+    except ParameterError as err:
+        raise ParameterError(f"{err} ({f.metadata['description']})") from None
 
 
 def section_from_mapping(cls: type[T], data: Any, path: str, *, defaults: bool = False) -> T:
