@@ -1,0 +1,150 @@
+"""The rig node (`python -m pcv_sim.node.rig`) as a separate process over real DDS.
+
+A small lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period
+for both valves. Each test has its own ROS domain and namespace (test/node/conftest.py).
+"""
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from .conftest import Emulator, _ros_value, clean_child_env, wait_until
+
+VALVES = ('left', 'right')
+
+
+def start_rig(ros, name='rig', *, params=None):
+    cmd = [sys.executable, '-m', 'pcv_sim.node.rig', '--ros-args', '-r', f'__ns:={ros.ns(name)}']
+    for key, value in (params or {}).items():
+        cmd += ['-p', f'{key}:={_ros_value(value)}']
+    proc = Emulator(cmd, ros.env, ros.tmp_path / f'{name}-{len(ros.emulators)}.log')
+    ros.emulators.append(proc)      # the fixture stops it (SIGINT) and checks exit 0, no traceback
+    return proc
+
+
+def rig_client(ros, name='rig', **kw):
+    from pcv_sim.node.rig_client import RigClient
+
+    client = RigClient(ros.ns(name), VALVES, context=ros.context, node_name=f'rig_ctl_{len(ros.clients)}', **kw)
+    ros.clients.append(client)
+    return client
+
+
+def controller(t, m):
+    """Deterministic, and dependent on what it measured (so a changed sample changes the run):
+    left regulates toward 90 bar, right toward 50 bar; the cylinder is pushed toward b (+x)."""
+    left = min(max(0.6 + 2e-8 * (90e5 - m['left.pressure']), 0.0), 1.0)
+    right = min(max(0.4 + 2e-8 * (50e5 - m['right.pressure']), 0.0), 1.0)
+    return {'left': left, 'right': right}
+
+
+def hogs():
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env()) for _ in range(2)]
+
+
+def lockstep_run(ros, name, periods, load=False):
+    rig = start_rig(ros, name)
+    client = rig_client(ros, name)
+    assert client.wait_for_rig(60), rig.output()
+    loaders = hogs() if load else []
+    try:
+        run = client.run(controller, periods, timeout=120)
+    finally:
+        for h in loaders:
+            h.kill()
+            h.wait(5)
+    assert rig.stop() == 0, rig.output()
+    client.close()
+    ros.clients.remove(client)
+    return run
+
+
+def test_lockstep_repeats_bit_for_bit_under_load_and_the_cylinder_moves_toward_the_lower_pressure(ros):
+    quiet = lockstep_run(ros, 'rig', 300)
+    loaded = lockstep_run(ros, 'rig', 300, load=True)     # two CPU-bound processes on the 2 cores
+    assert [p.stamp_ns for p in quiet] == [k * 1_000_000 for k in range(300)]   # every 1 ms period, in order
+    assert [(p.stamp_ns, p.measured, p.duties) for p in quiet] == \
+        [(p.stamp_ns, p.measured, p.duties) for p in loaded]                 # == on floats: bit for bit
+    last = quiet[-1].measured
+    assert last['left.pressure'] > last['right.pressure'] + 20e5
+    # Chamber a (left) at the higher pressure pushes the piston toward b: x > 0 and rising.
+    assert last['cylinder.position'] > quiet[100].measured['cylinder.position'] > 1e-3
+    assert last['cylinder.velocity'] > 0
+
+
+def _rig_status(client, predicate, timeout=10.0):
+    """The first diagnostics message (from now) whose statuses satisfy predicate."""
+    start = len(client.diagnostics)
+    found = []
+
+    def check():
+        client.poll()
+        found[:] = [d for d in client.diagnostics[start:] if predicate(d)]
+        return bool(found)
+
+    return found[0] if wait_until(check, timeout) else None
+
+
+def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
+    rig = start_rig(ros, params={'control_period': 0.001})
+    client = rig_client(ros, currents=True)
+    assert client.wait_for_rig(60), rig.output()
+    hold = lambda t, m: {'left': 0.6, 'right': 0.6}      # noqa: E731
+    client.run(hold, 100, timeout=60)
+    i_before = client.currents['left'][-1][1]
+    assert i_before > 0.5
+    client.send_fault('{fault: coil_opn, valve: left}')            # misspelt: refused, nothing changes
+    client.send_fault('{fault: coil_open, valve: left}')
+    client.run(hold, 250, timeout=60)                             # 250 ms: many coil time constants
+    left = [i for _, i in client.currents['left'][-20:]]
+    right = [i for _, i in client.currents['right'][-20:]]
+    assert max(abs(i) for i in left) < 0.02 * i_before             # the open coil carries no current
+    assert min(right) > 0.9 * i_before                             # the other valve is untouched
+    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+                       .get('faults_active', ''))
+    assert diag is not None, rig.output()
+    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: rig']
+    assert rig_level == 1 and 'coil_open@left' in rig_message
+    assert rig_values['rejected.faults'] == '1'
+    left_level, left_message, _ = diag[f'{ros.ns("rig")}/rig: left']
+    assert left_level == 1 and 'coil_open@left' in left_message
+    assert diag[f'{ros.ns("rig")}/rig: right'][0] == 0
+    out = rig.output()
+    assert "rejected faults: fault: kind 'coil_opn'; accepted are supply_drop" in out
+    assert 'fault coil_open on left' in out
+    client.send_fault('{clear: coil_open, valve: left}')
+    client.run(hold, 250, timeout=60)
+    assert client.currents['left'][-1][1] == pytest.approx(i_before, rel=0.02)
+
+
+@pytest.mark.parametrize('params, message', [
+    ({'control_period': 0.00015}, 'control_period 0.00015 s is not a whole multiple of the model step'),
+    ({'time_mode': 'fast'}, "time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ({'rig_config': '/nonexistent/rig.yaml'}, 'cannot read rig file /nonexistent/rig.yaml'),
+    ({'contol_period': 0.01}, 'unknown parameter(s) contol_period (did you mean control_period?)'),
+])
+def test_invalid_parameters_exit_2_naming_the_parameter(ros, params, message):
+    rig = start_rig(ros, params=params)
+    assert rig.wait(60) == 2
+    out = rig.output()
+    assert message in out and 'rig: invalid parameters' in out and 'Traceback' not in out
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_real_time_publishes_and_a_signal_stops_it_cleanly(ros, sig):
+    rig = start_rig(ros, params={'time_mode': 'real'})
+    client = rig_client(ros)
+    assert client.wait_for_rig(60), rig.output()
+    got = []
+
+    def two_samples():
+        client.poll()
+        got[:] = [s for s, part in client._partial.items() if 'joint' in part.values]
+        return len(got) >= 2
+
+    assert wait_until(two_samples, 30), rig.output()
+    time.sleep(0.2)
+    assert rig.stop(sig) == 0
+    assert 'Traceback' not in rig.output()
