@@ -6,7 +6,8 @@ of 1 ms), so what it measures is the rig and DDS, not rclpy's executor.
 
 A control period is complete when every valve's `pressure` and the cylinder's `joint_states`
 stamped with the same model time have arrived; the controller is then called with the
-measurements (`<valve>.pressure` Pa, `cylinder.position` m, `cylinder.velocity` m/s,
+measurements (`<valve>.pressure` Pa, with `currents` also `<valve>.current` A: the latest
+received, as std_msgs/Float64 carries no stamp; `cylinder.position` m, `cylinder.velocity` m/s,
 `cylinder.effort` N) and its duties are published on every valve's `duty_cycle`. A sample the rig
 publishes again (unanswered for 0.5 s) is answered again, with the same duties.
 """
@@ -28,6 +29,8 @@ from pcv_sim.node.client import sample_qos
 
 __all__ = ["RigClient", "Period"]
 
+POLL = 2e-5             # s between polls; with the default 50 us timer slack a sleep lasts ~100 us
+                        # (the caller may tighten it, as bench/rig_dds.py does)
 RigController = Callable[[float, Mapping[str, float]], Mapping[str, float]]
 
 
@@ -145,11 +148,14 @@ class RigClient:
                 raise TimeoutError(f"rig lockstep: {len(self.periods) - answered} of {periods} periods answered in "
                                    f"{timeout} s")
             if not self.poll():
-                time.sleep(2e-5)
+                time.sleep(POLL)
                 continue
             for stamp in sorted(s for s in self._partial if self._complete(s)):
                 values = self._partial.pop(stamp).values
                 values.pop("joint")
+                for v, seen in self.currents.items():
+                    if seen:           # Float64 has no stamp: the latest received (published before joint_states)
+                        values[f"{v}.current"] = seen[-1][1]
                 again = self._answers.get(stamp)
                 if again is not None:                 # published again by the rig: same answer
                     self._send(again)

@@ -73,6 +73,9 @@ NODE_NAME = "rig"
 JOINT_NAME = "steering"
 SERVICE_POLL_EVERY = 10
 _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
+# s between polls for the controller's commands: polling beat an rcl wait set here (a wake through
+# rmw_wait took longer than a 20 us sleep; bench/rig_dds.py, BENCHMARKS.md "Rig")
+LOCKSTEP_POLL = 2e-5
 
 
 class RigNode(Node):
@@ -390,6 +393,7 @@ class RigNode(Node):
         s, rig = self.settings, self.rig
         lock = s.lockstep
         sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
+        _tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
         _freeze_heap()
         mono = time.monotonic
         if lock:
@@ -417,7 +421,7 @@ class RigNode(Node):
                         self._publish_clock()
                         self._publish_samples()
                         published = now
-                    time.sleep(5e-5)
+                    time.sleep(LOCKSTEP_POLL)
                     continue
             else:
                 ready = sim.ready_at(self.per)
