@@ -114,6 +114,7 @@ class RigNode(Node):
         self._last_reject_log: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
         self._logged = 0                                    # rig.log entries forwarded to the logger
+        self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
 
         sensor = qos_profile_sensor_data
         self._valve_pubs = []
@@ -277,8 +278,15 @@ class RigNode(Node):
     def _publish_samples(self) -> None:
         """The measured samples at the present step (sensor faults applied; non-finite: not published)."""
         rig = self.rig
-        y = rig.sensors.measure(rig.time, rig.sample()).tolist()
-        sec, nsec = divmod(self.origin_ns + rig.steps * self.dt_ns, 1_000_000_000)
+        self._last_sample = rig.sensors.measure(rig.time, rig.sample()).tolist()
+        self._shown = rig.steps
+        self._send_samples()
+
+    def _send_samples(self) -> None:
+        """Publish the last sample (again, for a lockstep re-publication: not computed anew, since
+        sampling moves the sensor faults' state and the coil solve's Newton start)."""
+        y = self._last_sample
+        sec, nsec = divmod(self.origin_ns + self._shown * self.dt_ns, 1_000_000_000)
         published = 0
         for k, (pub_p, pub_i, pub_x) in enumerate(self._valve_pubs):
             p, i, x = y[3 * k:3 * k + 3]
@@ -307,7 +315,6 @@ class RigNode(Node):
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
         joint.header.frame_id = CYLINDER
         self._pub_joint.publish(joint)
-        self._shown = rig.steps
         self.counts.samples_published += published
 
     def _publish_clock(self) -> None:
@@ -323,7 +330,7 @@ class RigNode(Node):
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         for st in self._diag.build(now, rig=self.rig, counts=self.counts, time_mode=self.settings.time_mode,
                                    lockstep=self.settings.lockstep, schedule=self._schedule, failure=self.failure,
-                                   waiting_for=waiting):
+                                   waiting_for=waiting, last=dict(zip(self.rig.signals, self._last_sample))):
             d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
             d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
             msg.status.append(d)
@@ -419,7 +426,7 @@ class RigNode(Node):
                 if len(self._answered) < valves:
                     if now - published > LOCKSTEP_RESEND:
                         self._publish_clock()
-                        self._publish_samples()
+                        self._send_samples()
                         published = now
                     time.sleep(LOCKSTEP_POLL)
                     continue

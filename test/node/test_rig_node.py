@@ -148,3 +148,70 @@ def test_real_time_publishes_and_a_signal_stops_it_cleanly(ros, sig):
     time.sleep(0.2)
     assert rig.stop(sig) == 0
     assert 'Traceback' not in rig.output()
+
+
+# --- without ROS: the fault commands and the settings' cross-checks ---------------------------------
+
+
+def _parse(text):
+    from pcv_sim.node.rig_settings import parse_fault_command
+
+    return parse_fault_command(text, valves=VALVES, signals=('left.pressure', 'cylinder.position'))
+
+
+def test_fault_commands_parse_with_the_rigs_fault_table():
+    cmd = _parse('{fault: supply_drop, valve: right, pressure: 8.0e+6}')
+    assert (cmd.clear, cmd.kind, cmd.target, dict(cmd.fault.values)) == (False, 'supply_drop', 'right',
+                                                                         {'pressure': 8e6})
+    cmd = _parse('{fault: bias, signal: left.pressure, value: 1.0e+5}')
+    assert cmd.fault.sensor and cmd.target == 'left.pressure'
+    cmd = _parse('{clear: supply_drop, valve: right}')      # no values needed to clear it
+    assert (cmd.clear, cmd.kind, cmd.target, cmd.fault) == (True, 'supply_drop', 'right', None)
+
+
+@pytest.mark.parametrize('text, match', [
+    ('[coil_open, left]', r'accepted is a YAML mapping such as \{fault: coil_open, valve: left\}'),
+    ('{fault: coil_open', r'is not YAML'),
+    ('{fault: coil_open, clear: coil_open, valve: left}', r"needs exactly one of 'fault' or 'clear'"),
+    ('{fault: coil_open}', r"needs exactly one of 'valve' \(a physical fault: left, right\)"),
+    ('{fault: coil_opn, valve: left}', r"kind 'coil_opn'; accepted are supply_drop"),
+    ('{fault: coil_open, valve: middle}', r"target 'middle' for coil_open; accepted are left, right"),
+    ('{fault: supply_drop, valve: left}', r'supply_drop needs pressure \(Pa\)'),
+    ('{fault: supply_drop, valve: left, pressure: 5.0e+9}', r'supply_drop.pressure = 5000000000.0; accepted'),
+    ('{clear: coil_open, valve: left, x: 1}', r'clear takes no values \(x\)'),
+    ('{clear: coil_opn, valve: left}', r"kind 'coil_opn'"),
+])
+def test_bad_fault_commands_are_refused_saying_what_is_accepted(text, match):
+    from pcv_sim.rig import FaultError
+
+    with pytest.raises(FaultError, match=match):
+        _parse(text)
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('time_mode', 'fast', r"time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ('real_time_factor', -1.0, r'real_time_factor: got -1.0; accepted is a number >= 0'),
+    ('control_period', -0.001, r'control_period'),
+    ('seed', -1, r'seed'),
+    ('nope', 1, r"unknown parameter 'nope'; accepted are: rig_config"),
+])
+def test_rig_parameters_are_checked_by_name(name, value, match):
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.rig_settings import check_rig_value
+
+    with pytest.raises(ParameterError, match=match):
+        check_rig_value(name, value)
+
+
+def test_settings_cross_check_the_rig_step_and_override_the_control_period():
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.rig_settings import RigNodeSettings
+    from pcv_sim.rig import load_rig
+
+    rig = load_rig()
+    assert RigNodeSettings(control_period=0.01).rig_params(rig).steps_per_period == 100
+    assert RigNodeSettings().rig_params(rig) is rig
+    with pytest.raises(ParameterError, match=r'wake_period 0.00025 s is not a whole multiple of the model step'):
+        RigNodeSettings(wake_period=2.5e-4).check(rig)
+    with pytest.raises(ParameterError, match=r'max_catchup: got 0.0005; accepted is a number >= wake_period'):
+        RigNodeSettings(max_catchup=5e-4).check(rig)
