@@ -47,7 +47,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Header, String
 
 from pcv_sim.errors import CommandError, ParameterError
 from pcv_sim.io.topics import (
@@ -129,10 +129,14 @@ class RigNode(Node):
                                                           COMMAND_QOS), handler))
         self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS), self._on_fault))
         self._pub_joint = self.create_publisher(JointState, f"{CYLINDER}/{JOINT_STATES}", sensor)
-        #: (publisher, index of the valve's pressure in the samples) per chamber
+        #: (publisher, index of the valve's pressure in the samples, its message) per chamber
         self._chamber_pubs = [(self.create_publisher(FluidPressure, chamber_topic(v.chamber), sensor),
-                               rig.signals.index(f"{v.name}.pressure"), f"chamber_{v.chamber}")
+                               rig.signals.index(f"{v.name}.pressure"),
+                               FluidPressure(header=Header(frame_id=f"chamber_{v.chamber}")))
                               for v in rig_params.valves if v.chamber in ("a", "b")]
+        self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
+        self._msg_float = Float64()
+        self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS)
         if self.simulated:
             self._refuse_a_second_clock()
@@ -284,36 +288,40 @@ class RigNode(Node):
 
     def _send_samples(self) -> None:
         """Publish the last sample (again, for a lockstep re-publication: not computed anew, since
-        sampling moves the sensor faults' state and the coil solve's Newton start)."""
+        sampling moves the sensor faults' state and the coil solve's Newton start). The messages
+        are made once and refilled (publish serializes them at once)."""
         y = self._last_sample
         sec, nsec = divmod(self.origin_ns + self._shown * self.dt_ns, 1_000_000_000)
+        isfinite = math.isfinite
         published = 0
+        msg_p, msg_f = self._msg_pressure, self._msg_float
+        msg_p.header.stamp.sec, msg_p.header.stamp.nanosec = sec, nsec
         for k, (pub_p, pub_i, pub_x) in enumerate(self._valve_pubs):
             p, i, x = y[3 * k:3 * k + 3]
-            if math.isfinite(p):
-                msg = FluidPressure(fluid_pressure=p)
+            if isfinite(p):
+                msg_p.fluid_pressure = p
+                pub_p.publish(msg_p)
+                published += 1
+            if isfinite(i):
+                msg_f.data = i
+                pub_i.publish(msg_f)
+                published += 1
+            if isfinite(x):
+                msg_f.data = x
+                pub_x.publish(msg_f)
+                published += 1
+        for pub, j, msg in self._chamber_pubs:
+            if isfinite(y[j]):
                 msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
-                msg.header.frame_id = "load_port"
-                pub_p.publish(msg)
-                published += 1
-            if math.isfinite(i):
-                pub_i.publish(Float64(data=i))
-                published += 1
-            if math.isfinite(x):
-                pub_x.publish(Float64(data=x))
-                published += 1
-        for pub, j, frame in self._chamber_pubs:
-            if math.isfinite(y[j]):
-                msg = FluidPressure(fluid_pressure=y[j])
-                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
-                msg.header.frame_id = frame
+                msg.fluid_pressure = y[j]
                 pub.publish(msg)
         # A dropped signal is left out of the message (JointState allows empty arrays per field).
+        joint = self._msg_joint
         pos, vel, eff = (y[j] for j in self._cyl_i)
-        joint = JointState(name=[JOINT_NAME], position=[pos] if math.isfinite(pos) else [],
-                           velocity=[vel] if math.isfinite(vel) else [], effort=[eff] if math.isfinite(eff) else [])
+        joint.position = [pos] if isfinite(pos) else []
+        joint.velocity = [vel] if isfinite(vel) else []
+        joint.effort = [eff] if isfinite(eff) else []
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
-        joint.header.frame_id = CYLINDER
         self._pub_joint.publish(joint)
         self.counts.samples_published += published
 
