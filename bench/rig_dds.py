@@ -8,7 +8,9 @@ config/rig.yaml at 0.1 ms) in its own process and ROS domain; in this process a 
 a 20 mm setpoint step at 0.1 s) answers every control period for both valves. Reported per control
 period (10 ms = 100 Hz, 1 ms = 1 kHz): the real-time factor (simulated s per wall s, median of the
 repeats, the first 50 periods not timed), and the wall time of one period at the controller
-(p50 / p99: rig computes and publishes, DDS both ways, the controller). The machine's load
+(p50 / p99: rig computes and publishes, DDS both ways, the controller). Then the rig node's own
+work in one 1 ms period, timed in this process without a DDS partner (the rest of a period is
+DDS delivery, the two processes' polling and the controller's side). The machine's load
 average is printed with the figures: on a shared machine it changes them.
 """
 
@@ -81,6 +83,30 @@ def one_run(context, domain: int, period: float, duration: float, k: int) -> dic
         client.close()
 
 
+def node_parts(context, n: int = 2000) -> dict[str, float]:
+    """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
+    from rclpy.parameter import Parameter  # noqa: PLC0415
+
+    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+
+    node = RigNode(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
+    rig = node.rig
+    node._publish_samples()          # a sample to publish again and again below
+    try:
+        def timed(fn) -> float:
+            t0 = time.perf_counter()
+            for _ in range(n):
+                fn()
+            return (time.perf_counter() - t0) / n * 1e6
+
+        return {"10_steps": timed(lambda: rig.advance_to(rig.steps + 10)),
+                "sample_and_sensors": timed(lambda: rig.sensors.measure(rig.time, rig.sample())),
+                "publish_period": timed(node._send_samples),
+                "take_inputs_none_pending": timed(node._drain)}
+    finally:
+        node.destroy_node()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -112,6 +138,7 @@ def main() -> None:
                 "rtf_median": statistics.median(r["rtf"] for r in runs), "rtf_best": best["rtf"],
                 "period_p50_us": statistics.median(r["period_p50_us"] for r in runs),
                 "period_p99_us": statistics.median(r["period_p99_us"] for r in runs)}
+        out["node_parts_us"] = node_parts(context)
     finally:
         rclpy.try_shutdown(context=context)
     out["load_after"] = os.getloadavg()[0]
@@ -127,6 +154,9 @@ def main() -> None:
         r = out[key]
         print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "            # type: ignore[index]
               f"{r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")                # type: ignore[index]
+    parts = out["node_parts_us"]
+    print("the rig node's own work in a 1 ms period: " + ", ".join(f"{k} {v:.1f} µs"              # type: ignore[union-attr]
+                                                                for k, v in parts.items()))        # type: ignore[union-attr]
 
 
 if __name__ == "__main__":
