@@ -215,3 +215,37 @@ def test_settings_cross_check_the_rig_step_and_override_the_control_period():
         RigNodeSettings(wake_period=2.5e-4).check(rig)
     with pytest.raises(ParameterError, match=r'max_catchup: got 0.0005; accepted is a number >= wake_period'):
         RigNodeSettings(max_catchup=5e-4).check(rig)
+
+
+def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
+    """The rule of the emulator, on the node itself (in this process; the step an input is given
+    is what decides it): the first step stamped at or after the DDS reception, after the last
+    sample shown, and two inputs on one valve never at the same step."""
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+
+    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.simulation.clock import RealTimeSchedule
+
+    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[Parameter('time_mode', value='real')])
+    try:
+        rig = node.rig
+        node._schedule = sched = RealTimeSchedule(rig.dt)
+        sched.start(time.monotonic() - 1.0)            # 1 s of wall time since the start: nothing is "future"
+        node.origin_ns = 1_000_000_000_000
+        node._shown = 20                               # the sample at step 20 has been published
+        steps = []
+
+        def acted_at(valve, received_ns):
+            node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
+            steps.append(max(rig._events, key=lambda e: e.seq).step)   # the one just given
+
+        acted_at('left', node.origin_ns + 2_345_000)    # received at 2.345 ms: step 24 (2.4 ms), not 23
+        acted_at('left', node.origin_ns + 2_345_000)    # the same instant again: the step after
+        acted_at('right', node.origin_ns + 500_000)     # received before the last sample shown: step 21
+        acted_at('right', node.origin_ns + 3_000_000)   # exactly on step 30
+        assert steps == [24, 25, 21, 30]
+        rig.advance_to(40)
+        assert rig.commands == {'left': 0.7, 'right': 0.7}
+    finally:
+        node.destroy_node()
