@@ -433,6 +433,13 @@ class RigNode(Node):
             if lock:
                 if len(self._answered) < valves:
                     if now - published > LOCKSTEP_RESEND:
+                        missing = [v for v in rig.valve_names if v not in self._answered]
+                        # A command was lost (sent before its publisher matched) or the controller is
+                        # slow: an answer to both copies may count for the next period, so such a run
+                        # is not promised to repeat bit for bit; say so.
+                        self.get_logger().warning(
+                            f"lockstep: no duty_cycle from {', '.join(missing)} for {LOCKSTEP_RESEND:g} s after the "
+                            f"sample at t = {rig.time:.4f} s: published again", throttle_duration_sec=5.0)
                         self._publish_clock()
                         self._send_samples()
                         published = now

@@ -56,6 +56,7 @@ def lockstep_run(ros, name, periods, load=False):
             h.kill()
             h.wait(5)
     assert rig.stop() == 0, rig.output()
+    assert 'published again' not in rig.output()       # the premise of bit for bit: no lost command
     client.close()
     ros.clients.remove(client)
     return run
