@@ -250,3 +250,30 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
         assert rig.commands == {'left': 0.7, 'right': 0.7}
     finally:
         node.destroy_node()
+
+
+def test_free_running_simulated_time_runs_without_a_controller_and_takes_commands(ros):
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01})
+    client = rig_client(ros)
+    assert client.wait_for_rig(60), rig.output()
+    seen = {}
+
+    def collect():
+        client.poll()
+        for stamp, part in list(client._partial.items()):
+            if 'joint' in part.values and 'left.pressure' in part.values:
+                seen[stamp] = part.values['left.pressure']
+        return len(seen) >= 50
+
+    assert wait_until(collect, 60), rig.output()
+    stamps = sorted(seen)
+    assert all(b - a == 10_000_000 for a, b in zip(stamps, stamps[1:]))   # every 10 ms period, none missing
+    from std_msgs.msg import Float64
+
+    sent_after = max(seen)
+    client.duty_pubs['left'].publish(Float64(data=0.9))
+    assert wait_until(lambda: collect() and len(seen) > len(stamps) + 100, 60)   # 1 s of model time later
+    before = max(p for t, p in seen.items() if t <= sent_after)      # 0.5 (the initial duty) or, after the
+    after = max(p for t, p in seen.items() if t > sent_after)        # 0.5 s watchdog, the safe duty 0
+    assert after > before + 20e5                                     # 0.9 raised the left pressure
+    assert 'left: watchdog fired' in rig.output()                    # no controller: model-time watchdog
