@@ -31,6 +31,25 @@ def _parameter_help() -> str:
     return "\n".join(lines)
 
 
+def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
+    """The rig YAML (config/rig.yaml) given as `--params-file`: rcl cannot read it (it is not a
+    ROS parameter file) and would fail with a parse error; say what to write instead."""
+    import yaml  # noqa: PLC0415
+
+    from pcv_sim.node.parameters import params_files  # noqa: PLC0415
+
+    for name in params_files(argv):
+        try:
+            with open(name, encoding="utf-8") as f:
+                data = yaml.safe_load(f)
+        except (OSError, yaml.YAMLError):
+            continue                               # rcl reports it
+        if isinstance(data, dict) and "valves" in data and "cylinder" in data:
+            return (f"--params-file {name}: a rig YAML (valves, cylinder), not a ROS parameter file; accepted is "
+                    f"-p rig_config:={name}, or a parameter file `rig: {{ros__parameters: {{rig_config: {name}}}}}`")
+    return None
+
+
 def main(args: list[str] | None = None) -> int:
     """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
     stop = Stop()
@@ -54,7 +73,15 @@ def _run(argv: list[str], stop: Stop) -> int:
         description="Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics "
                     "per valve: in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; "
                     "cylinder/joint_states, cylinder/pressure_a|b; in faults; /diagnostics, /clock.")
-    parser.parse_args(remove_ros_args(argv)[1:])
+    reason = _rig_yaml_as_params_file(argv)
+    if reason is None:
+        try:
+            parser.parse_args(remove_ros_args(argv)[1:])
+        except Exception as err:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError: a bad params file or remap
+            reason = f"--ros-args: {err}"
+    if reason is not None:
+        print(f"rig: invalid parameters: {reason}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETERS
     if stop.requested:
         print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK

@@ -15,10 +15,11 @@ from .conftest import Emulator, _ros_value, clean_child_env, wait_until
 VALVES = ('left', 'right')
 
 
-def start_rig(ros, name='rig', *, params=None):
+def start_rig(ros, name='rig', *, params=None, args=()):
     cmd = [sys.executable, '-m', 'pcv_sim.node.rig', '--ros-args', '-r', f'__ns:={ros.ns(name)}']
     for key, value in (params or {}).items():
         cmd += ['-p', f'{key}:={_ros_value(value)}']
+    cmd += list(args)
     proc = Emulator(cmd, ros.env, ros.tmp_path / f'{name}-{len(ros.emulators)}.log')
     ros.emulators.append(proc)      # the fixture stops it (SIGINT) and checks exit 0, no traceback
     return proc
@@ -120,14 +121,17 @@ def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
     assert client.currents['left'][-1][1] == pytest.approx(i_before, rel=0.02)
 
 
-@pytest.mark.parametrize('params, message', [
-    ({'control_period': 0.00015}, 'control_period 0.00015 s is not a whole multiple of the model step'),
-    ({'time_mode': 'fast'}, "time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
-    ({'rig_config': '/nonexistent/rig.yaml'}, 'cannot read rig file /nonexistent/rig.yaml'),
-    ({'contol_period': 0.01}, 'unknown parameter(s) contol_period (did you mean control_period?)'),
+@pytest.mark.parametrize('params, args, message', [
+    ({'control_period': 0.00015}, (), 'control_period 0.00015 s is not a whole multiple of the model step'),
+    ({'time_mode': 'fast'}, (), "time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ({'rig_config': '/nonexistent/rig.yaml'}, (), 'cannot read rig file /nonexistent/rig.yaml'),
+    ({'contol_period': 0.01}, (), 'unknown parameter(s) contol_period (did you mean control_period?)'),
+    ({}, ('--params-file', 'config/rig.yaml'),
+     '--params-file config/rig.yaml: a rig YAML (valves, cylinder), not a ROS parameter file; accepted is '
+     '-p rig_config:=config/rig.yaml'),
 ])
-def test_invalid_parameters_exit_2_naming_the_parameter(ros, params, message):
-    rig = start_rig(ros, params=params)
+def test_invalid_parameters_exit_2_naming_the_parameter(ros, params, args, message):
+    rig = start_rig(ros, params=params, args=args)
     assert rig.wait(60) == 2
     out = rig.output()
     assert message in out and 'rig: invalid parameters' in out and 'Traceback' not in out
