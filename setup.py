@@ -49,6 +49,7 @@ setup(
             'pcv-sim = pcv_sim.cli:main',
             'emulator = pcv_sim.node.emulator:main',
             'demo = pcv_sim.node.demo:main',
+            'rig = pcv_sim.node.rig:main',
         ],
     },
 )

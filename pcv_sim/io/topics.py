@@ -17,10 +17,14 @@ from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
 
 __all__ = [
     "BAG_TOPICS",
+    "CHAMBER_PRESSURE",
     "CLOCK",
     "CURRENT",
+    "CYLINDER",
     "DIAGNOSTICS",
     "DUTY_CYCLE",
+    "FAULTS",
+    "JOINT_STATES",
     "INPUT_ROLES",
     "LOAD_FLOW",
     "OUTPUT_ROLES",
@@ -33,7 +37,9 @@ __all__ = [
     "SPOOL_POSITION",
     "SUPPLY_PRESSURE",
     "bag_topic",
+    "chamber_topic",
     "role_of",
+    "valve_topic",
 ]
 
 # Relative topic names: the node's endpoints.
@@ -46,6 +52,12 @@ SPOOL_POSITION: Final = "spool_position"    # out, std_msgs/Float64, m
 DIAGNOSTICS: Final = "/diagnostics"         # out, diagnostic_msgs/DiagnosticArray (absolute by ROS habit)
 CLOCK: Final = "/clock"                     # out (simulated time) or in (use_sim_time), rosgraph_msgs/Clock
 RESET: Final = "reset"                      # service, std_srvs/Trigger
+
+# The rig node (`pcv_sim.node.rig`): each valve's topics above under `<valve>/`, and
+CYLINDER: Final = "cylinder"                # namespace of the cylinder's topics
+JOINT_STATES: Final = "joint_states"        # out, sensor_msgs/JointState: prismatic joint, m, m/s, N
+CHAMBER_PRESSURE: Final = "pressure_{}"     # out, sensor_msgs/FluidPressure, Pa, chamber a | b (= its valve's)
+FAULTS: Final = "faults"                    # in, std_msgs/String: {fault: coil_open, valve: left} (YAML)
 
 INPUT_ROLES: Final = (DUTY_CYCLE, LOAD_FLOW, SUPPLY_PRESSURE)
 OUTPUT_ROLES: Final = (PRESSURE, CURRENT, SPOOL_POSITION)
@@ -87,6 +99,16 @@ def bag_topic(role: str, namespace: str = "/") -> str:
 
 #: Topic -> type as the emulator in the root namespace records them.
 BAG_TOPICS: Final = {bag_topic(role): msgtype for role, msgtype in ROLE_TYPES.items()}
+
+
+def valve_topic(valve: str, role: str) -> str:
+    """The rig node's relative topic of one valve's role (``left/pressure``)."""
+    return f"{valve}/{role}"
+
+
+def chamber_topic(chamber: str) -> str:
+    """The rig node's relative topic of a chamber's pressure (``cylinder/pressure_a``)."""
+    return f"{CYLINDER}/{CHAMBER_PRESSURE.format(chamber)}"
 
 
 def role_of(name: str) -> str | None:

@@ -11,6 +11,7 @@ moment stops the emulator cleanly (exit 0; a recording that had started is final
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 from typing import Any, Callable
@@ -51,6 +52,7 @@ def _parameter_help() -> str:
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point `emulator`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
+    faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
     stop = Stop()
     previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
     for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports below is a clean stop

@@ -1,0 +1,163 @@
+"""Benchmark: the rig node in lockstep over DDS with a Python controller node.
+
+    .venv-kilted/bin/python bench/rig_dds.py [--repeats 3] [--duration 2.0] [--json]
+
+The rig node (`python -m pcv_sim.node.rig`, two simplified valves + the steering cylinder of
+config/rig.yaml at 0.1 ms) in its own process and ROS domain; in this process a controller node
+(`pcv_sim.node.rig_client.RigClient`: the example PI position controller, examples/steering.py,
+a 20 mm setpoint step at 0.1 s) answers every control period for both valves. Reported per control
+period (10 ms = 100 Hz, 1 ms = 1 kHz): the real-time factor (simulated s per wall s, median of the
+repeats, the first 50 periods not timed), and the wall time of one period at the controller
+(p50 / p99: rig computes and publishes, DDS both ways, the controller). Then the rig node's own
+work in one 1 ms period, timed in this process without a DDS partner (the rest of a period is
+DDS delivery, the two processes' polling and the controller's side). The machine's load
+average is printed with the figures: on a shared machine it changes them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "examples"))
+VALVES = ("left", "right")
+WARMUP = 50
+
+
+def _child_env(domain: int) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return env
+
+
+def one_run(context, domain: int, period: float, duration: float, k: int) -> dict[str, float]:
+    from steering import PositionController  # noqa: PLC0415
+
+    from pcv_sim.node.rig_client import RigClient  # noqa: PLC0415
+
+    ns = f"/bench{os.getpid()}_{k}"
+    log = open(os.devnull, "w")
+    proc = subprocess.Popen([sys.executable, "-m", "pcv_sim.node.rig", "--ros-args", "-r", f"__ns:={ns}",
+                             "-p", f"control_period:={period!r}"], env=_child_env(domain), cwd=REPO,
+                            stdout=log, stderr=subprocess.STDOUT)
+    client = RigClient(ns, VALVES, context=context, node_name=f"bench_ctl_{k}", currents=True)
+    try:
+        if not client.wait_for_rig(60):
+            raise RuntimeError("the rig node did not come up")
+        ctrl = PositionController(period=period)
+
+        def controller(t: float, m: dict[str, float]) -> dict[str, float]:
+            m["setpoint"] = 0.02 if t >= 0.1 else 0.0
+            out = ctrl(t, m)
+            return {v: out[v] for v in VALVES}
+
+        client.run(controller, WARMUP, timeout=60)
+        n = int(round(duration / period))
+        walls = []
+        last = time.perf_counter()
+        t0 = last
+
+        def tick(_k: int) -> None:
+            nonlocal last
+            now = time.perf_counter()
+            walls.append(now - last)
+            last = now
+
+        client.run(controller, n, timeout=600, before=tick)
+        wall = time.perf_counter() - t0
+        walls.sort()
+        return {"rtf": n * period / wall, "period_p50_us": walls[len(walls) // 2] * 1e6,
+                "period_p99_us": walls[int(len(walls) * 0.99)] * 1e6}
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+        client.close()
+
+
+def node_parts(context, n: int = 2000) -> dict[str, float]:
+    """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
+    from rclpy.parameter import Parameter  # noqa: PLC0415
+
+    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+
+    node = RigNode(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
+    rig = node.rig
+    node._publish_samples()          # a sample to publish again and again below
+    try:
+        def timed(fn) -> float:
+            t0 = time.perf_counter()
+            for _ in range(n):
+                fn()
+            return (time.perf_counter() - t0) / n * 1e6
+
+        return {"10_steps": timed(lambda: rig.advance_to(rig.steps + 10)),
+                "sample_and_sensors": timed(lambda: rig.sensors.measure(rig.time, rig.sample())),
+                "publish_period": timed(node._send_samples),
+                "take_inputs_none_pending": timed(node._drain)}
+    finally:
+        node.destroy_node()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--duration", type=float, default=2.0, help="simulated s per run")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+
+    import rclpy  # noqa: PLC0415
+
+    from pcv_sim.node.adapter import _tighten_timer_slack  # noqa: PLC0415
+    from pcv_sim.jit import backend  # noqa: PLC0415
+
+    _tighten_timer_slack()      # the controller polls in 20 us sleeps, as the rig node does
+    domain = 150 + os.getpid() % 50
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    out: dict[str, object] = {"backend": backend(), "python": platform.python_version(), "cpus": os.cpu_count(),
+                              "load_before": os.getloadavg()[0]}
+    try:
+        k = 0
+        for period in (1e-2, 1e-3):
+            runs = []
+            for _ in range(args.repeats):
+                runs.append(one_run(context, domain, period, args.duration, k))
+                k += 1
+            best = max(runs, key=lambda r: r["rtf"])
+            out[f"{period * 1e3:g}ms"] = {
+                "rtf_median": statistics.median(r["rtf"] for r in runs), "rtf_best": best["rtf"],
+                "period_p50_us": statistics.median(r["period_p50_us"] for r in runs),
+                "period_p99_us": statistics.median(r["period_p99_us"] for r in runs)}
+        out["node_parts_us"] = node_parts(context)
+    finally:
+        rclpy.try_shutdown(context=context)
+    out["load_after"] = os.getloadavg()[0]
+    if args.json:
+        json.dump(out, sys.stdout, indent=2)
+        print()
+        return
+    print(f"backend {out['backend']}, Python {out['python']}, {out['cpus']} CPUs, load average "
+          f"{out['load_before']:.1f} -> {out['load_after']:.1f}")
+    print(f"| control period | real-time factor (median of {args.repeats}) | best | one period p50 / p99 |")
+    print("|---|---|---|---|")
+    for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
+        r = out[key]
+        print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "            # type: ignore[index]
+              f"{r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")                # type: ignore[index]
+    parts = out["node_parts_us"]
+    print("the rig node's own work in a 1 ms period: " + ", ".join(f"{k} {v:.1f} µs"              # type: ignore[union-attr]
+                                                                for k, v in parts.items()))        # type: ignore[union-attr]
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""The `rig` executable: N valves + the steering cylinder (`pcv_sim.rig`) as one ROS 2 node.
+
+    ros2 run pcv_sim rig --ros-args -p rig_config:=config/rig.yaml
+    python -m pcv_sim.node.rig --ros-args -p control_period:=0.01
+
+This module owns the process (signals, exit status), as `pcv_sim.node.emulator` does for one
+valve; the node is `pcv_sim.node.rig_node.RigNode`. Only the standard library is imported at the
+top: SIGINT/SIGTERM handling is installed first, so a signal at any moment is a clean stop (exit
+0); invalid parameters exit 2 with a message naming the parameter.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import signal
+import sys
+from typing import Any, Callable
+
+from pcv_sim.node.emulator import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop
+
+__all__ = ["main"]
+
+
+def _parameter_help() -> str:
+    from pcv_sim.node.rig_settings import RIG_PARAMETERS  # noqa: PLC0415 - after the handlers
+
+    lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file FILE):"]
+    for spec in RIG_PARAMETERS:
+        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]")
+        lines.append(f"      {spec.description}")
+    lines.append("  the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
+    return "\n".join(lines)
+
+
+def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
+    """The rig YAML (config/rig.yaml) given as `--params-file`: rcl cannot read it (it is not a
+    ROS parameter file) and would fail with a parse error; say what to write instead."""
+    import yaml  # noqa: PLC0415
+
+    from pcv_sim.device.parameters import params_files  # noqa: PLC0415
+
+    for name in params_files(argv):
+        try:
+            with open(name, encoding="utf-8") as f:
+                data = yaml.safe_load(f)
+        except (OSError, yaml.YAMLError):
+            continue                               # rcl reports it
+        if isinstance(data, dict) and "valves" in data and "cylinder" in data:
+            return (f"--params-file {name}: a rig YAML (valves, cylinder), not a ROS parameter file; accepted is "
+                    f"-p rig_config:={name}, or a parameter file `rig: {{ros__parameters: {{rig_config: {name}}}}}`")
+    return None
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
+    faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
+    stop = Stop()
+    previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports below is a clean stop
+        previous[sig] = signal.signal(sig, stop)
+    try:
+        return _run(list(sys.argv if args is None else args), stop)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _run(argv: list[str], stop: Stop) -> int:
+    import argparse  # noqa: PLC0415 - imports after the signal handlers, see the module docstring
+
+    from rclpy.utilities import remove_ros_args  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(
+        prog="rig", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
+        description="Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics "
+                    "per valve: in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; "
+                    "cylinder/joint_states, cylinder/pressure_a|b; in faults; /diagnostics, /clock.")
+    reason = _rig_yaml_as_params_file(argv)
+    if reason is None:
+        try:
+            parser.parse_args(remove_ros_args(argv)[1:])
+        except Exception as err:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError: a bad params file or remap
+            reason = f"--ros-args: {err}"
+    if reason is not None:
+        print(f"rig: invalid parameters: {reason}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETERS
+    if stop.requested:
+        print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
+        return EXIT_OK
+
+    import rclpy  # noqa: PLC0415
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+
+    from pcv_sim.errors import ParameterError  # noqa: PLC0415
+    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        try:
+            node = RigNode(argv=argv)
+        except ParameterError as err:
+            print(f"rig: invalid parameters: {err}", file=sys.stderr)
+            return EXIT_INVALID_PARAMETERS
+        if stop.requested:
+            print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
+            return EXIT_OK
+        node.run(stop)
+        node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
+        return EXIT_OK
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

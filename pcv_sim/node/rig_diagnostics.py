@@ -1,0 +1,141 @@
+"""The rig node's health: one status per valve and one for the rig, without ROS.
+
+`RigDiagnostics.build` returns plain `Status` values (pcv_sim.device.diagnostics' type: level,
+message, string key values with SI units in the names); the node turns them into a
+DiagnosticArray. Names `<node full name>: <valve>` and `<node full name>: rig`, hardware_id the
+node's full name (REP 107 style, as the emulator's).
+
+    <valve>  WARN while its watchdog has fired, while a fault is active on it or on one of its
+             signals, or when its duty commands were refused in the period.
+    rig      ERROR when the model ran away (non-finite: nothing is published any more); WARN
+             while any fault is active, any watchdog has fired, fault commands were refused in
+             the period, or (real time) steps were skipped in the period (late ones are counted).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from pcv_sim.device.diagnostics import ERROR, OK, WARN, Status
+from pcv_sim.rig.rig import Rig
+from pcv_sim.simulation.clock import RealTimeSchedule
+
+__all__ = ["RigCounts", "RigDiagnostics"]
+
+
+@dataclass
+class RigCounts:
+    """What the node counts of its inputs (all of them; the log is rate-limited)."""
+
+    accepted: dict[str, int] = field(default_factory=dict)     # valve -> valid duty commands
+    rejected: dict[str, int] = field(default_factory=dict)     # valve -> refused duty commands
+    faults_accepted: int = 0
+    faults_rejected: int = 0
+    last_rejection: str = ""
+    samples_published: int = 0
+
+
+class RigDiagnostics:
+    """Keeps the counts of the previous period; `build` once per diagnostics period."""
+
+    def __init__(self, node_name: str, now: float) -> None:
+        self.node_name = node_name
+        self._wall = now
+        self._steps = 0
+        self._prev: dict[str, int] = {}
+
+    def restart(self, now: float, steps: int) -> None:
+        self._wall, self._steps = now, steps
+
+    def _status(self, concern: str, level: int, problems: list[str], ok: str, values: dict[str, Any]) -> Status:
+        return Status(f"{self.node_name}: {concern}", self.node_name, level, "; ".join(problems) if problems else ok,
+                      {k: str(v) for k, v in values.items()})
+
+    def build(self, now: float, *, rig: Rig, counts: RigCounts, time_mode: str, lockstep: bool,
+              schedule: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
+              last: dict[str, float]) -> list[Status]:
+        """`last`: the last published (measured) sample, signal -> SI value. Never the rig's sample()
+        here: computing outputs moves the coil solve's Newton start, and a run must not depend on
+        when the wall-clock diagnostics came."""
+        wall = max(now - self._wall, 1e-9)
+        period_steps = rig.steps - self._steps
+        totals = {f"rejected.{v}": n for v, n in counts.rejected.items()}
+        totals["rejected.faults"] = counts.faults_rejected
+        if schedule is not None:
+            totals["late_steps"] = schedule.late_steps
+            totals["skipped_steps"] = schedule.skipped_steps
+        new = {k: v - self._prev.get(k, 0) for k, v in totals.items()}
+        self._wall, self._steps, self._prev = now, rig.steps, totals
+        statuses = [self._valve(rig, v, counts, new, last) for v in rig.valve_names]
+        statuses.append(self._rig(rig, counts, new, time_mode, lockstep, schedule, failure, waiting_for,
+                                  period_steps * rig.dt / wall))
+        return statuses
+
+    def _valve(self, rig: Rig, name: str, counts: RigCounts, new: dict[str, int], y: dict[str, float]) -> Status:
+        faults = [f"{kind}@{target}" for (target, kind) in rig.faults
+                  if target == name or target.startswith(f"{name}.")]
+        problems = []
+        if rig.watchdog_fired[name]:
+            problems.append(f"watchdog: no duty command for {rig.params.timing.watchdog_timeout:g} s, "
+                            f"safe duty {rig.params.timing.safe_duty:g}")
+        if faults:
+            problems.append(f"fault(s) active: {', '.join(faults)}")
+        if new.get(f"rejected.{name}"):
+            problems.append(f"{new[f'rejected.{name}']} duty command(s) rejected")
+        slot = rig.params.valve(name)
+        values: dict[str, Any] = {
+            "chamber": slot.chamber,
+            "duty_command": f"{rig.commands[name]:g}",
+            "duty_in_force": f"{rig.duties[name]:g}",
+            "watchdog": "off" if not rig.params.timing.watchdog_timeout else
+                        "fired" if rig.watchdog_fired[name] else "ok",
+            "faults": ", ".join(faults),
+            "accepted.duty_cycle": counts.accepted.get(name, 0),
+            "rejected.duty_cycle": counts.rejected.get(name, 0),
+        }
+        for key, signal, fmt in (("pressure_pa", "pressure", ".1f"), ("current_a", "current", ".5f"),
+                                 ("spool_position_m", "spool_position", ".4e")):
+            v = y.get(f"{name}.{signal}")
+            values[key] = format(v, fmt) if v is not None and v == v else ""
+        return self._status(name, WARN if problems else OK, problems, "ok", values)
+
+    def _rig(self, rig: Rig, counts: RigCounts, new: dict[str, int], time_mode: str, lockstep: bool,
+             sched: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
+             factor: float) -> Status:
+        faults = [f"{kind}@{target}" for (target, kind) in rig.faults]
+        fired = [v for v in rig.valve_names if rig.watchdog_fired[v]]
+        rejected = sum(counts.rejected.values())
+        problems = []
+        if faults:
+            problems.append(f"fault(s) active: {', '.join(faults)}")
+        if fired:
+            problems.append(f"watchdog fired: {', '.join(fired)}")
+        if new.get("rejected.faults"):
+            problems.append(f"{new['rejected.faults']} fault command(s) rejected")
+        values: dict[str, Any] = {
+            "time_mode": time_mode,
+            "lockstep": str(lockstep).lower() if time_mode == "simulated" else "",
+            "model_time_s": f"{rig.time:.4f}",
+            "real_time_factor": f"{factor:.4f}",
+            "control_period_s": f"{rig.params.timing.control_period:g}",
+            "faults_active": ", ".join(faults),
+            "watchdog_fired": ", ".join(fired),
+            "rejected_inputs": rejected + counts.faults_rejected,
+            "rejected.duty_cycle": rejected,
+            "rejected.faults": counts.faults_rejected,
+            "accepted.faults": counts.faults_accepted,
+            "last_rejection": counts.last_rejection,
+            "samples_published": counts.samples_published,
+            "waiting_for": ", ".join(waiting_for),
+        }
+        if sched is not None:
+            # Late steps are counted, not warned about: on a shared machine a few are normal (the
+            # emulator's timing status has the thresholds); skipped ones are a jump of the model.
+            if new.get("skipped_steps"):
+                problems.append(f"{new['skipped_steps']} steps skipped (model held)")
+            values.update({"late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
+                           "max_lag_ms": f"{sched.max_lag * 1e3:.3f}"})
+        if failure is not None:
+            return self._status("rig", ERROR, [f"model stopped: {failure}", *problems], "", values)
+        return self._status("rig", WARN if problems else OK, problems, "running", values)

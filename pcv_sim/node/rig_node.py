@@ -1,0 +1,493 @@
+"""`RigNode`: the rig (`pcv_sim.rig.Rig`: N valves + the steering cylinder at one 0.1 ms step) on ROS 2.
+
+Started by `pcv_sim.node.rig` (the `rig` executable), which owns the process: signals, exit status.
+A thin adapter: ROS parameters in, `Rig` in the middle, messages out; no physics here. Topic
+names are relative (`pcv_sim.io.topics`); each valve keeps the emulator's interface under its name:
+
+    in   <valve>/duty_cycle      std_msgs/Float64            duty, fraction 0..1          reliable, depth 10
+    out  <valve>/pressure        sensor_msgs/FluidPressure   Pa, stamp = model time       sensor data
+    out  <valve>/current         std_msgs/Float64            A                            sensor data
+    out  <valve>/spool_position  std_msgs/Float64            m                            sensor data
+    out  cylinder/joint_states   sensor_msgs/JointState      prismatic `steering`: m, m/s, N   sensor data
+    out  cylinder/pressure_a|b   sensor_msgs/FluidPressure   Pa, the chamber (= its valve's pressure)
+    in   faults                  std_msgs/String             {fault: coil_open, valve: left} (YAML)
+    out  /diagnostics            one status per valve and one for the rig, every diagnostics_period
+    out  /clock                  rosgraph_msgs/Clock (simulated time only: one clock for the whole rig)
+
+Samples leave every control period (model time), measured values (sensor faults applied; a
+dropped or non-finite one is not published).
+
+The loop is the emulator's (see `pcv_sim.node.adapter`): no executor, no timer, inputs taken by
+`take_message` polling, because at 1 kHz an executor costs more than the work.
+- Simulated time, lockstep (default): publish /clock and the samples at T = k x control period,
+  wait until every valve has had a duty_cycle message since then, apply them at T (they act on
+  [T, T + dt] onwards, as `pcv_sim.rig.run_lockstep`), compute to T + control period, repeat:
+  bit for bit the same run for a controller that answers the same way. A sample left unanswered
+  for 0.5 s is published again (a controller not yet connected).
+- Simulated, `lockstep: false`: periods back to back at `real_time_factor`; inputs act from the
+  period after they were taken.
+- Real time: `RealTimeSchedule` on the monotonic clock; an input acts at the first step stamped at
+  or after its DDS reception (never before, never before the last sample shown), as the emulator.
+Duty commands are validated with the valve's rules (`check_duty`); refused ones are counted and
+logged at most once per `reject_log_period` per valve. Fault commands act at the step the
+inputs would and are validated with the rig's fault table.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from functools import partial
+from typing import Any, Callable
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import FluidPressure, JointState
+from std_msgs.msg import Float64, Header, String
+
+from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.io.topics import (
+    CLOCK, CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, SPOOL_POSITION,
+    chamber_topic, valve_topic,
+)
+from pcv_sim.node.adapter import (
+    CLOCK_DISCOVERY, CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, LOCKSTEP_RESEND, StopFlag, _freeze_heap,
+    _tighten_timer_slack,
+)
+from pcv_sim.device.parameters import (
+    check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
+)
+from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
+from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value, parse_fault_command, settings_from
+from pcv_sim.rig import FaultError, Rig, RigError, load_rig
+from pcv_sim.simulation.clock import RealTimeSchedule, SimulatedSchedule
+from pcv_sim.simulation.duty import check_duty
+
+__all__ = ["RigNode", "NODE_NAME", "JOINT_NAME"]
+
+NODE_NAME = "rig"
+JOINT_NAME = "steering"
+SERVICE_POLL_EVERY = 10
+_FAULTS_KEY = "faults"          # the reject-log key of the faults topic
+# s between polls for the controller's commands: polling beat an rcl wait set here (a wake through
+# rmw_wait took longer than a 20 us sleep; bench/rig_dds.py, BENCHMARKS.md "Rig")
+LOCKSTEP_POLL = 2e-5
+
+
+class RigNode(Node):
+    """ROS parameters in, `Rig` out. Construct, then `run(stop)`."""
+
+    def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        try:
+            self._setup(argv)
+        except ParameterError as err:
+            self.get_logger().error(f"invalid parameters: {err}")
+            self.destroy_node()
+            raise
+
+    # --- set-up --------------------------------------------------------------------------------
+
+    def _setup(self, argv: list[str] | None) -> None:
+        self._argv = list(sys.argv if argv is None else argv)
+        s = self.settings = self._declare_parameters()
+        if self.get_parameter("use_sim_time").value:
+            raise ParameterError("use_sim_time: the rig keeps its own time (time_mode simulated publishes /clock, "
+                                 "real follows the wall clock); accepted is false")
+        loaded = load_rig(s.rig_config or None)
+        rig_params = s.check(loaded).rig_params(loaded)
+        self.rig = rig = Rig(rig_params, seed=s.seed)
+        self.simulated = s.time_mode == "simulated"
+        self.per = rig_params.steps_per_period
+        self.dt_ns = round(rig.dt * 1e9)
+        self.origin_ns = 0
+        self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
+        self.failure: str | None = None
+        self._schedule: RealTimeSchedule | None = None
+        self._shown = 0                                     # last step whose sample was published
+        self._last_input: dict[str, int] = {}               # per input: the step its last value acts at
+        self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
+        self._last_reject_log: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._logged = 0                                    # rig.log entries forwarded to the logger
+        self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
+
+        sensor = qos_profile_sensor_data
+        self._valve_pubs = []
+        self._inputs: list[tuple[Any, Callable[..., None]]] = []
+        for name in rig.valve_names:
+            self._valve_pubs.append((
+                self.create_publisher(FluidPressure, valve_topic(name, PRESSURE), sensor),
+                self.create_publisher(Float64, valve_topic(name, CURRENT), sensor),
+                self.create_publisher(Float64, valve_topic(name, SPOOL_POSITION), sensor)))
+            handler = partial(self._on_duty, name)
+            self._inputs.append((self.create_subscription(Float64, valve_topic(name, DUTY_CYCLE), handler,
+                                                          COMMAND_QOS), handler))
+        self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS), self._on_fault))
+        self._pub_joint = self.create_publisher(JointState, f"{CYLINDER}/{JOINT_STATES}", sensor)
+        #: (publisher, index of the valve's pressure in the samples, its message) per chamber
+        self._chamber_pubs = [(self.create_publisher(FluidPressure, chamber_topic(v.chamber), sensor),
+                               rig.signals.index(f"{v.name}.pressure"),
+                               FluidPressure(header=Header(frame_id=f"chamber_{v.chamber}")))
+                              for v in rig_params.valves if v.chamber in ("a", "b")]
+        self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
+        self._msg_float = Float64()
+        self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
+        self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS)
+        if self.simulated:
+            self._refuse_a_second_clock()
+        self._pub_clock = self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.simulated else None
+        self._n_signals = len(rig.signals)
+        self._cyl_i = [rig.signals.index(f"{CYLINDER}.{q}") for q in ("position", "velocity", "effort")]
+        self._diag = RigDiagnostics(self.get_fully_qualified_name(), time.monotonic())
+        mode = (f"simulated time, {'lockstep' if s.lockstep else f'free running (factor {s.real_time_factor:g})'}"
+                if self.simulated else "real time")
+        self.get_logger().info(
+            f"rig: valves {', '.join(f'{v.name} (chamber {v.chamber})' for v in rig_params.valves)} + cylinder, "
+            f"step {rig.dt * 1e3:g} ms, {mode}, samples and commands every "
+            f"{rig_params.timing.control_period * 1e3:g} ms, watchdog {rig_params.timing.watchdog_timeout:g} s, "
+            f"rig config {s.rig_config or 'shipped default'}")
+
+    def _declare_parameters(self) -> RigNodeSettings:
+        """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
+        As the emulator: a key given twice in a params file, a `-p` override rcl dropped for its type,
+        and names nobody declares are refused too (pcv_sim.device.parameters)."""
+        check_params_files(self._argv)
+        cli = command_line_overrides(self._argv, self.get_name())
+        values = {}
+        for spec in RIG_PARAMETERS:
+            desc = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]", dynamic_typing=True,
+                                       read_only=spec.read_only)
+            value = self.declare_parameter(spec.name, spec.default, desc).value
+            override = cli.get(spec.name)
+            if override is not None and override_not_taken(override, value):
+                value = override.value                   # rcl dropped it (type differs from the file's)
+            values[spec.name] = check_rig_value(spec.name, value)
+        settings = settings_from(values)
+        declared = {spec.name for spec in RIG_PARAMETERS}
+        overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(cli)
+        unknown = sorted(n for n in overrides if n not in declared and not is_ros_own(n))
+        if unknown and not settings.allow_unknown_parameters:
+            refuse_unknown(unknown, declared, hint="; the physics is set in the rig YAML (rig_config)")
+        if unknown:
+            self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
+        return settings
+
+    def _refuse_a_second_clock(self) -> None:
+        """As the emulator: one /clock only; the newcomer looks for another for CLOCK_DISCOVERY s."""
+        end = time.monotonic() + CLOCK_DISCOVERY
+        while True:
+            others = self.count_publishers(CLOCK)
+            if others > 0 or time.monotonic() >= end:
+                break
+            time.sleep(0.05)
+        if others > 0:
+            raise ParameterError(f"time_mode: simulated: {others} other publisher(s) of {CLOCK} found; two clocks "
+                                 "make time jump for every node that follows /clock. Accepted is one clock: stop the "
+                                 "other simulation, or run this rig with time_mode real")
+
+    # --- inputs --------------------------------------------------------------------------------
+
+    def _at_step(self, info: Any) -> int:
+        """The step an input takes effect at: in simulated time the present step (the period being
+        computed next); in real time the first step stamped at or after its DDS reception."""
+        rig = self.rig
+        first = rig.steps if self.simulated else max(rig.steps, self._shown + 1)
+        sched = self._schedule
+        if sched is None:
+            return first
+        taken = -(-round((time.monotonic() - sched.t0) * 1e9) // self.dt_ns)
+        r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
+        at = min(-(-(r_ns - self.origin_ns) // self.dt_ns), taken) if r_ns else taken
+        return max(at, first)
+
+    def _when(self, key: str, info: Any, action: Callable[[], None]) -> None:
+        """Run `action` at its step: now in simulated time, scheduled in the rig in real time (two
+        inputs on one topic never act at the same step, so none is lost unseen)."""
+        if self._schedule is None:
+            action()
+            return
+        at = max(self._at_step(info), self._last_input.get(key, -1) + 1)
+        self._last_input[key] = at
+        self.rig.schedule(at * self.rig.dt, action)
+
+    def _on_duty(self, valve: str, msg: Float64, info: Any = None) -> None:
+        self._answered.add(valve)
+        rig = self.rig
+        try:
+            duty = check_duty(msg.data, rig.params.valve(valve).params.command.duty_range)
+        except CommandError as err:
+            self.counts.rejected[valve] += 1
+            self.counts.last_rejection = f"{valve}/{DUTY_CYCLE}: {err}"
+            self._log_rejection(valve, f"{valve}/{DUTY_CYCLE}", str(err), "the last valid value stays in force")
+            return
+        self.counts.accepted[valve] += 1
+        self._when(valve, info, partial(rig.set_duty, valve, duty))
+
+    def _on_fault(self, msg: String, info: Any = None) -> None:
+        rig = self.rig
+        try:
+            cmd = parse_fault_command(msg.data, valves=rig.valve_names, signals=rig.signals)
+        except FaultError as err:
+            self._refuse_fault(str(err))
+            return
+        self.counts.faults_accepted += 1
+
+        def apply() -> None:
+            try:
+                if cmd.clear:
+                    rig.clear(cmd.target, cmd.kind)
+                else:
+                    assert cmd.fault is not None     # a command that is not a clear carries its fault
+                    rig.inject(cmd.fault)
+            except FaultError as err:            # e.g. clearing a fault that is not active
+                self.counts.faults_accepted -= 1
+                self._refuse_fault(str(err))
+
+        self._when(_FAULTS_KEY, info, apply)
+
+    def _refuse_fault(self, reason: str) -> None:
+        self.counts.faults_rejected += 1
+        self.counts.last_rejection = f"{FAULTS}: {reason}"
+        self._log_rejection(_FAULTS_KEY, FAULTS, reason, "nothing changed")
+
+    def _log_rejection(self, key: str, topic: str, reason: str, outcome: str) -> None:
+        now = time.monotonic()
+        if now - self._last_reject_log.get(key, -math.inf) < self.settings.reject_log_period:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+            return
+        more = self._suppressed.pop(key, 0)
+        self._last_reject_log[key] = now
+        tail = f" ({more} more rejected since the last message)" if more else ""
+        self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
+
+    def _drain(self) -> int:
+        """Take every pending input message (no executor: `take_message` polling)."""
+        taken = 0
+        for sub, handler in self._inputs:
+            while True:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                if got is None:
+                    break
+                handler(*got)
+                taken += 1
+        return taken
+
+    # --- outputs -------------------------------------------------------------------------------
+
+    def _publish_samples(self) -> None:
+        """The measured samples at the present step (sensor faults applied; non-finite: not published)."""
+        rig = self.rig
+        self._last_sample = rig.sensors.measure(rig.time, rig.sample()).tolist()
+        self._shown = rig.steps
+        self._send_samples()
+
+    def _send_samples(self) -> None:
+        """Publish the last sample (again, for a lockstep re-publication: not computed anew, since
+        sampling moves the sensor faults' state and the coil solve's Newton start). The messages
+        are made once and refilled (publish serializes them at once)."""
+        y = self._last_sample
+        sec, nsec = divmod(self.origin_ns + self._shown * self.dt_ns, 1_000_000_000)
+        isfinite = math.isfinite
+        published = 0
+        msg_p, msg_f = self._msg_pressure, self._msg_float
+        msg_p.header.stamp.sec, msg_p.header.stamp.nanosec = sec, nsec
+        for k, (pub_p, pub_i, pub_x) in enumerate(self._valve_pubs):
+            p, i, x = y[3 * k:3 * k + 3]
+            if isfinite(p):
+                msg_p.fluid_pressure = p
+                pub_p.publish(msg_p)
+                published += 1
+            if isfinite(i):
+                msg_f.data = i
+                pub_i.publish(msg_f)
+                published += 1
+            if isfinite(x):
+                msg_f.data = x
+                pub_x.publish(msg_f)
+                published += 1
+        for pub, j, msg in self._chamber_pubs:
+            if isfinite(y[j]):
+                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
+                msg.fluid_pressure = y[j]
+                pub.publish(msg)
+        # A dropped signal is left out of the message (JointState allows empty arrays per field).
+        joint = self._msg_joint
+        pos, vel, eff = (y[j] for j in self._cyl_i)
+        joint.position = [pos] if isfinite(pos) else []
+        joint.velocity = [vel] if isfinite(vel) else []
+        joint.effort = [eff] if isfinite(eff) else []
+        joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
+        self._pub_joint.publish(joint)
+        self.counts.samples_published += published
+
+    def _publish_clock(self) -> None:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(self.rig.steps * self.dt_ns, 1_000_000_000)
+        assert self._pub_clock is not None              # created in simulated time, the only caller
+        self._pub_clock.publish(msg)
+
+    def _publish_diagnostics(self, now: float) -> None:
+        waiting = tuple(v for v in self.rig.valve_names if v not in self._answered) \
+            if self.simulated and self.settings.lockstep else ()
+        msg = DiagnosticArray()
+        stamp_ns = self.origin_ns + self.rig.steps * self.dt_ns if self.simulated else time.time_ns()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        for st in self._diag.build(now, rig=self.rig, counts=self.counts, time_mode=self.settings.time_mode,
+                                   lockstep=self.settings.lockstep, schedule=self._schedule, failure=self.failure,
+                                   waiting_for=waiting, last=dict(zip(self.rig.signals, self._last_sample))):
+            d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
+            d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
+            msg.status.append(d)
+        self._pub_diag.publish(msg)
+
+    def _forward_log(self) -> None:
+        """What the rig did that a user must hear about (watchdog, faults), once per event."""
+        log = self.rig.log
+        while self._logged < len(log):
+            t, text = log[self._logged]
+            self._logged += 1
+            if "watchdog fired" in text:
+                self.get_logger().warning(f"t = {t:.4f} s: {text}: send each valve's duty at least every "
+                                          f"{self.rig.params.timing.watchdog_timeout:g} s; the next valid command "
+                                          "resumes")
+            else:
+                self.get_logger().info(f"t = {t:.4f} s: {text}")
+
+    # --- stepping ------------------------------------------------------------------------------
+
+    def _advance(self, step: int) -> bool:
+        """Integrate to `step`, publishing the samples of every control period on the way. False
+        (and the rig stops: nothing more is published) if the model ran away."""
+        rig, per = self.rig, self.per
+        try:
+            while rig.steps < step:
+                boundary = (rig.steps // per + 1) * per
+                if boundary > step:
+                    rig.advance_to(step)
+                    break
+                rig.advance_to(boundary)
+                if self._pub_clock is not None:
+                    self._publish_clock()
+                self._publish_samples()
+        except RigError as err:
+            self.failure = str(err)
+            self.get_logger().error(f"{err}: the rig stopped; restart it")
+            return False
+        finally:
+            self._forward_log()
+        return True
+
+    # --- loops ---------------------------------------------------------------------------------
+
+    def run(self, stop: StopFlag) -> None:
+        """Run until stop.requested (SIGINT/SIGTERM)."""
+        if self.simulated:
+            self._run_simulated(stop)
+        else:
+            self._run_real_time(stop)
+
+    def _wait_for_controllers(self, stop: StopFlag) -> None:
+        """Lockstep: before the first sample, until every valve's duty_cycle has a matched publisher
+        (a command sent before that is lost); the 0.5 s re-publication covers what is left."""
+        subs = [sub for sub, _ in self._inputs[:len(self.rig.valve_names)]]
+        start = time.monotonic()
+        told = False
+        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
+            if not told and time.monotonic() - start > 2.0:
+                missing = [v for v, sub in zip(self.rig.valve_names, subs) if sub.get_publisher_count() == 0]
+                self.get_logger().info(f"lockstep: waiting for a controller publishing "
+                                       f"{', '.join(valve_topic(v, DUTY_CYCLE) for v in missing)}")
+                told = True
+            time.sleep(0.01)
+
+    def _run_simulated(self, stop: StopFlag) -> None:
+        s, rig = self.settings, self.rig
+        lock = s.lockstep
+        sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
+        _tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
+        _freeze_heap()
+        mono = time.monotonic
+        if lock:
+            self._wait_for_controllers(stop)
+        sim.start()
+        self._diag.restart(mono(), rig.steps)
+        next_diag = mono() + s.diagnostics_period
+        self._publish_clock()
+        self._publish_samples()
+        published = mono()
+        self._answered.clear()
+        valves = len(rig.valve_names)
+        while not stop.requested:
+            self._drain()
+            now = mono()
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + s.diagnostics_period, now)
+            if self.failure is not None:
+                time.sleep(1e-2)
+                continue
+            if lock:
+                if len(self._answered) < valves:
+                    if now - published > LOCKSTEP_RESEND:
+                        missing = [v for v in rig.valve_names if v not in self._answered]
+                        # A command was lost (sent before its publisher matched) or the controller is
+                        # slow: an answer to both copies may count for the next period, so such a run
+                        # is not promised to repeat bit for bit; say so.
+                        self.get_logger().warning(
+                            f"lockstep: no duty_cycle from {', '.join(missing)} for {LOCKSTEP_RESEND:g} s after the "
+                            f"sample at t = {rig.time:.4f} s: published again", throttle_duration_sec=5.0)
+                        self._publish_clock()
+                        self._send_samples()
+                        published = now
+                    time.sleep(LOCKSTEP_POLL)
+                    continue
+            else:
+                ready = sim.ready_at(self.per)
+                if ready > now:
+                    time.sleep(min(ready - now, 1e-3))
+                    continue
+            self._answered.clear()
+            if self._advance(rig.steps + self.per):
+                sim.advance(self.per)
+            published = mono()
+
+    def _run_real_time(self, stop: StopFlag) -> None:
+        s, rig = self.settings, self.rig
+        sched = RealTimeSchedule(rig.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
+                                 max_catchup=s.max_catchup)
+        _tighten_timer_slack()
+        _freeze_heap()
+        mono = time.monotonic
+        sched.start()
+        self.origin_ns = self.get_clock().now().nanoseconds
+        self._schedule = sched
+        self._diag.restart(mono(), rig.steps)
+        next_diag = mono() + s.diagnostics_period
+        self._publish_samples()
+        while not stop.requested:
+            now = mono()
+            self._drain()
+            if self.failure is None:
+                plan = sched.plan(now)
+                if plan.skipped:
+                    # The process was stopped or starved beyond max_catchup: the model is held over
+                    # the backlog (its state unchanged, model time jumps to wall time), as the emulator.
+                    rig.sim.steps += plan.skipped
+                    self.get_logger().warning(f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup "
+                                              f"{s.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
+                                              "state was held over them", throttle_duration_sec=1.0)
+                if plan.steps:
+                    self._advance(rig.steps + plan.steps)
+                sched.finish()
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + s.diagnostics_period, now)
+            delay = sched.next_wake() - mono()
+            if delay > 0.0:
+                time.sleep(delay)

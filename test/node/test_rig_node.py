@@ -1,0 +1,283 @@
+"""The rig node (`python -m pcv_sim.node.rig`) as a separate process over real DDS.
+
+A small lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period
+for both valves. Each test has its own ROS domain and namespace (test/node/conftest.py).
+"""
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from .conftest import Emulator, _ros_value, clean_child_env, wait_until
+
+VALVES = ('left', 'right')
+
+
+def start_rig(ros, name='rig', *, params=None, args=()):
+    cmd = [sys.executable, '-m', 'pcv_sim.node.rig', '--ros-args', '-r', f'__ns:={ros.ns(name)}']
+    for key, value in (params or {}).items():
+        cmd += ['-p', f'{key}:={_ros_value(value)}']
+    cmd += list(args)
+    proc = Emulator(cmd, ros.env, ros.tmp_path / f'{name}-{len(ros.emulators)}.log')
+    ros.emulators.append(proc)      # the fixture stops it (SIGINT) and checks exit 0, no traceback
+    return proc
+
+
+def rig_client(ros, name='rig', **kw):
+    from pcv_sim.node.rig_client import RigClient
+
+    client = RigClient(ros.ns(name), VALVES, context=ros.context, node_name=f'rig_ctl_{len(ros.clients)}', **kw)
+    ros.clients.append(client)
+    return client
+
+
+def controller(t, m):
+    """Deterministic, and dependent on what it measured (so a changed sample changes the run):
+    left regulates toward 90 bar, right toward 50 bar; the cylinder is pushed toward b (+x)."""
+    left = min(max(0.6 + 2e-8 * (90e5 - m['left.pressure']), 0.0), 1.0)
+    right = min(max(0.4 + 2e-8 * (50e5 - m['right.pressure']), 0.0), 1.0)
+    return {'left': left, 'right': right}
+
+
+def hogs():
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env()) for _ in range(2)]
+
+
+def lockstep_run(ros, name, periods, load=False):
+    rig = start_rig(ros, name)
+    client = rig_client(ros, name)
+    assert client.wait_for_rig(60), rig.output()
+    loaders = hogs() if load else []
+    try:
+        run = client.run(controller, periods, timeout=120)
+    finally:
+        for h in loaders:
+            h.kill()
+            h.wait(5)
+    assert rig.stop() == 0, rig.output()
+    assert 'published again' not in rig.output()       # the premise of bit for bit: no lost command
+    client.close()
+    ros.clients.remove(client)
+    return run
+
+
+def test_lockstep_repeats_bit_for_bit_under_load_and_the_cylinder_moves_toward_the_lower_pressure(ros):
+    quiet = lockstep_run(ros, 'rig', 300)
+    loaded = lockstep_run(ros, 'rig', 300, load=True)     # two CPU-bound processes on the 2 cores
+    assert [p.stamp_ns for p in quiet] == [k * 1_000_000 for k in range(300)]   # every 1 ms period, in order
+    assert [(p.stamp_ns, p.measured, p.duties) for p in quiet] == \
+        [(p.stamp_ns, p.measured, p.duties) for p in loaded]                 # == on floats: bit for bit
+    last = quiet[-1].measured
+    assert last['left.pressure'] > last['right.pressure'] + 20e5
+    # Chamber a (left) at the higher pressure pushes the piston toward b: x > 0 and rising.
+    assert last['cylinder.position'] > quiet[100].measured['cylinder.position'] > 1e-3
+    assert last['cylinder.velocity'] > 0
+
+
+def _rig_status(client, predicate, timeout=10.0):
+    """The first diagnostics message (from now) whose statuses satisfy predicate."""
+    start = len(client.diagnostics)
+    found = []
+
+    def check():
+        client.poll()
+        found[:] = [d for d in client.diagnostics[start:] if predicate(d)]
+        return bool(found)
+
+    return found[0] if wait_until(check, timeout) else None
+
+
+def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
+    rig = start_rig(ros, params={'control_period': 0.001})
+    client = rig_client(ros, currents=True)
+    assert client.wait_for_rig(60), rig.output()
+    hold = lambda t, m: {'left': 0.6, 'right': 0.6}      # noqa: E731
+    client.run(hold, 100, timeout=60)
+    i_before = client.currents['left'][-1][1]
+    assert i_before > 0.5
+    client.send_fault('{fault: coil_opn, valve: left}')            # misspelt: refused, nothing changes
+    client.send_fault('{fault: coil_open, valve: left}')
+    client.run(hold, 250, timeout=60)                             # 250 ms: many coil time constants
+    left = [i for _, i in client.currents['left'][-20:]]
+    right = [i for _, i in client.currents['right'][-20:]]
+    assert max(abs(i) for i in left) < 0.02 * i_before             # the open coil carries no current
+    assert min(right) > 0.9 * i_before                             # the other valve is untouched
+    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+                       .get('faults_active', ''))
+    assert diag is not None, rig.output()
+    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: rig']
+    assert rig_level == 1 and 'coil_open@left' in rig_message
+    assert rig_values['rejected.faults'] == '1'
+    left_level, left_message, _ = diag[f'{ros.ns("rig")}/rig: left']
+    assert left_level == 1 and 'coil_open@left' in left_message
+    assert diag[f'{ros.ns("rig")}/rig: right'][0] == 0
+    out = rig.output()
+    assert "rejected faults: fault: kind 'coil_opn'; accepted are supply_drop" in out
+    assert 'fault coil_open on left' in out
+    client.send_fault('{clear: coil_open, valve: left}')
+    client.run(hold, 250, timeout=60)
+    assert client.currents['left'][-1][1] == pytest.approx(i_before, rel=0.02)
+
+
+@pytest.mark.parametrize('params, args, message', [
+    ({'control_period': 0.00015}, (), 'control_period 0.00015 s is not a whole multiple of the model step'),
+    ({'time_mode': 'fast'}, (), "time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ({'rig_config': '/nonexistent/rig.yaml'}, (), 'cannot read rig file /nonexistent/rig.yaml'),
+    ({'contol_period': 0.01}, (), 'unknown parameter(s) contol_period (did you mean control_period?)'),
+    ({}, ('--params-file', 'config/rig.yaml'),
+     '--params-file config/rig.yaml: a rig YAML (valves, cylinder), not a ROS parameter file; accepted is '
+     '-p rig_config:=config/rig.yaml'),
+])
+def test_invalid_parameters_exit_2_naming_the_parameter(ros, params, args, message):
+    rig = start_rig(ros, params=params, args=args)
+    assert rig.wait(60) == 2
+    out = rig.output()
+    assert message in out and 'rig: invalid parameters' in out and 'Traceback' not in out
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_real_time_publishes_and_a_signal_stops_it_cleanly(ros, sig):
+    rig = start_rig(ros, params={'time_mode': 'real'})
+    client = rig_client(ros)
+    assert client.wait_for_rig(60), rig.output()
+    got = []
+
+    def two_samples():
+        client.poll()
+        got[:] = [s for s, part in client._partial.items() if 'joint' in part.values]
+        return len(got) >= 2
+
+    assert wait_until(two_samples, 30), rig.output()
+    time.sleep(0.2)
+    assert rig.stop(sig) == 0
+    assert 'Traceback' not in rig.output()
+
+
+# --- without ROS: the fault commands and the settings' cross-checks ---------------------------------
+
+
+def _parse(text):
+    from pcv_sim.node.rig_settings import parse_fault_command
+
+    return parse_fault_command(text, valves=VALVES, signals=('left.pressure', 'cylinder.position'))
+
+
+def test_fault_commands_parse_with_the_rigs_fault_table():
+    cmd = _parse('{fault: supply_drop, valve: right, pressure: 8.0e+6}')
+    assert (cmd.clear, cmd.kind, cmd.target, dict(cmd.fault.values)) == (False, 'supply_drop', 'right',
+                                                                         {'pressure': 8e6})
+    cmd = _parse('{fault: bias, signal: left.pressure, value: 1.0e+5}')
+    assert cmd.fault.sensor and cmd.target == 'left.pressure'
+    cmd = _parse('{clear: supply_drop, valve: right}')      # no values needed to clear it
+    assert (cmd.clear, cmd.kind, cmd.target, cmd.fault) == (True, 'supply_drop', 'right', None)
+
+
+@pytest.mark.parametrize('text, match', [
+    ('[coil_open, left]', r'accepted is a YAML mapping such as \{fault: coil_open, valve: left\}'),
+    ('{fault: coil_open', r'is not YAML'),
+    ('{fault: coil_open, clear: coil_open, valve: left}', r"needs exactly one of 'fault' or 'clear'"),
+    ('{fault: coil_open}', r"needs exactly one of 'valve' \(a physical fault: left, right\)"),
+    ('{fault: coil_opn, valve: left}', r"kind 'coil_opn'; accepted are supply_drop"),
+    ('{fault: coil_open, valve: middle}', r"target 'middle' for coil_open; accepted are left, right"),
+    ('{fault: supply_drop, valve: left}', r'supply_drop needs pressure \(Pa\)'),
+    ('{fault: supply_drop, valve: left, pressure: 5.0e+9}', r'supply_drop.pressure = 5000000000.0; accepted'),
+    ('{clear: coil_open, valve: left, x: 1}', r'clear takes no values \(x\)'),
+    ('{clear: coil_opn, valve: left}', r"kind 'coil_opn'"),
+])
+def test_bad_fault_commands_are_refused_saying_what_is_accepted(text, match):
+    from pcv_sim.rig import FaultError
+
+    with pytest.raises(FaultError, match=match):
+        _parse(text)
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('time_mode', 'fast', r"time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ('real_time_factor', -1.0, r'real_time_factor: got -1.0; accepted is a number >= 0'),
+    ('control_period', -0.001, r'control_period'),
+    ('seed', -1, r'seed'),
+    ('nope', 1, r"unknown parameter 'nope'; accepted are: rig_config"),
+])
+def test_rig_parameters_are_checked_by_name(name, value, match):
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.rig_settings import check_rig_value
+
+    with pytest.raises(ParameterError, match=match):
+        check_rig_value(name, value)
+
+
+def test_settings_cross_check_the_rig_step_and_override_the_control_period():
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.rig_settings import RigNodeSettings
+    from pcv_sim.rig import load_rig
+
+    rig = load_rig()
+    assert RigNodeSettings(control_period=0.01).rig_params(rig).steps_per_period == 100
+    assert RigNodeSettings().rig_params(rig) is rig
+    with pytest.raises(ParameterError, match=r'wake_period 0.00025 s is not a whole multiple of the model step'):
+        RigNodeSettings(wake_period=2.5e-4).check(rig)
+    with pytest.raises(ParameterError, match=r'max_catchup: got 0.0005; accepted is a number >= wake_period'):
+        RigNodeSettings(max_catchup=5e-4).check(rig)
+
+
+def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
+    """The rule of the emulator, on the node itself (in this process; the step an input is given
+    is what decides it): the first step stamped at or after the DDS reception, after the last
+    sample shown, and two inputs on one valve never at the same step."""
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+
+    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.simulation.clock import RealTimeSchedule
+
+    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[Parameter('time_mode', value='real')])
+    try:
+        rig = node.rig
+        node._schedule = sched = RealTimeSchedule(rig.dt)
+        sched.start(time.monotonic() - 1.0)            # 1 s of wall time since the start: nothing is "future"
+        node.origin_ns = 1_000_000_000_000
+        node._shown = 20                               # the sample at step 20 has been published
+        steps = []
+
+        def acted_at(valve, received_ns):
+            node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
+            steps.append(max(rig._events, key=lambda e: e.seq).step)   # the one just given
+
+        acted_at('left', node.origin_ns + 2_345_000)    # received at 2.345 ms: step 24 (2.4 ms), not 23
+        acted_at('left', node.origin_ns + 2_345_000)    # the same instant again: the step after
+        acted_at('right', node.origin_ns + 500_000)     # received before the last sample shown: step 21
+        acted_at('right', node.origin_ns + 3_000_000)   # exactly on step 30
+        assert steps == [24, 25, 21, 30]
+        rig.advance_to(40)
+        assert rig.commands == {'left': 0.7, 'right': 0.7}
+    finally:
+        node.destroy_node()
+
+
+def test_free_running_simulated_time_runs_without_a_controller_and_takes_commands(ros):
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01})
+    client = rig_client(ros)
+    assert client.wait_for_rig(60), rig.output()
+    seen = {}
+
+    def collect():
+        client.poll()
+        for stamp, part in list(client._partial.items()):
+            if 'joint' in part.values and 'left.pressure' in part.values:
+                seen[stamp] = part.values['left.pressure']
+        return len(seen) >= 50
+
+    assert wait_until(collect, 60), rig.output()
+    stamps = sorted(seen)
+    assert all(b - a == 10_000_000 for a, b in zip(stamps, stamps[1:]))   # every 10 ms period, none missing
+    from std_msgs.msg import Float64
+
+    sent_after = max(seen)
+    client.duty_pubs['left'].publish(Float64(data=0.9))
+    assert wait_until(lambda: collect() and len(seen) > len(stamps) + 100, 60)   # 1 s of model time later
+    before = max(p for t, p in seen.items() if t <= sent_after)      # 0.5 (the initial duty) or, after the
+    after = max(p for t, p in seen.items() if t > sent_after)        # 0.5 s watchdog, the safe duty 0
+    assert after > before + 20e5                                     # 0.9 raised the left pressure
+    assert 'left: watchdog fired' in rig.output()                    # no controller: model-time watchdog
