@@ -42,7 +42,7 @@ PYTEST_ARGS ?=
 
 unexport _ROS_WHEELS_BOOTSTRAP_COMPLETE
 
-.PHONY: venv run demo test bench clean
+.PHONY: venv run rig demo test bench clean
 
 venv: $(STAMP)
 
@@ -55,6 +55,11 @@ $(STAMP): $(REQUIREMENTS) requirements/common.txt setup.py setup.cfg package.xml
 
 run: venv
 	$(VENV_PY) -m pcv_sim.node.emulator --ros-args --params-file config/emulator.yaml
+
+# The rig: the valves and the steering cylinder of config/rig.yaml in one node (lockstep, simulated
+# time by default: it waits for a controller's commands for every valve each period).
+rig: venv
+	$(VENV_PY) -m pcv_sim.node.rig
 
 # Drives a duty step sequence against an emulator already running (`make run` in another
 # terminal) and prints what it saw; starts nothing itself. DEMO_ARGS='--namespace /left'.
