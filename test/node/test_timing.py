@@ -34,10 +34,11 @@ def test_resets_and_model_changes_do_not_stall_the_loop(ros):
         response = c.reset()
         assert response.success and 'model at rest at duty 0.6' in response.message, response.message
         assert c.set_parameters({'model.spool.mass': 0.045 if k % 2 == 0 else 0.04})[0].successful
-    last = _diag_after(c)
+    _diag_after(c)
+    last = _diag_after(c)             # its period starts after a message received after the phase
     assert last['skipped_steps'] == first['skipped_steps'], (first['skipped_steps'], last['skipped_steps'])
-    during = [float(d['period_max_wake_cpu_ms']) for d in c.diagnostics[n_diag:]]
-    assert len(during) >= 2 and max(during) < 10.0, during
+    during = [float(d['period_max_wake_cpu_ms']) for d in c.diagnostics[n_diag:]]   # every wake since `first`
+    assert max(during) < 10.0, during
     stamps = [s.stamp_ns for s in c.samples[n0:]]
     assert len(stamps) > 100 and all(b > a for a, b in zip(stamps, stamps[1:]))
 
