@@ -11,31 +11,11 @@ moment stops the emulator cleanly (exit 0; a recording that had started is final
 
 from __future__ import annotations
 
-import faulthandler
-import signal
 import sys
-from typing import Any, Callable
 
-__all__ = ["Stop", "main"]
+from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
 
-EXIT_OK = 0
-EXIT_INVALID_PARAMETERS = 2
-
-
-class Stop:
-    """Set by SIGINT/SIGTERM; the node's loop checks it at every wake."""
-
-    def __init__(self) -> None:
-        self.requested = False
-        self.signal: int | None = None
-
-    def __call__(self, signum: int, _frame: Any) -> None:
-        self.requested = True
-        self.signal = signum
-
-    @property
-    def name(self) -> str:
-        return signal.Signals(self.signal).name if self.signal else ""
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main"]
 
 
 def _parameter_help() -> str:
@@ -52,16 +32,7 @@ def _parameter_help() -> str:
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point `emulator`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
-    faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
-    stop = Stop()
-    previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports below is a clean stop
-        previous[sig] = signal.signal(sig, stop)
-    try:
-        return _run(list(sys.argv if args is None else args), stop)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    return main_process(_run, args)
 
 
 def _run(argv: list[str], stop: Stop) -> int:
@@ -77,33 +48,9 @@ def _run(argv: list[str], stop: Stop) -> int:
     if stop.requested:
         print(f"emulator: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK
-
-    import rclpy  # noqa: PLC0415
-    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
-
-    from pcv_sim.errors import ParameterError  # noqa: PLC0415
     from pcv_sim.node.adapter import EmulatorNode  # noqa: PLC0415
 
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    try:
-        try:
-            node = EmulatorNode(argv=argv)
-        except ParameterError as err:
-            print(f"emulator: invalid parameters: {err}", file=sys.stderr)
-            return EXIT_INVALID_PARAMETERS
-        try:
-            node.run(stop)
-        except ParameterError as err:           # found while running (e.g. a second /clock at start)
-            node.get_logger().error(f"invalid parameters: {err}")
-            print(f"emulator: invalid parameters: {err}", file=sys.stderr)
-            return EXIT_INVALID_PARAMETERS
-        node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
-        return EXIT_OK
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return serve("emulator", argv, stop, lambda argv: EmulatorNode(argv=argv))
 
 
 if __name__ == "__main__":

@@ -11,12 +11,9 @@ top: SIGINT/SIGTERM handling is installed first, so a signal at any moment is a 
 
 from __future__ import annotations
 
-import faulthandler
-import signal
 import sys
-from typing import Any, Callable
 
-from pcv_sim.node.emulator import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop
+from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
 
 __all__ = ["main"]
 
@@ -53,16 +50,7 @@ def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
-    faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
-    stop = Stop()
-    previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports below is a clean stop
-        previous[sig] = signal.signal(sig, stop)
-    try:
-        return _run(list(sys.argv if args is None else args), stop)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    return main_process(_run, args)
 
 
 def _run(argv: list[str], stop: Stop) -> int:
@@ -87,31 +75,9 @@ def _run(argv: list[str], stop: Stop) -> int:
     if stop.requested:
         print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK
-
-    import rclpy  # noqa: PLC0415
-    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
-
-    from pcv_sim.errors import ParameterError  # noqa: PLC0415
     from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
 
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    try:
-        try:
-            node = RigNode(argv=argv)
-        except ParameterError as err:
-            print(f"rig: invalid parameters: {err}", file=sys.stderr)
-            return EXIT_INVALID_PARAMETERS
-        if stop.requested:
-            print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
-            return EXIT_OK
-        node.run(stop)
-        node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
-        return EXIT_OK
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return serve("rig", argv, stop, lambda argv: RigNode(argv=argv))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,79 @@
+"""A node as a process, shared by the `emulator` and `rig` executables: signals, exit status,
+the rclpy lifetime of one node.
+
+Only the standard library is imported at the top: `main_process` installs SIGINT/SIGTERM
+handling as the first thing a process does, before rclpy, numpy and the model are imported
+(~1 s), so a signal at any moment is a clean stop (exit 0). Invalid parameters exit 2.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import signal
+import sys
+from typing import Any, Callable
+
+__all__ = ["EXIT_OK", "EXIT_INVALID_PARAMETERS", "Stop", "main_process", "serve"]
+
+EXIT_OK = 0
+EXIT_INVALID_PARAMETERS = 2
+
+
+class Stop:
+    """Set by SIGINT/SIGTERM; the node's loop checks it at every wake."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.signal: int | None = None
+
+    def __call__(self, signum: int, _frame: Any) -> None:
+        self.requested = True
+        self.signal = signum
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signal).name if self.signal else ""
+
+
+def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) -> int:
+    """Install the signal handlers, then `run(argv, stop)`; the previous handlers come back after."""
+    faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
+    stop = Stop()
+    previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports is a clean stop
+        previous[sig] = signal.signal(sig, stop)
+    try:
+        return run(list(sys.argv if args is None else args), stop)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]], Any]) -> int:
+    """rclpy up, the node made (`make_node(argv)`; a ParameterError -> exit 2 naming it), run until
+    the stop (`node.run(stop)`), then destroyed and rclpy shut down, whatever happened."""
+    import rclpy  # noqa: PLC0415 - after the signal handlers, see the module docstring
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+
+    from pcv_sim.errors import ParameterError  # noqa: PLC0415
+
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        try:
+            node = make_node(argv)
+        except ParameterError as err:
+            print(f"{prog}: invalid parameters: {err}", file=sys.stderr)
+            return EXIT_INVALID_PARAMETERS
+        try:
+            node.run(stop)          # returns at once if a signal came during the start (and closes a bag)
+        except ParameterError as err:           # found while running (e.g. a second /clock at start)
+            node.get_logger().error(f"invalid parameters: {err}")
+            print(f"{prog}: invalid parameters: {err}", file=sys.stderr)
+            return EXIT_INVALID_PARAMETERS
+        node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
+        return EXIT_OK
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
