@@ -99,6 +99,7 @@ SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
 ROSOUT_LINGER = 3.0                         # s a node that cannot start waits for a /rosout subscriber
+ROSOUT_LINGER_ENV = "PCV_SIM_ROSOUT_LINGER"  # another budget (s): discovery on a loaded machine may take longer
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
@@ -135,11 +136,16 @@ class EmulatorNode(Node):
     def _linger_for_rosout(self) -> None:
         """Give /rosout subscribers (rqt_console, a log aggregator) the chance to get the last message
         before the node goes: up to ROSOUT_LINGER s to discover one, then a moment for delivery
-        (the rosout writer keeps its last messages for late joiners while it exists)."""
-        end = time.monotonic() + ROSOUT_LINGER
+        (the rosout writer keeps its last messages for late joiners while it exists). The budget is
+        ROSOUT_LINGER, or $PCV_SIM_ROSOUT_LINGER s; the delivery moment a tenth of it, 0.5 s at least."""
+        try:
+            linger = float(os.environ.get(ROSOUT_LINGER_ENV, ROSOUT_LINGER))
+        except ValueError:
+            linger = ROSOUT_LINGER
+        end = time.monotonic() + linger
         while time.monotonic() < end:
             if self.count_subscribers("/rosout") > 0:
-                time.sleep(0.5)
+                time.sleep(max(0.5, linger / 10.0))
                 return
             time.sleep(0.02)
 
