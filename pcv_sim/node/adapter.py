@@ -86,6 +86,7 @@ from pcv_sim.device.parameters import (
     Override, check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
     unknown_parameters_message,
 )
+from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import RealTimeSchedule, SimulatedSchedule
 
@@ -98,8 +99,6 @@ CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
-ROSOUT_LINGER = 3.0                         # s a node that cannot start waits for a /rosout subscriber
-ROSOUT_LINGER_ENV = "PCV_SIM_ROSOUT_LINGER"  # another budget (s): discovery on a loaded machine may take longer
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
@@ -129,25 +128,9 @@ class EmulatorNode(Node):
             # Start-up errors also go to /rosout (a launch file's user may only see that), then the
             # half-built node is destroyed here: nobody else holds it.
             self.get_logger().error(f"invalid parameters: {err}")
-            self._linger_for_rosout()
+            linger_for_rosout(self)
             self.destroy_node()
             raise
-
-    def _linger_for_rosout(self) -> None:
-        """Give /rosout subscribers (rqt_console, a log aggregator) the chance to get the last message
-        before the node goes: up to ROSOUT_LINGER s to discover one, then a moment for delivery
-        (the rosout writer keeps its last messages for late joiners while it exists). The budget is
-        ROSOUT_LINGER, or $PCV_SIM_ROSOUT_LINGER s; the delivery moment a tenth of it, 0.5 s at least."""
-        try:
-            linger = float(os.environ.get(ROSOUT_LINGER_ENV, ROSOUT_LINGER))
-        except ValueError:
-            linger = ROSOUT_LINGER
-        end = time.monotonic() + linger
-        while time.monotonic() < end:
-            if self.count_subscribers("/rosout") > 0:
-                time.sleep(max(0.5, linger / 10.0))
-                return
-            time.sleep(0.02)
 
     def _setup(self, argv: list[str] | None) -> None:
         self._argv = list(sys.argv if argv is None else argv)
@@ -490,20 +473,8 @@ class EmulatorNode(Node):
         self.get_logger().warning(f"rejected {name}: {reason}; the last valid value stays in force{tail}")
 
     def _drain(self) -> int:
-        """Take every pending input message (no executor: `take_message` polling, ~2 us per empty topic)."""
-        taken = 0
-        for sub, handler in self._inputs:
-            while True:
-                try:
-                    with sub.handle:
-                        got = sub.handle.take_message(sub.msg_type, sub.raw)
-                except InvalidHandle:
-                    break
-                if got is None:
-                    break
-                handler(*got)
-                taken += 1
-        return taken
+        """Take every pending input message (no executor: `take_message` polling)."""
+        return drain(self._inputs)
 
     def _poll_services(self) -> None:
         """Answer pending service requests the way an executor would; parameter sets and reset go

@@ -25,6 +25,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, String
 
 from pcv_sim.io.topics import CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, valve_topic
+from pcv_sim.node.polling import drain
 from pcv_sim.node.client import sample_qos
 
 __all__ = ["RigClient", "Period"]
@@ -110,16 +111,7 @@ class RigClient:
 
     def poll(self) -> int:
         """Take every pending message; returns how many."""
-        n = 0
-        for sub, handler in self._subs:
-            while True:
-                with sub.handle:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
-                if got is None:
-                    break
-                handler(*got)
-                n += 1
-        return n
+        return drain(self._subs)
 
     # --- lockstep ---------------------------------------------------------------------------
 

@@ -61,6 +61,7 @@ from pcv_sim.node.adapter import (
 from pcv_sim.device.parameters import (
     check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
 )
+from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value, parse_fault_command, settings_from
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
@@ -86,7 +87,9 @@ class RigNode(Node):
         try:
             self._setup(argv)
         except ParameterError as err:
+            # As the emulator: also to /rosout, then the half-built node goes.
             self.get_logger().error(f"invalid parameters: {err}")
+            linger_for_rosout(self)
             self.destroy_node()
             raise
 
@@ -267,16 +270,7 @@ class RigNode(Node):
 
     def _drain(self) -> int:
         """Take every pending input message (no executor: `take_message` polling)."""
-        taken = 0
-        for sub, handler in self._inputs:
-            while True:
-                with sub.handle:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
-                if got is None:
-                    break
-                handler(*got)
-                taken += 1
-        return taken
+        return drain(self._inputs)
 
     # --- outputs -------------------------------------------------------------------------------
 

@@ -1,0 +1,50 @@
+"""What the emulator, the rig node and the rig's client share instead of an executor: taking
+pending messages by polling (`take_message`: a few µs per empty topic, against ~125 µs for an
+executor's `spin_once`; BENCHMARKS.md), and a start-up error's last chance to reach /rosout."""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any, Callable, Iterable
+
+from rclpy.exceptions import InvalidHandle
+
+__all__ = ["ROSOUT_LINGER", "ROSOUT_LINGER_ENV", "drain", "linger_for_rosout"]
+
+ROSOUT_LINGER = 3.0                          # s a node that cannot start waits for a /rosout subscriber
+ROSOUT_LINGER_ENV = "PCV_SIM_ROSOUT_LINGER"  # another budget (s): discovery on a loaded machine may take longer
+
+
+def drain(subscriptions: Iterable[tuple[Any, Callable[..., None]]]) -> int:
+    """Take every pending message of each (subscription, handler) pair, in order; how many."""
+    taken = 0
+    for sub, handler in subscriptions:
+        while True:
+            try:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:            # destroyed during shutdown
+                break
+            if got is None:
+                break
+            handler(*got)
+            taken += 1
+    return taken
+
+
+def linger_for_rosout(node: Any) -> None:
+    """Give /rosout subscribers (rqt_console, a log aggregator) the chance to get a node's last
+    message before it goes: up to ROSOUT_LINGER s (or $PCV_SIM_ROSOUT_LINGER) to discover one,
+    then a tenth of that, 0.5 s at least, for delivery (the rosout writer keeps its last messages
+    for late joiners while it exists)."""
+    try:
+        linger = float(os.environ.get(ROSOUT_LINGER_ENV, ROSOUT_LINGER))
+    except ValueError:
+        linger = ROSOUT_LINGER
+    end = time.monotonic() + linger
+    while time.monotonic() < end:
+        if node.count_subscribers("/rosout") > 0:
+            time.sleep(max(0.5, linger / 10.0))
+            return
+        time.sleep(0.02)
