@@ -39,12 +39,27 @@ from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["Rig", "RigError", "RigStatus", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE"]
+__all__ = ["Rig", "RigError", "RigStatus", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE",
+           "EXTERNAL_FORCE", "InputHook", "check_external_force"]
 
 VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.
 MAX_EXTERNAL_FORCE = 1.0e6
+#: The input name of the external force in `Rig.on_input` (valve inputs are `<valve>.duty_cycle`,
+#: `<valve>.supply_pressure`).
+EXTERNAL_FORCE = "cylinder.external_force"
+#: `Rig.on_input(step, name, value)`: an input of the model changed, acting from `step` on.
+InputHook = Callable[[int, str, float], None]
+
+
+def check_external_force(force: Any) -> float:
+    """The external force (N) as the rig takes it; CommandError saying what is accepted."""
+    if isinstance(force, bool) or not isinstance(force, (int, float)) or not math.isfinite(force) \
+            or abs(force) > MAX_EXTERNAL_FORCE:
+        raise CommandError(f"external force {force!r}: accepted is a finite number of N within "
+                           f"+-{MAX_EXTERNAL_FORCE:g} N")
+    return float(force)
 
 
 class RigError(PcvSimError, RuntimeError):
@@ -107,6 +122,10 @@ class Rig:
         self._wd_steps = int(round(params.timing.watchdog_timeout / self.dt))
         self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
+        #: Called whenever an input of the model (a duty in force, a supply pressure, the external
+        #: force) changes, with the step it acts from (a recorder's hook); None: nobody listens.
+        self.on_input: InputHook | None = None
+        self._rest: list[tuple[np.ndarray, float]] | None = None     # the valves' initial rest states
         self.reset()
         # Compile (or load from the cache) the composite's functions now, not in the first run.
         self.sim.outputs()
@@ -115,21 +134,25 @@ class Rig:
 
     # --- state -------------------------------------------------------------------------------
 
-    def reset(self) -> None:
-        """Valves at rest at their initial duty, piston at rest at its initial position, t = 0,
-        no faults, no scheduled inputs."""
+    def reset(self, *, keep_time: bool = False) -> None:
+        """Valves at rest at their initial duty, piston at rest at its initial position, no faults,
+        no scheduled inputs; t = 0, or with `keep_time` the present time goes on (the watchdog
+        counts from now, the log and the refused commands are kept and the reset is logged)."""
         sim = self.sim
-        x, w = [], []
-        for v in self.params.valves:
-            rest = rest_state(v.params, self.kind, v.initial_duty, 0.0, v.params.circuit.supply_pressure,
-                              integrator=self.sim.integrator)
-            x.append(rest.state)
-            w.append(rest.current)
+        steps = sim.steps
+        if self._rest is None:              # the same every time (the valves' YAML): solved once
+            self._rest = []
+            for v in self.params.valves:
+                rest = rest_state(v.params, self.kind, v.initial_duty, 0.0, v.params.circuit.supply_pressure,
+                                  integrator=self.sim.integrator)
+                self._rest.append((rest.state, rest.current))
+        x = [state for state, _ in self._rest]
+        w = [current for _, current in self._rest]
         x.append(np.array([self.params.cylinder.initial_position, 0.0]))
         sim.x[:] = np.concatenate(x)
         sim.W[:] = 0.0
         sim.W[:len(w)] = w
-        sim.steps = 0
+        sim.steps = steps if keep_time else 0
         self.commands = {v.name: v.initial_duty for v in self.params.valves}
         self.duties = dict(self.commands)
         for k, v in enumerate(self.params.valves):
@@ -139,14 +162,40 @@ class Rig:
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
-        self._last_cmd = dict.fromkeys(self.valve_names, 0)
+        self._last_cmd = dict.fromkeys(self.valve_names, sim.steps)
         self.watchdog_fired = dict.fromkeys(self.valve_names, False)
-        self.rejected: list[tuple[float, str]] = []
         self.faults: dict[tuple[str, str], Fault] = {}
-        self.log: list[tuple[float, str]] = []
         self._events: list[_Event] = []
-        self._seq = 0
         self.sensors.reset()
+        if keep_time:
+            self.log.append((self.time, "reset: valves at rest at their initial duty, piston at rest at its initial "
+                                        "position, faults cleared"))
+        else:
+            self.rejected: list[tuple[float, str]] = []
+            self.log: list[tuple[float, str]] = []
+            self._seq = 0
+        self._inputs_changed()
+
+    def _inputs_changed(self) -> None:
+        """Every input to the hook (at a reset: they may all have changed)."""
+        hook = self.on_input
+        if hook is None:
+            return
+        steps, u = self.sim.steps, self.sim.u
+        for k, name in enumerate(self.valve_names):
+            hook(steps, f"{name}.duty_cycle", float(u[self._duty_i[k]]))
+            hook(steps, f"{name}.supply_pressure", float(u[self._supply_i[k]]))
+        hook(steps, EXTERNAL_FORCE, float(u[self._force_i]))
+
+    def input_values(self) -> dict[str, float]:
+        """The inputs in force now, by the names `on_input` uses (SI)."""
+        u = self.sim.u
+        out = {}
+        for k, name in enumerate(self.valve_names):
+            out[f"{name}.duty_cycle"] = float(u[self._duty_i[k]])
+            out[f"{name}.supply_pressure"] = float(u[self._supply_i[k]])
+        out[EXTERNAL_FORCE] = float(u[self._force_i])
+        return out
 
     @property
     def steps(self) -> int:
@@ -180,17 +229,18 @@ class Rig:
         self.duties[valve] = d
         self.sim.u[self._duty_i[k]] = d
         self._last_cmd[valve] = self.sim.steps
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, f"{valve}.duty_cycle", d)
         if self.watchdog_fired[valve]:
             self.watchdog_fired[valve] = False
             self.log.append((self.time, f"{valve}: watchdog cleared by a valid command"))
 
     def set_external_force(self, force: Any) -> None:
         """The external force on the rod (N, + toward +x: extending) from the present step on."""
-        if isinstance(force, bool) or not isinstance(force, (int, float)) or not math.isfinite(force) \
-                or abs(force) > MAX_EXTERNAL_FORCE:
-            raise CommandError(f"external force {force!r}: accepted is a finite number of N within "
-                               f"+-{MAX_EXTERNAL_FORCE:g} N")
-        self.sim.u[self._force_i] = float(force)
+        f = check_external_force(force)
+        self.sim.u[self._force_i] = f
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, EXTERNAL_FORCE, f)
 
     def inject(self, fault: Fault) -> None:
         """Start `fault` at the present step (a second fault of the same kind on the same target
@@ -253,6 +303,8 @@ class Rig:
             self.sim.x[self._state_off[k] + 2] = 0.0
         self.sim.set_parameters(k, p)
         self.sim.u[self._supply_i[k]] = supply
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, f"{name}.supply_pressure", supply)
 
     def schedule(self, t: float, action: Callable[[], None]) -> None:
         """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s)."""
@@ -295,4 +347,6 @@ class Rig:
                     self.watchdog_fired[name] = True
                     self.duties[name] = self._safe
                     self.sim.u[self._duty_i[k]] = self._safe
+                    if self.on_input is not None:
+                        self.on_input(steps, f"{name}.duty_cycle", self._safe)
                     self.log.append((self.time, f"{name}: watchdog fired, duty -> {self._safe:g}"))

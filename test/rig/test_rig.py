@@ -154,3 +154,29 @@ def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_
         st.advance(10)
     assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
     assert run.signal("pilot.pressure")[-1] > 110 * BAR
+
+
+def test_reset_keeping_time_is_a_fresh_start_shifted_in_time_and_inputs_reach_the_hook(rig):
+    """The rig node's reset service: state, duties, faults back to the start; t goes on. Every
+    input change reaches `on_input` with the step it acts from (the node's recorder)."""
+    from pcv_sim.rig.faults import parse_fault
+
+    fresh = run_lockstep(rig, lambda t, m: step_controller(t + 5e-4, m), 0.05)
+    seen = []
+    rig.on_input = lambda step, name, value: seen.append((step, name, value))
+    rig.set_duty("left", 0.8)
+    rig.inject(parse_fault("supply_drop", "right", {"pressure": 8e6}, valves=rig.valve_names,
+                           signals=rig.signals))
+    rig.set_external_force(500.0)
+    rig.advance_to(rig.steps + 100)
+    assert seen == [(500, "left.duty_cycle", 0.8), (500, "right.supply_pressure", 8e6),
+                    (500, "cylinder.external_force", 500.0)]
+    seen.clear()
+    rig.reset(keep_time=True)
+    assert rig.steps == 600 and rig.faults == {} and rig.commands == {"left": 0.5, "right": 0.5}
+    assert {(n, v) for s, n, v in seen if s == 600} >= {("left.duty_cycle", 0.5), ("right.supply_pressure", 20e6),
+                                                         ("cylinder.external_force", 0.0)}
+    assert "reset" in rig.log[-1][1]
+    rig.on_input = None
+    again = run_lockstep(rig, lambda t, m: step_controller(t - 0.06 + 5e-4, m), 0.05)
+    assert np.array_equal(again.true, fresh.true)          # the same run, 60 ms later
