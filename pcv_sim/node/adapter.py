@@ -88,7 +88,9 @@ from pcv_sim.device.parameters import (
 )
 from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.params import ValveParams, load_params
-from pcv_sim.simulation.clock import RealTimeSchedule, SimulatedSchedule
+from pcv_sim.simulation.clock import (
+    NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock, RealTimeSchedule, SimulatedSchedule,
+)
 
 __all__ = ["EmulatorNode", "StopFlag"]
 
@@ -98,7 +100,6 @@ DIAGNOSTICS_QOS = QoSProfile(depth=10)
 CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
-EXTERNAL_MAX_JUMP = 10.0                    # s of external clock run at once; a longer jump is held
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
@@ -143,9 +144,9 @@ class EmulatorNode(Node):
         s = self.settings
         self.simulated = s.time_mode == "simulated"
         self.external_clock = bool(self.get_parameter("use_sim_time").value)
-        self._clock_ns: int | None = None            # latest external /clock (use_sim_time)
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt))
+        self._external = ExternalClock(self.device.dt_ns)   # use_sim_time: the latest /clock, model time anchored
         # Rest states (25-60 ms of model solves) are computed off the loop: the loop takes parameter
         # and reset requests, a worker thread validates and prepares them, the loop swaps the result
         # in at the next wake and only then answers. One request at a time, in arrival order.
@@ -229,9 +230,7 @@ class EmulatorNode(Node):
             values[spec.name] = check_node_value(spec.name, value)
         settings = NodeSettings.from_parameters(values)
         if self.get_parameter("use_sim_time").value and settings.time_mode == "simulated":
-            raise ParameterError("use_sim_time: true follows another node's /clock, time_mode: simulated publishes "
-                                 "/clock itself; accepted is one of them: use_sim_time with time_mode real (the "
-                                 "model follows the external clock), or time_mode simulated without use_sim_time")
+            raise ParameterError(SIM_TIME_CONFLICT)
         params = load_params(settings.valve_config or None)
         changes = {}
         for mp in model_parameters(params):
@@ -453,7 +452,7 @@ class EmulatorNode(Node):
         self._input(DUTY_CYCLE, msg.data, info)
 
     def _on_clock(self, msg: Clock, _info: Any = None) -> None:
-        self._clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
         self._input(LOAD_FLOW, msg.data, info)
@@ -785,10 +784,9 @@ class EmulatorNode(Node):
         s, dev = self.settings, self.device
         _freeze_heap()
         mono = time.monotonic
-        max_steps = round(EXTERNAL_MAX_JUMP / dev.dt)
+        ext = self._external
         self._diag.restart(mono(), dev.steps)
         next_diag = mono() + s.diagnostics_period
-        started = False
         loops = 0
         while not stop.requested:
             loops += 1
@@ -801,31 +799,25 @@ class EmulatorNode(Node):
             if now >= next_diag:
                 self._publish_diagnostics(now)
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            clock = self._clock_ns
-            if clock is None:
+            if ext.latest_ns is None:
                 if loops == 2000:           # ~2 s: say why nothing is published
-                    self.get_logger().warning(f"no {CLOCK} received yet: the model waits for the simulation's "
-                                              "clock (use_sim_time is true)")
+                    self.get_logger().warning(NO_CLOCK_YET)
                 time.sleep(1e-3)
                 continue
-            if not started:
-                dev.origin_ns = clock - dev.steps * dev.dt_ns
+            if not ext.started:
+                dev.origin_ns = ext.start(dev.steps)
                 self._start_recording()
                 self._publish([dev.sample()])
-                started = True
                 continue
-            target = (clock - dev.origin_ns) // dev.dt_ns
-            if target < dev.steps:
-                dev.origin_ns = clock - dev.steps * dev.dt_ns
-                self.get_logger().warning(f"{CLOCK} went back to {clock / 1e9:.4f} s: model time re-anchored "
-                                          "there (the model state is kept)", throttle_duration_sec=1.0)
-            elif target - dev.steps > max_steps:
-                skipped = target - dev.steps - max_steps
-                dev.skip(skipped)
-                self.get_logger().warning(f"{CLOCK} jumped {skipped * dev.dt:.3f} s ahead: the model was held over "
-                                          f"all but the last {EXTERNAL_MAX_JUMP:g} s", throttle_duration_sec=1.0)
-            elif target > dev.steps:
-                self._publish(self._run_steps(target - dev.steps))
+            plan = ext.plan(dev.steps)
+            if plan.reanchored:
+                dev.origin_ns = ext.origin_ns
+                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
+            elif plan.skip:
+                dev.skip(plan.skip)
+                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
+            elif plan.run:
+                self._publish(self._run_steps(plan.run))
             else:
                 time.sleep(2e-4)           # wait for the clock to advance
 

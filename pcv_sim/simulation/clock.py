@@ -39,7 +39,8 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["Plan", "RealTimeSchedule", "SimulatedSchedule", "steps_per"]
+__all__ = ["ClockPlan", "EXTERNAL_MAX_JUMP", "ExternalClock", "NO_CLOCK_YET", "Plan", "RealTimeSchedule",
+           "SIM_TIME_CONFLICT", "SimulatedSchedule", "steps_per"]
 
 Clock = Callable[[], float]
 
@@ -227,3 +228,76 @@ class SimulatedSchedule:
     @property
     def model_time(self) -> float:
         return self.steps * self.dt
+
+
+#: s of external clock run at once; a longer jump ahead is held (the model state kept over it).
+EXTERNAL_MAX_JUMP = 10.0
+
+
+@dataclass(frozen=True)
+class ClockPlan:
+    """What to do for the latest external clock: compute `run` steps, or hold the model over `skip`
+    steps (the clock jumped far ahead), or nothing but re-anchor (`reanchored`: the clock went back)."""
+
+    run: int = 0
+    skip: int = 0
+    reanchored: bool = False
+
+
+class ExternalClock:
+    """Model time following an external clock (ROS `use_sim_time`: a simulation's /clock), for the
+    emulator and the rig node alike.
+
+    Model time 0 is the first clock received (`start`: stamps are that clock); whenever the clock
+    advances, the steps up to it are due (`plan`). The clock going back (a simulation reset)
+    re-anchors model time at the new clock, the model state kept; a jump ahead of more than
+    `max_jump` s is held (the model state kept) but for the last `max_jump` s.
+    """
+
+    def __init__(self, dt_ns: int, *, max_jump: float = EXTERNAL_MAX_JUMP) -> None:
+        self.dt_ns = dt_ns
+        self.max_jump = max_jump
+        self.max_steps = round(max_jump * 1e9 / dt_ns)
+        self.latest_ns: int | None = None       # the last clock received
+        self.origin_ns = 0                      # the clock at model step 0
+        self.started = False
+
+    def take(self, clock_ns: int) -> None:
+        self.latest_ns = clock_ns
+
+    def start(self, steps: int) -> int:
+        """Anchor model step `steps` at the latest clock; returns the origin (ns)."""
+        if self.latest_ns is None:
+            raise RuntimeError("ExternalClock.start before any clock was received")
+        self.origin_ns = self.latest_ns - steps * self.dt_ns
+        self.started = True
+        return self.origin_ns
+
+    def plan(self, steps: int) -> ClockPlan:
+        """What the latest clock asks of a model at step `steps`."""
+        clock = self.latest_ns
+        if clock is None or not self.started:
+            return ClockPlan()
+        target = (clock - self.origin_ns) // self.dt_ns
+        if target < steps:
+            self.origin_ns = clock - steps * self.dt_ns
+            return ClockPlan(reanchored=True)
+        if target - steps > self.max_steps:
+            return ClockPlan(skip=target - steps - self.max_steps)
+        return ClockPlan(run=target - steps)
+
+    def went_back(self) -> str:
+        clock = self.latest_ns or 0
+        return f"/clock went back to {clock / 1e9:.4f} s: model time re-anchored there (the model state is kept)"
+
+    def jumped(self, skipped: int) -> str:
+        return (f"/clock jumped {skipped * self.dt_ns / 1e9:.3f} s ahead: the model was held over all but the last "
+                f"{self.max_jump:g} s")
+
+
+#: Why a node with use_sim_time and time_mode simulated is refused (the emulator and the rig).
+SIM_TIME_CONFLICT = ("use_sim_time: true follows another node's /clock, time_mode: simulated publishes /clock itself; "
+                     "accepted is one of them: use_sim_time with time_mode real (the model follows the external "
+                     "clock), or time_mode simulated without use_sim_time")
+#: Logged once when no /clock came ~2 s after the start (use_sim_time).
+NO_CLOCK_YET = "no /clock received yet: the model waits for the simulation's clock (use_sim_time is true)"

@@ -180,3 +180,22 @@ def test_simulated_factor_is_validated():
         SimulatedSchedule(DT, factor=-1.0)
     with pytest.raises(ValueError, match='real_time_factor'):
         SimulatedSchedule(DT, factor=math.nan)
+
+
+def test_external_clock_is_followed_reanchored_when_it_goes_back_and_held_over_a_long_jump():
+    """use_sim_time, the emulator's and the rig node's: one rule (pcv_sim.simulation.clock.ExternalClock)."""
+    from pcv_sim.simulation.clock import ClockPlan, ExternalClock
+
+    ext = ExternalClock(100_000, max_jump=1.0)
+    assert ext.plan(0) == ClockPlan()                         # no clock yet: nothing to do
+    ext.take(1_000_000_000)
+    assert ext.start(0) == 1_000_000_000                      # model time 0 = the first clock
+    ext.take(1_000_250_000)
+    assert ext.plan(0) == ClockPlan(run=2)                    # 0.25 ms later: two whole steps due
+    ext.take(500_000_000)
+    assert ext.plan(2) == ClockPlan(reanchored=True) and ext.origin_ns == 500_000_000 - 200_000
+    assert "went back to 0.5000 s" in ext.went_back()
+    ext.take(500_000_000 + 3_000_000_000)
+    plan = ext.plan(2)
+    assert plan.skip == 20_000 and "jumped 2.000 s ahead" in ext.jumped(plan.skip)
+    assert ext.plan(2 + plan.skip) == ClockPlan(run=10_000)
