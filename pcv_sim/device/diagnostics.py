@@ -27,7 +27,7 @@ from pcv_sim.device.valve import INPUTS, ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.simulation.clock import RealTimeSchedule
 
-__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Status"]
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Status", "recording_status"]
 
 OK, WARN, ERROR = 0, 1, 2
 CONCERNS = ("timing", "inputs", "model", "recording")
@@ -167,22 +167,29 @@ class DiagnosticsBuilder:
     def _recording(self, st: RecorderStatus | None) -> Status:
         if st is None:
             return self._status("recording", OK, [], "off", {"recording": "off"})
-        new_dropped = st.dropped - self._dropped
+        level, problems, values = recording_status(st, self._dropped)
         self._dropped = st.dropped
-        problems = []
-        if st.error:
-            problems.append(f"recording failed: {st.error}")
-        if new_dropped:
-            problems.append(f"recording dropped {new_dropped} messages in the last period")
-        level = ERROR if st.error else WARN if new_dropped else OK
-        values = {
-            "recording": st.state,
-            "recording_path": str(st.path),
-            "recording_messages": st.messages,
-            "recording_bytes": st.bytes,
-            "recording_files": st.files,
-            "recording_queued": st.queued,
-            "recording_dropped": st.dropped,
-            "recording_error": st.error,
-        }
         return self._status("recording", level, problems, st.state, values)
+
+
+def recording_status(st: RecorderStatus, dropped_before: int) -> tuple[int, list[str], dict[str, Any]]:
+    """Level, problems and `recording*` values of a recorder (the emulator's and the rig node's);
+    `dropped_before`: its drop count at the previous diagnostics."""
+    new_dropped = st.dropped - dropped_before
+    problems = []
+    if st.error:
+        problems.append(f"recording failed: {st.error}")
+    if new_dropped:
+        problems.append(f"recording dropped {new_dropped} messages in the last period")
+    level = ERROR if st.error else WARN if new_dropped else OK
+    values = {
+        "recording": st.state,
+        "recording_path": str(st.path),
+        "recording_messages": st.messages,
+        "recording_bytes": st.bytes,
+        "recording_files": st.files,
+        "recording_queued": st.queued,
+        "recording_dropped": st.dropped,
+        "recording_error": st.error,
+    }
+    return level, problems, values

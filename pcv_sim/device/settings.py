@@ -71,7 +71,8 @@ def _any(_v: Any) -> str | None:
     return None
 
 
-def _bag_name(v: str) -> str | None:
+def bag_name_check(v: str) -> str | None:
+    """record.name: '' or a plain directory name (the emulator and the rig node)."""
     if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
         return "'' (a timestamped name) or a plain directory name of letters, digits, '_', '-', '.'"
     return None
@@ -158,7 +159,7 @@ class NodeSettings:
         name="record.directory", read_only=True)
     record_name: str = setting(
         "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
-        "overwritten", _bag_name, "str", name="record.name", read_only=True)
+        "overwritten", bag_name_check, "str", name="record.name", read_only=True)
     record_signals: tuple[str, ...] = setting(
         RECORDABLE, "-", "signals to record: inputs on change (the duty as the model used it), outputs at "
         "record.rate_hz", name="record.signals", read_only=True, convert=_record_signals)

@@ -54,12 +54,12 @@ import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final, Literal
+from typing import Any, Final, Literal, Self
 
 import numpy as np
 
 from pcv_sim.errors import BagError
-from pcv_sim.io.bag import COMMAND_QOS, SENSOR_DATA_QOS, BagWriter, Qos
+from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, BagWriter, Qos
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
@@ -82,6 +82,7 @@ __all__ = [
     "SWITCH_INTERVAL",
     "BagRecorder",
     "RecorderStatus",
+    "RigRecorder",
     "bag_name",
     "check_signals",
 ]
@@ -136,11 +137,11 @@ def check_signals(signals: Iterable[str]) -> tuple[str, ...]:
     return tuple(r for r in RECORDABLE if r in chosen)
 
 
-def bag_name(namespace: str = "/", when: float | None = None) -> str:
-    """A timestamped bag name, ``emulator[_<namespace>]_YYYYmmdd-HHMMSS`` (local time)."""
+def bag_name(namespace: str = "/", when: float | None = None, *, prefix: str = "emulator") -> str:
+    """A timestamped bag name, ``<prefix>[_<namespace>]_YYYYmmdd-HHMMSS`` (local time)."""
     ns = "_".join(p for p in namespace.strip("/").split("/") if p)
     stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(time.time() if when is None else when))
-    return f"emulator_{ns}_{stamp}" if ns else f"emulator_{stamp}"
+    return f"{prefix}_{ns}_{stamp}" if ns else f"{prefix}_{stamp}"
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,160 @@ class RecorderStatus:
     error: str            # why writing failed ('' if it did not)
 
 
-class BagRecorder:
+class _QueuedBag:
+    """What every recorder here shares: the bag directory (never overwritten), the BagWriter, the
+    queue the model loop appends to, the writer thread, drop accounting, status and close.
+    Subclasses say how many messages an item makes (`_count`) and write a batch (`_write_batch`)."""
+
+    def __init__(
+        self,
+        directory: str | os.PathLike[str],
+        name: str,
+        *,
+        topics: Mapping[str, str],
+        qos: Mapping[str, Qos],
+        max_items: int,
+        split_size_bytes: int | None,
+        threaded: bool,
+        batch_period: float,
+        flush_period_s: float,
+        chunk_size: int,
+        fsync: bool,
+        when_full: Literal["drop", "wait"],
+        ros_distro: str | None,
+    ) -> None:
+        if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
+            msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
+            raise BagError(msg)
+        if when_full not in ("drop", "wait"):
+            msg = f"when_full {when_full!r}: accepted are 'drop' and 'wait'"
+            raise BagError(msg)
+        if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
+            msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
+                   f"'_', '-', '.' (the directory is given separately)")
+            raise BagError(msg)
+        self.path = Path(directory) / name
+        if self.path.exists():
+            msg = (f"bag {str(self.path)!r} exists already; the recorder never overwrites a bag: "
+                   f"choose another name (or the default timestamped one) or move it away")
+            raise BagError(msg)
+        try:
+            Path(directory).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            msg = f"cannot create the recording directory {str(directory)!r}: {exc.strerror}"
+            raise BagError(msg) from exc
+        self._writer = BagWriter(
+            self.path,
+            topics=topics,
+            qos=qos,
+            ros_distro=ros_distro,
+            flush_period_s=flush_period_s,
+            split_size_bytes=split_size_bytes,
+            chunk_size=chunk_size,
+            fsync=fsync,
+        )
+        self._max_items = max_items
+        self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
+        self._dropped = 0
+        self._error = ""
+        self._closed = False
+        self._lock = threading.Lock()          # writer side only: drain vs close
+        self.threaded = threaded
+        self.when_full = when_full
+        self.batch_period = batch_period
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, name=f"{type(self).__name__}:{name}", daemon=True)
+            self._thread.start()
+
+    # --- the model loop's side ----------------------------------------------------------------
+
+    def _put(self, item: tuple[Any, ...]) -> None:
+        if self.threaded:
+            q = self._queue
+            if len(q) >= self._max_items and self.when_full == "wait":
+                while len(q) >= self._max_items and self._thread is not None and self._thread.is_alive():
+                    time.sleep(self.batch_period / 4)
+            if len(q) < self._max_items and not self._error and not self._closed:
+                q.append(item)
+            else:
+                self._dropped += self._count(item)
+        elif self._error or self._closed:
+            self._dropped += self._count(item)
+        else:
+            with self._lock:
+                self._write_batch([item])
+
+    # --- the writer's side ------------------------------------------------------------------
+
+    def _count(self, item: tuple[Any, ...]) -> int:
+        """Messages `item` makes."""
+        raise NotImplementedError
+
+    def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
+        """Write `items` (under the lock); a failure goes to `_fail`, what it lost to `_dropped`."""
+        raise NotImplementedError
+
+    def _drain(self) -> None:
+        """Write what is queued (writer thread, or close)."""
+        q = self._queue
+        with self._lock:
+            items = [q.popleft() for _ in range(len(q))]
+            if items:
+                self._write_batch(items)
+
+    def _fail(self, exc: BaseException) -> None:
+        if not self._error:
+            self._error = f"{type(exc).__name__}: {exc}"
+
+    def _run(self) -> None:
+        _normal_scheduling()
+        while not self._stop.wait(self.batch_period):
+            self._drain()
+
+    # --- status and shutdown ------------------------------------------------------------------
+
+    @property
+    def error(self) -> str:
+        return self._error
+
+    def status(self) -> RecorderStatus:
+        files = self._writer.files
+        size = 0
+        for f in files:
+            try:
+                size += f.stat().st_size
+            except OSError:
+                pass
+        state: Literal["recording", "failed", "closed"] = (
+            "failed" if self._error else "closed" if self._closed else "recording")
+        return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
+                              len(self._queue), self._dropped, self._error)
+
+    def close(self) -> RecorderStatus:
+        """Write what is queued and finalize the bag (summary, footer, metadata.yaml). Idempotent."""
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+        if not self._closed:
+            self._drain()
+            self._closed = True
+            try:
+                self._writer.close()
+            except (BagError, OSError) as exc:
+                self._fail(exc)
+        return self.status()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class BagRecorder(_QueuedBag):
     """The device recorder writing a rosbag2/MCAP bag (see the module docstring).
 
     Args:
@@ -210,46 +364,16 @@ class BagRecorder:
         if isinstance(dt_ns, bool) or not isinstance(dt_ns, int) or dt_ns < 1:
             msg = f"dt_ns {dt_ns!r}: accepted is an integer >= 1 (model step in ns)"
             raise BagError(msg)
-        if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
-            msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
-            raise BagError(msg)
-        if when_full not in ("drop", "wait"):
-            msg = f"when_full {when_full!r}: accepted are 'drop' and 'wait'"
-            raise BagError(msg)
         if not (math.isfinite(max_queue_s) and max_queue_s > 0.0):
             msg = f"max_queue_s {max_queue_s!r} s: accepted is a finite number > 0"
             raise BagError(msg)
         if name is None:
             name = bag_name(namespace)
-        if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
-            msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
-                   f"'_', '-', '.' (the directory is given separately)")
-            raise BagError(msg)
         self.signals = check_signals(signals)
         self.every = every
         self.dt_ns = dt_ns
         self.frame_id = frame_id
         self.topics = {role: bag_topic(role, namespace) for role in self.signals}
-        self.path = Path(directory) / name
-        if self.path.exists():
-            msg = (f"bag {str(self.path)!r} exists already; the recorder never overwrites a bag: "
-                   f"choose another name (or the default timestamped one) or move it away")
-            raise BagError(msg)
-        try:
-            Path(directory).mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            msg = f"cannot create the recording directory {str(directory)!r}: {exc.strerror}"
-            raise BagError(msg) from exc
-        self._writer = BagWriter(
-            self.path,
-            topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
-            qos={self.topics[r]: ROLE_QOS[r] for r in self.signals},
-            ros_distro=ros_distro,
-            flush_period_s=flush_period_s,
-            split_size_bytes=split_size_bytes,
-            chunk_size=chunk_size,
-            fsync=fsync,
-        )
         self._inputs = tuple((k, r, _SOURCE[r]) for k, r in enumerate(INPUT_ROLES) if r in self.signals)
         self._input_topics = tuple(bag_topic(r, namespace) for r in INPUT_ROLES)
         self._outputs = any(r in self.signals for r in OUTPUT_ROLES)
@@ -261,20 +385,14 @@ class BagRecorder:
         self._every_ns = every * dt_ns
         self._per_output = sum(r in self.signals for r in OUTPUT_ROLES)
         # Queue bound in items: outputs at their rate plus one input change per step.
-        self._max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
-        self._queue: collections.deque[tuple[float, ...]] = collections.deque()
-        self._dropped = 0
-        self._error = ""
-        self._closed = False
-        self._lock = threading.Lock()          # writer side only: drain vs close
-        self.threaded = threaded
-        self.when_full = when_full
-        self.batch_period = batch_period
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        if threaded:
-            self._thread = threading.Thread(target=self._run, name=f"BagRecorder:{name}", daemon=True)
-            self._thread.start()
+        max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
+        super().__init__(
+            directory, name,
+            topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
+            qos={self.topics[r]: ROLE_QOS[r] for r in self.signals},
+            max_items=max_items, split_size_bytes=split_size_bytes, threaded=threaded, batch_period=batch_period,
+            flush_period_s=flush_period_s, chunk_size=chunk_size, fsync=fsync, when_full=when_full,
+            ros_distro=ros_distro)
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -303,25 +421,6 @@ class BagRecorder:
         if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
             self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 
-    def _put(self, item: tuple[float, ...]) -> None:
-        if self.threaded:
-            q = self._queue
-            if len(q) >= self._max_items and self.when_full == "wait":
-                while len(q) >= self._max_items and self._thread is not None and self._thread.is_alive():
-                    time.sleep(self.batch_period / 4)
-            if len(q) < self._max_items and not self._error and not self._closed:
-                q.append(item)
-            else:
-                self._dropped += self._count(item)
-        elif self._error or self._closed:
-            self._dropped += self._count(item)
-        else:
-            try:
-                self._write(item)
-            except (BagError, OSError) as exc:
-                self._fail(exc)
-                self._dropped += self._count(item)
-
     # --- the writer's side ------------------------------------------------------------------
 
     def _count(self, item: tuple[float, ...]) -> int:
@@ -346,94 +445,245 @@ class BagRecorder:
             else:
                 w.write_float64(self._input_topics[k], t, v)
 
-    def _drain(self) -> None:
-        """Write what is queued (writer thread, or close): inputs message by message, the
-        output samples as whole arrays (``BagWriter.write_samples``, ~0.1 µs per message), so
-        the writer holds the interpreter lock for a small fraction of the time."""
-        q = self._queue
-        with self._lock:
-            items = [q.popleft() for _ in range(len(q))]
-            if not items:
-                return
-            outputs = []
-            for item in items:
-                if item[0] == _OUT:
-                    outputs.append(item)
-                elif self._error:
-                    self._dropped += 1
-                else:
-                    try:
-                        self._write(item)
-                    except (BagError, OSError) as exc:
-                        self._fail(exc)
-                        self._dropped += 1
-            if not outputs:
-                return
-            if self._error:
-                self._dropped += len(outputs) * self._per_output
-                return
-            for k in range(0, len(outputs), _SLICE):   # slices, so that a backlog still ends chunks on time
-                part = outputs[k:k + _SLICE]
-                if self._error:
-                    self._dropped += len(part) * self._per_output
-                    continue
-                _, t, p, i, x = zip(*part)
-                columns = {topic: values for topic, values in ((self._p_topic, p), (self._i_topic, i),
-                                                               (self._x_topic, x)) if topic is not None}
+    def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
+        """Inputs message by message, the output samples as whole arrays
+        (``BagWriter.write_samples``, ~0.1 µs per message), so the writer holds the interpreter
+        lock for a small fraction of the time."""
+        outputs = []
+        for item in items:
+            if item[0] == _OUT:
+                outputs.append(item)
+            elif self._error:
+                self._dropped += 1
+            else:
                 try:
-                    self._writer.write_samples(np.array(t, dtype=np.int64), columns, frame_id=self.frame_id)
+                    self._write(item)
                 except (BagError, OSError) as exc:
                     self._fail(exc)
-                    self._dropped += len(part) * self._per_output
-
-    def _fail(self, exc: BaseException) -> None:
-        if not self._error:
-            self._error = f"{type(exc).__name__}: {exc}"
-
-    def _run(self) -> None:
-        _normal_scheduling()
-        while not self._stop.wait(self.batch_period):
-            self._drain()
-
-    # --- status and shutdown ------------------------------------------------------------------
-
-    @property
-    def error(self) -> str:
-        return self._error
-
-    def status(self) -> RecorderStatus:
-        files = self._writer.files
-        size = 0
-        for f in files:
+                    self._dropped += 1
+        if not outputs:
+            return
+        if self._error:
+            self._dropped += len(outputs) * self._per_output
+            return
+        for k in range(0, len(outputs), _SLICE):   # slices, so that a backlog still ends chunks on time
+            part = outputs[k:k + _SLICE]
+            if self._error:
+                self._dropped += len(part) * self._per_output
+                continue
+            _, t, p, i, x = zip(*part)
+            columns = {topic: values for topic, values in ((self._p_topic, p), (self._i_topic, i),
+                                                           (self._x_topic, x)) if topic is not None}
             try:
-                size += f.stat().st_size
-            except OSError:
-                pass
-        state: Literal["recording", "failed", "closed"] = (
-            "failed" if self._error else "closed" if self._closed else "recording")
-        return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
-                              len(self._queue), self._dropped, self._error)
-
-    def close(self) -> RecorderStatus:
-        """Write what is queued and finalize the bag (summary, footer, metadata.yaml). Idempotent."""
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join()
-            self._thread = None
-        if not self._closed:
-            self._drain()
-            self._closed = True
-            try:
-                self._writer.close()
+                self._writer.write_samples(np.array(t, dtype=np.int64), columns, frame_id=self.frame_id)
             except (BagError, OSError) as exc:
                 self._fail(exc)
-        return self.status()
+                self._dropped += len(part) * self._per_output
 
-    def __enter__(self) -> BagRecorder:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+# --- the rig -------------------------------------------------------------------------------------
+
+JOINT_STATE: Final = "sensor_msgs/msg/JointState"
+STRING: Final = "std_msgs/msg/String"
+_TEXT: Final = 2     # queue item (_TEXT, topic, t_ns, text)
+_ROW: Final = 3      # queue item (_ROW, t_ns, measured values, load flows)
+
+
+class RigRecorder(_QueuedBag):
+    """The rig node's recorder: every valve's topics under its own namespace exactly as the
+    emulator records them (:class:`BagRecorder`: same names, types, QoS, stamps), so that one
+    valve of the bag replays like an emulator's bag (``pcv-sim replay --namespace``); and the
+    cylinder's and the rig's own topics. ``namespace`` is the node's; topics (``<ns>`` = it):
+
+        <ns>/<valve>/duty_cycle, supply_pressure, load_flow   inputs, at the start then on change,
+                                                             stamped at the step they act from
+        <ns>/<valve>/pressure, current, spool_position        the samples as published (measured)
+        <ns>/cylinder/joint_states, pressure_a|b              the samples as published
+        <ns>/cylinder/external_force                          input, on change
+        <ns>/faults                                           the fault commands, at the step they acted
+        <ns>/rig/events                                       the rig's log: faults, clears, watchdog, reset
+
+    The duty is the one in force (after the watchdog); `load_flow` is the chamber's displacement
+    flow the valve fed at each sample (a continuous input, recorded at the sample rate); a dropped
+    or non-finite measurement has no message, as on the wire. The loop side: :meth:`start`,
+    :meth:`input`, :meth:`sample`, :meth:`text`; the rest as :class:`BagRecorder`.
+
+    Args:
+        valves: (name, chamber) per valve, in the order of `signals`; chamber ``a``, ``b`` or
+            anything else (on its own load volume: no chamber topic).
+        signals: The rig's signal names (``<valve>.pressure`` ..., ``cylinder.position`` ...), the
+            order of the measured values given to :meth:`sample`.
+        max_items: Queue bound (items: one per sample, input change or text).
+        Others: as :class:`BagRecorder`.
+    """
+
+    def __init__(
+        self,
+        directory: str | os.PathLike[str],
+        *,
+        valves: Iterable[tuple[str, str]],
+        signals: Iterable[str],
+        name: str | None = None,
+        namespace: str = "/",
+        split_size_bytes: int | None = None,
+        threaded: bool = True,
+        batch_period: float = 0.02,
+        max_items: int = 100_000,
+        flush_period_s: float = 0.9,
+        chunk_size: int = 1 << 20,
+        fsync: bool = True,
+        when_full: Literal["drop", "wait"] = "drop",
+        ros_distro: str | None = None,
+    ) -> None:
+        if name is None:
+            name = bag_name(namespace, prefix="rig")
+        self.valves = tuple(valves)
+        self.signals = tuple(signals)
+        ns = namespace.rstrip("/")
+        topics: dict[str, str] = {}
+        qos: dict[str, Qos] = {}
+
+        def add(topic: str, msgtype: str, profile: Qos) -> str:
+            topics[topic] = msgtype
+            qos[topic] = profile
+            return topic
+
+        #: input name (as `Rig.on_input` gives it) -> topic
+        self._input_topic: dict[str, str] = {}
+        #: per valve: (pressure, current, spool_position, load_flow) topics and signal indices
+        self._valve_out: list[tuple[str, str, str, str, int, int, int]] = []
+        self._chambers: list[tuple[str, str, int]] = []
+        for v, chamber in self.valves:
+            vns = f"{ns}/{v}"
+            for role in ROLES:
+                add(bag_topic(role, vns), ROLE_TYPES[role], ROLE_QOS[role])
+            self._input_topic[f"{v}.{DUTY_CYCLE}"] = bag_topic(DUTY_CYCLE, vns)
+            self._input_topic[f"{v}.{SUPPLY_PRESSURE}"] = bag_topic(SUPPLY_PRESSURE, vns)
+            self._input_topic[f"{v}.{LOAD_FLOW}"] = bag_topic(LOAD_FLOW, vns)
+            self._valve_out.append((bag_topic(PRESSURE, vns), bag_topic(CURRENT, vns), bag_topic(SPOOL_POSITION, vns),
+                                    bag_topic(LOAD_FLOW, vns), self.signals.index(f"{v}.pressure"),
+                                    self.signals.index(f"{v}.current"), self.signals.index(f"{v}.spool_position")))
+            if chamber in ("a", "b"):
+                self._chambers.append((add(f"{ns}/cylinder/pressure_{chamber}", FLUID_PRESSURE, SENSOR_DATA_QOS),
+                                       f"chamber_{chamber}", self.signals.index(f"{v}.pressure")))
+        self._joint = add(f"{ns}/cylinder/joint_states", JOINT_STATE, SENSOR_DATA_QOS)
+        self._joint_i = tuple(self.signals.index(f"cylinder.{q}") for q in ("position", "velocity", "effort"))
+        self._input_topic["cylinder.external_force"] = add(f"{ns}/cylinder/external_force", FLOAT64, COMMAND_QOS)
+        self.faults_topic = add(f"{ns}/faults", STRING, COMMAND_QOS)
+        self.events_topic = add(f"{ns}/rig/events", STRING, COMMAND_QOS)
+        self.topics = dict(topics)
+        self._last: dict[str, float] = {}
+        self.started = False
+        self._per_row = 3 * len(self.valves) + len(self._chambers) + 1
+        super().__init__(
+            directory, name, topics=topics, qos=qos, max_items=max_items, split_size_bytes=split_size_bytes,
+            threaded=threaded, batch_period=batch_period, flush_period_s=flush_period_s, chunk_size=chunk_size,
+            fsync=fsync, when_full=when_full, ros_distro=ros_distro)
+
+    # --- the model loop's side ----------------------------------------------------------------
+
+    def start(self, t_ns: int, inputs: Mapping[str, float]) -> None:
+        """Write every input in force at ``t_ns`` (the rig at rest; names as `Rig.on_input`'s, load
+        flows as ``<valve>.load_flow``); inputs before this are not recorded."""
+        self.started = True
+        for key, value in inputs.items():
+            self._last.pop(key, None)
+            self.input(t_ns, key, value)
+
+    def input(self, t_ns: int, name: str, value: float) -> None:
+        """An input (``<valve>.duty_cycle``, ``<valve>.supply_pressure``, ``<valve>.load_flow``,
+        ``cylinder.external_force``) acting from ``t_ns``; written when it changed."""
+        if not self.started or self._last.get(name) == value:
+            return
+        topic = self._input_topic.get(name)
+        if topic is None:
+            msg = f"input {name!r}: accepted are {', '.join(self._input_topic)}"
+            raise BagError(msg)
+        self._last[name] = value
+        self._put((_IN, topic, t_ns, value))
+
+    def sample(self, t_ns: int, measured: Iterable[float], load_flows: Iterable[float]) -> None:
+        """The sample published at ``t_ns`` (measured, in the order of `signals`; NaN: dropped) and
+        the valves' load flows at that instant (on change)."""
+        if not self.started:
+            return
+        for (v, _), q in zip(self.valves, load_flows):
+            self.input(t_ns, f"{v}.{LOAD_FLOW}", float(q))
+        self._put((_ROW, t_ns, tuple(measured)))
+
+    def text(self, topic: str, t_ns: int, text: str) -> None:
+        """A std_msgs/String on `faults_topic` or `events_topic`."""
+        if self.started:
+            self._put((_TEXT, topic, t_ns, text))
+
+    # --- the writer's side ------------------------------------------------------------------
+
+    def _count(self, item: tuple[Any, ...]) -> int:
+        return self._per_row if item[0] == _ROW else 1
+
+    def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
+        """Inputs and texts message by message; the samples per topic as arrays
+        (``BagWriter.write_samples``), the joint states message by message."""
+        w = self._writer
+        rows = []
+        for item in items:
+            if item[0] == _ROW:
+                rows.append(item)
+                continue
+            if self._error:
+                self._dropped += 1
+                continue
+            try:
+                if item[0] == _TEXT:
+                    _, topic, t, text = item
+                    w.write(topic, int(t), {"data": text})
+                else:
+                    _, topic, t, v = item
+                    if topic.endswith("/" + SUPPLY_PRESSURE):
+                        w.write_fluid_pressure(topic, int(t), v, 0.0, "load_port")
+                    else:
+                        w.write_float64(topic, int(t), v)
+            except (BagError, OSError) as exc:
+                self._fail(exc)
+                self._dropped += 1
+        if not rows:
+            return
+        if self._error:
+            self._dropped += len(rows) * self._per_row
+            return
+        try:
+            self._write_rows(rows)
+        except (BagError, OSError) as exc:
+            self._fail(exc)
+            self._dropped += len(rows) * self._per_row
+
+    def _write_rows(self, rows: list[tuple[Any, ...]]) -> None:
+        w = self._writer
+        t = np.array([r[1] for r in rows], dtype=np.int64)
+        y = np.array([r[2] for r in rows], dtype=np.float64).reshape(len(rows), len(self.signals))
+
+        def column(topic: str, j: int, frame: str = "") -> None:
+            v = y[:, j]
+            ok = np.isfinite(v)           # a dropped sample: no message (never a NaN measurement)
+            if np.all(ok):
+                w.write_samples(t, {topic: v}, frame_id=frame)
+            elif np.any(ok):
+                w.write_samples(t[ok], {topic: v[ok]}, frame_id=frame)
+
+        for p_topic, i_topic, x_topic, _q, jp, ji, jx in self._valve_out:
+            column(p_topic, jp, "load_port")
+            column(i_topic, ji)
+            column(x_topic, jx)
+        for topic, frame, j in self._chambers:
+            column(topic, j, frame)
+        jp, jv, je = self._joint_i
+        for k in range(len(rows)):
+            # A dropped signal is left out of the message (JointState allows empty arrays per field).
+            fields = [np.array([y[k, j]] if math.isfinite(y[k, j]) else [], dtype=np.float64) for j in (jp, jv, je)]
+            sec, nsec = divmod(int(t[k]), 1_000_000_000)
+            w.write(self._joint, int(t[k]), {
+                "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"}, "name": ["steering"],
+                "position": fields[0], "velocity": fields[1], "effort": fields[2]})
 
 
 def _normal_scheduling() -> None:

@@ -116,6 +116,10 @@ class Rig:
         self.signals = tuple(f"{n}.{s}" for n in self.valve_names for s in VALVE_SIGNALS) + tuple(
             f"cylinder.{s}" for s in CYLINDER_SIGNALS)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
+        #: per valve: the output its load flow is wired from (the chamber's flow), or -1 (its own volume)
+        self._flow_i = [plant.index("output", f"cylinder.flow_{v.chamber}") if v.chamber in ("a", "b") else -1
+                        for v in valves]
+        self._flows = [0.0] * len(valves)
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
@@ -137,7 +141,8 @@ class Rig:
     def reset(self, *, keep_time: bool = False) -> None:
         """Valves at rest at their initial duty, piston at rest at its initial position, no faults,
         no scheduled inputs; t = 0, or with `keep_time` the present time goes on (the watchdog
-        counts from now, the log and the refused commands are kept and the reset is logged)."""
+        counts from now, the log and the refused commands are kept, inputs scheduled for later
+        still act, and the reset is logged)."""
         sim = self.sim
         steps = sim.steps
         if self._rest is None:              # the same every time (the valves' YAML): solved once
@@ -165,7 +170,6 @@ class Rig:
         self._last_cmd = dict.fromkeys(self.valve_names, sim.steps)
         self.watchdog_fired = dict.fromkeys(self.valve_names, False)
         self.faults: dict[tuple[str, str], Fault] = {}
-        self._events: list[_Event] = []
         self.sensors.reset()
         if keep_time:
             self.log.append((self.time, "reset: valves at rest at their initial duty, piston at rest at its initial "
@@ -173,6 +177,7 @@ class Rig:
         else:
             self.rejected: list[tuple[float, str]] = []
             self.log: list[tuple[float, str]] = []
+            self._events: list[_Event] = []
             self._seq = 0
         self._inputs_changed()
 
@@ -212,7 +217,14 @@ class Rig:
     def sample(self) -> np.ndarray:
         """The true values of `signals` now (SI: Pa, A, m per valve; m, m/s, N for the cylinder),
         with the inputs in force from now on. A new array."""
-        return self.sim.outputs()[self._signal_i]
+        y = self.sim.outputs()
+        self._flows = [float(y[i]) if i >= 0 else 0.0 for i in self._flow_i]
+        return y[self._signal_i]
+
+    def load_flows(self) -> dict[str, float]:
+        """Each valve's load flow at the last `sample()` (m^3/s drawn from its load port: the
+        chamber's displacement flow; 0 for a valve on its own volume), `<valve>.load_flow` -> value."""
+        return {f"{n}.load_flow": q for n, q in zip(self.valve_names, self._flows)}
 
     # --- inputs ------------------------------------------------------------------------------
 
