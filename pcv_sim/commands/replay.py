@@ -50,6 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--topic", action="append", metavar="ROLE=/TOPIC",
                    help="where a signal is in the bag, e.g. pressure=/rig/p (roles: duty_cycle, load_flow, "
                         "supply_pressure, pressure, current, spool_position; aliases duty, position); repeatable")
+    p.add_argument("--namespace", metavar="NS",
+                   help="the device to replay in a bag of several (the rig node's: one namespace per valve), e.g. "
+                        "left or /rig/left (the full namespace or its last part); an unknown one is refused naming "
+                        "the bag's device namespaces")
     p.add_argument("--report", type=Path, metavar="OUT.md|OUT.html", help="write a Markdown or HTML report with plots")
     p.add_argument("--plot-dir", type=Path, metavar="DIR",
                    help="write the plots (PNG) here; default for a Markdown report: OUT_plots/ beside it")
@@ -75,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         msg = f"--resync-ms {args.resync_ms:g}: accepted is a finite number >= 0 (ms)"
         raise ReplayError(msg)
     params = params_from(args)
-    recording = load_recording(args.bag, parse_topic_map(args.topic))
+    recording = load_recording(args.bag, parse_topic_map(args.topic), namespace=args.namespace)
     result = replay(recording, params, model=args.model, solver=args.solver, resync=args.resync_ms / 1e3)
     failures = check_thresholds(result, above, below)
     if not recording.closed_cleanly:

@@ -2,8 +2,10 @@
 
 Signals are found by role (see :mod:`pcv_sim.io.topics`): by default the emulator's root
 namespace names (``/duty_cycle``, ``/pressure``, ...), else a single topic ending in
-``/<role>`` (a namespaced emulator such as ``/left/pressure``); ``topic_map`` overrides either
-(``{"pressure": "/rig/p"}``), because rig bags use other names.
+``/<role>`` (a namespaced emulator such as ``/left/pressure``); ``namespace`` selects one
+device of a bag holding several (the rig node's bag: ``/left/...``, ``/right/...``; the full
+namespace or its last part(s), ``left``); ``topic_map`` overrides any of these
+(``{"pressure": "/rig/p"}``), because other recorders use other names.
 
 Time: the bag's log time, except for FluidPressure messages, whose header stamp is the sample
 time (docs/interface.md). Replay time 0 is the first duty command: the model starts at rest
@@ -43,7 +45,8 @@ from pcv_sim.io.topics import (
 )
 from pcv_sim.replay.errors import ReplayError
 
-__all__ = ["GAP_FACTOR", "Gap", "Recording", "Series", "find_gaps", "load_recording", "parse_topic_map"]
+__all__ = ["GAP_FACTOR", "Gap", "Recording", "Series", "device_namespaces", "find_gaps", "load_recording",
+           "parse_topic_map"]
 
 _NS = 1_000_000_000
 _STAMP_OFFSET_NOTE_NS = 1_000_000  # report header stamps that differ from log times by > 1 ms
@@ -176,8 +179,38 @@ def _listing(types: Mapping[str, str]) -> str:
     return ", ".join(f"{t} ({ty})" for t, ty in sorted(types.items())) or "none"
 
 
+def device_namespaces(types: Mapping[str, str]) -> list[str]:
+    """The namespaces of a bag that hold a device's duty command and an output (``/left``,
+    ``/rig/right``; ``/`` for the root namespace), sorted."""
+    by_ns: dict[str, set[str]] = {}
+    for topic in types:
+        ns, _, last = topic.rpartition("/")
+        if last in ROLES:
+            by_ns.setdefault(ns or "/", set()).add(last)
+    return sorted(ns for ns, roles in by_ns.items() if DUTY_CYCLE in roles and roles & set(OUTPUT_ROLES))
+
+
+def _select_namespace(namespace: str, types: Mapping[str, str]) -> str:
+    """The device namespace of the bag `namespace` names: itself, or the one ending in it."""
+    found = device_namespaces(types)
+    want = "/" + namespace.strip().strip("/")
+    if want in found:
+        return want
+    ending = [ns for ns in found if ns.endswith(want)]
+    if len(ending) == 1:
+        return ending[0]
+    listed = ", ".join(found) or "none"
+    if ending:
+        msg = f"--namespace {namespace!r} matches several devices in the bag: {', '.join(ending)}; give the full one"
+    else:
+        msg = (f"--namespace {namespace!r}: no device (a duty_cycle and an output topic) in that namespace; "
+               f"the bag's device namespaces: {listed}")
+    raise ReplayError(msg)
+
+
 def _resolve(
-    role: str, types: Mapping[str, str], topic_map: Mapping[str, str], notes: list[str]
+    role: str, types: Mapping[str, str], topic_map: Mapping[str, str], notes: list[str],
+    namespace: str | None = None,
 ) -> str | None:
     """The topic that carries `role`, or None when the bag has none (only the default search)."""
     if role in topic_map:
@@ -189,6 +222,9 @@ def _resolve(
             )
             raise ReplayError(msg)
         return topic
+    if namespace is not None:
+        topic = bag_topic(role, namespace)
+        return topic if topic in types else None
     default = bag_topic(role)
     if default in types:
         return default
@@ -198,9 +234,11 @@ def _resolve(
         notes.append(f"{role}: using {candidates[0]} (no {default} in the bag)")
         return candidates[0]
     if len(candidates) > 1:
+        namespaces = device_namespaces(types)
         msg = (
-            f"several topics could be the {role}: {candidates}; choose one with "
-            f"--topic {role}={candidates[0]}"
+            f"several topics could be the {role}: {candidates}; choose one with --topic "
+            f"{role}={candidates[0]}, or a device with --namespace NS (the bag's device namespaces: "
+            f"{', '.join(namespaces) or 'none'})"
         )
         raise ReplayError(msg)
     return None
@@ -259,14 +297,15 @@ def _check_finite(role: str, topic: str, values: npt.NDArray[np.float64]) -> Non
 
 
 def load_recording(
-    path: str | os.PathLike[str], topic_map: Mapping[str, str] | None = None
+    path: str | os.PathLike[str], topic_map: Mapping[str, str] | None = None, *, namespace: str | None = None
 ) -> Recording:
-    """Read a bag for replay.
+    """Read a bag for replay; `namespace` selects one device of several (see the module docstring).
 
     Raises:
         BagError: not a bag, unreadable (from :func:`pcv_sim.io.read_bag`).
         ReplayError: no duty command or no output to compare, a topic of a type replay cannot
-            read, time going backwards, non-finite values, duty outside 0..1.
+            read, time going backwards, non-finite values, duty outside 0..1, a namespace that
+            is not a device of the bag (naming those found).
     """
     mapping = dict(topic_map or {})
     for role in mapping:
@@ -277,8 +316,9 @@ def load_recording(
     types = contents.topic_types
     notes: list[str] = []
     topics: dict[str, str] = {}
+    ns = _select_namespace(namespace, types) if namespace is not None else None
     for role in ROLES:
-        topic = _resolve(role, types, mapping, notes)
+        topic = _resolve(role, types, mapping, notes, ns)
         if topic is not None:
             topics[role] = topic
     if DUTY_CYCLE not in topics:

@@ -59,7 +59,8 @@ def test_two_namespaces_are_ambiguous(tmp_path):  # noqa: ANN001
                                        "current": "/right/pressure"}, until_s=0.2,
                     types={"current": "sensor_msgs/msg/FluidPressure"})
     with pytest.raises(ReplayError, match=r"several topics could be the pressure: \['/left/pressure', "
-                                          r"'/right/pressure'\]; choose one with --topic pressure=/left/pressure"):
+                                          r"'/right/pressure'\]; choose one with --topic pressure=/left/pressure, or a "
+                                          r"device with --namespace NS \(the bag's device namespaces: /left\)"):
         load_recording(bag)
 
 

@@ -17,5 +17,6 @@ def _shared_rig(rig_params):
 
 @pytest.fixture
 def rig(_shared_rig):
+    _shared_rig.on_input = None
     _shared_rig.reset()
     return _shared_rig

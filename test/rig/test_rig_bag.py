@@ -1,0 +1,92 @@
+"""The rig node's bag without ROS: a rig run recorded with `RigRecorder` the way the node feeds it
+(`Rig.on_input` for the inputs, the samples every control period), read back with rosbags, and
+one valve replayed from it by namespace (`pcv-sim replay --namespace`)."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from pcv_sim.cli import main
+from pcv_sim.io.recorder import RigRecorder
+from pcv_sim.params import load_params
+from pcv_sim.replay import ReplayError, load_recording, replay
+
+DT_NS = 100_000
+NS = "/bench/rig"
+
+
+def duties(t):
+    return {"left": 0.7 if 0.05 <= t < 0.15 else 0.4 if t >= 0.15 else 0.5, "right": 0.3 if t >= 0.1 else 0.5}
+
+
+@pytest.fixture
+def rig_bag(rig, tmp_path):
+    """0.3 s of the rig, recorded at the 1 ms control period; returns (bag path, samples)."""
+    rec = RigRecorder(tmp_path, name="b", valves=[(v.name, v.chamber) for v in rig.params.valves],
+                      signals=rig.signals, namespace=NS, threaded=False)
+    rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
+    samples = []
+    for k in range(301):
+        rig.advance_to(k * 10)
+        y = rig.sample()
+        if k == 0:
+            rec.start(0, {**rig.input_values(), **rig.load_flows()})
+        rec.sample(rig.steps * DT_NS, y, rig.load_flows().values())
+        samples.append(y)
+        for v, d in duties(rig.time + 1e-9).items():
+            rig.set_duty(v, d)
+    st = rec.close()
+    assert st.dropped == 0 and st.error == ""
+    return tmp_path / "b", np.array(samples)
+
+
+def chamber_params(rig):
+    """The valve YAML with the load volume of chamber a at the piston's initial position (the
+    replayed valve feeds that volume in the rig; replay holds the volume constant)."""
+    c = rig.params.cylinder
+    p = load_params()
+    volume = c.dead_volume_a + c.hose_volume_a + c.area_a * (c.initial_position - c.stroke_min)
+    return dataclasses.replace(p, circuit=dataclasses.replace(p.circuit, load_volume=volume))
+
+
+def test_each_valve_is_recorded_under_its_namespace_and_replays_with_a_good_fit(rig, rig_bag, tmp_path, capsys):
+    bag, y = rig_bag
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        got = {t: [] for t in types}
+        for conn, t, raw in reader.messages():
+            got[conn.topic].append((t, reader.deserialize(raw, conn.msgtype)))
+    for v in ("left", "right"):
+        assert types[f"{NS}/{v}/pressure"] == "sensor_msgs/msg/FluidPressure"
+        assert types[f"{NS}/{v}/duty_cycle"] == "std_msgs/msg/Float64"
+    assert types[f"{NS}/cylinder/joint_states"] == "sensor_msgs/msg/JointState"
+    p = got[f"{NS}/left/pressure"]
+    assert [t for t, _ in p] == [k * 1_000_000 for k in range(301)]
+    assert [m.fluid_pressure for _, m in p] == list(y[:, rig.signals.index("left.pressure")])
+    assert [m.data for _, m in got[f"{NS}/left/duty_cycle"]] == [0.5, 0.7, 0.4]
+    assert [t for t, _ in got[f"{NS}/left/duty_cycle"]] == [0, 50_000_000, 150_000_000]
+    assert [m.position[0] for _, m in got[f"{NS}/cylinder/joint_states"]] == \
+        list(y[:, rig.signals.index("cylinder.position")])
+
+    params = chamber_params(rig)
+    for v in ("left", "right"):
+        rec = load_recording(bag, namespace=v)
+        assert rec.topics["pressure"] == f"{NS}/{v}/pressure" and "load_flow" in rec.inputs
+        fit = replay(rec, params, model="simplified").scalar_metrics()
+        assert fit["pressure_fit_percent"] > 95, (v, fit)      # measured 98.1 (left), 97.7 (right)
+    with pytest.raises(ReplayError, match=r"--namespace 'middle': no device .* the bag's device namespaces: "
+                                          rf"{NS}/left, {NS}/right"):
+        load_recording(bag, namespace="middle")
+    with pytest.raises(ReplayError, match=r"choose one with --topic duty_cycle=.*--namespace NS"):
+        load_recording(bag)
+    config = tmp_path / "valve.yaml"
+    config.write_text((Path(__file__).parents[2] / "config/valve.yaml").read_text()
+                      .replace("load_volume: 1.0e-4", f"load_volume: {params.circuit.load_volume!r}"))
+    assert main(["--config", str(config), "replay", str(bag), "--namespace", "rig/left", "--model", "simplified",
+                 "--fail-below", "pressure_fit_percent=95"]) == 0
+    assert main(["replay", str(bag), "--namespace", "left/x"]) == 2
+    assert "the bag's device namespaces" in capsys.readouterr().err
