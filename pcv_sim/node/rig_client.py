@@ -20,11 +20,15 @@ from typing import Any, Callable, Mapping
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, String
+from std_srvs.srv import Trigger
 
-from pcv_sim.io.topics import CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, valve_topic
+from pcv_sim.io.topics import (
+    CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, RESET, valve_topic,
+)
 from pcv_sim.node.polling import drain
 from pcv_sim.node.client import sample_qos
 
@@ -60,6 +64,13 @@ class RigClient:
         cmd = QoSProfile(depth=10)
         self.duty_pubs = {v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
         self.fault_pub = node.create_publisher(String, FAULTS, cmd)
+        self.force_pub = node.create_publisher(Float64, f"{CYLINDER}/external_force", cmd)
+        # Services on a node of their own, spun only while a call waits (spinning this node would
+        # take the samples that `poll` takes).
+        self._srv_node = rclpy.create_node(f"{node_name}_services", namespace=namespace, context=context)
+        self._reset: Any = self._srv_node.create_client(Trigger, RESET)
+        self._srv_executor = SingleThreadedExecutor(context=self._srv_node.context)
+        self._srv_executor.add_node(self._srv_node)
         qos = sample_qos(1000)
         self._subs: list[tuple[Any, Callable[[Any, Any], None]]] = []
         for v in valves:
@@ -169,7 +180,23 @@ class RigClient:
     def send_fault(self, text: str) -> None:
         self.fault_pub.publish(String(data=text))
 
+    def send_external_force(self, newton: float) -> None:
+        self.force_pub.publish(Float64(data=newton))
+
+    def reset(self, timeout: float = 10.0) -> Any:
+        """Call the rig's `reset` service; its response (TimeoutError if none within `timeout` s)."""
+        end = time.monotonic() + timeout
+        if not self._reset.wait_for_service(timeout_sec=timeout):
+            raise TimeoutError(f"no reset service within {timeout} s")
+        future = self._reset.call_async(Trigger.Request())
+        self._srv_executor.spin_until_future_complete(future, timeout_sec=max(0.0, end - time.monotonic()))
+        if not future.done():
+            raise TimeoutError(f"reset: no response within {timeout} s")
+        return future.result()
+
     def close(self) -> None:
+        self._srv_executor.shutdown()
+        self._srv_node.destroy_node()
         self.node.destroy_node()
 
 

@@ -7,9 +7,11 @@ node's full name (REP 107 style, as the emulator's).
 
     <valve>  WARN while its watchdog has fired, while a fault is active on it or on one of its
              signals, or when its duty commands were refused in the period.
-    rig      ERROR when the model ran away (non-finite: nothing is published any more); WARN
-             while any fault is active, any watchdog has fired, fault commands were refused in
-             the period, or (real time) steps were skipped in the period (late ones are counted).
+    rig      ERROR when the model ran away (non-finite: nothing is published any more) or the
+             recording failed; WARN while any fault is active, any watchdog has fired, fault or
+             external force commands were refused in the period, (real time) steps were skipped in
+             the period (late ones are counted), or the recording dropped messages in the period.
+             With record.enabled it carries the emulator's `recording*` keys.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from pcv_sim.device.diagnostics import ERROR, OK, WARN, Status
+from pcv_sim.device.diagnostics import ERROR, OK, WARN, Status, recording_status
+from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.rig.rig import Rig
 from pcv_sim.simulation.clock import RealTimeSchedule
 
@@ -32,6 +35,9 @@ class RigCounts:
     rejected: dict[str, int] = field(default_factory=dict)     # valve -> refused duty commands
     faults_accepted: int = 0
     faults_rejected: int = 0
+    force_accepted: int = 0                                    # cylinder/external_force
+    force_rejected: int = 0
+    resets: int = 0
     last_rejection: str = ""
     samples_published: int = 0
 
@@ -44,6 +50,8 @@ class RigDiagnostics:
         self._wall = now
         self._steps = 0
         self._prev: dict[str, int] = {}
+        self._recorder: RecorderStatus | None = None          # of the build in progress
+        self._dropped = 0
 
     def restart(self, now: float, steps: int) -> None:
         self._wall, self._steps = now, steps
@@ -54,14 +62,16 @@ class RigDiagnostics:
 
     def build(self, now: float, *, rig: Rig, counts: RigCounts, time_mode: str, lockstep: bool,
               schedule: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
-              last: dict[str, float]) -> list[Status]:
+              last: dict[str, float], recorder: RecorderStatus | None = None) -> list[Status]:
         """`last`: the last published (measured) sample, signal -> SI value. Never the rig's sample()
         here: computing outputs moves the coil solve's Newton start, and a run must not depend on
-        when the wall-clock diagnostics came."""
+        when the wall-clock diagnostics came. `recorder`: the recording's status (record.enabled)."""
+        self._recorder = recorder
         wall = max(now - self._wall, 1e-9)
         period_steps = rig.steps - self._steps
         totals = {f"rejected.{v}": n for v, n in counts.rejected.items()}
         totals["rejected.faults"] = counts.faults_rejected
+        totals["rejected.external_force"] = counts.force_rejected
         if schedule is not None:
             totals["late_steps"] = schedule.late_steps
             totals["skipped_steps"] = schedule.skipped_steps
@@ -113,6 +123,8 @@ class RigDiagnostics:
             problems.append(f"watchdog fired: {', '.join(fired)}")
         if new.get("rejected.faults"):
             problems.append(f"{new['rejected.faults']} fault command(s) rejected")
+        if new.get("rejected.external_force"):
+            problems.append(f"{new['rejected.external_force']} external force command(s) rejected")
         values: dict[str, Any] = {
             "time_mode": time_mode,
             "lockstep": str(lockstep).lower() if time_mode == "simulated" else "",
@@ -121,10 +133,14 @@ class RigDiagnostics:
             "control_period_s": f"{rig.params.timing.control_period:g}",
             "faults_active": ", ".join(faults),
             "watchdog_fired": ", ".join(fired),
-            "rejected_inputs": rejected + counts.faults_rejected,
+            "rejected_inputs": rejected + counts.faults_rejected + counts.force_rejected,
             "rejected.duty_cycle": rejected,
             "rejected.faults": counts.faults_rejected,
             "accepted.faults": counts.faults_accepted,
+            "external_force_n": f"{rig.input_values()['cylinder.external_force']:g}",
+            "accepted.external_force": counts.force_accepted,
+            "rejected.external_force": counts.force_rejected,
+            "resets": counts.resets,
             "last_rejection": counts.last_rejection,
             "samples_published": counts.samples_published,
             "waiting_for": ", ".join(waiting_for),
@@ -136,6 +152,14 @@ class RigDiagnostics:
                 problems.append(f"{new['skipped_steps']} steps skipped (model held)")
             values.update({"late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
                            "max_lag_ms": f"{sched.max_lag * 1e3:.3f}"})
+        rec_level = OK
+        if self._recorder is not None:
+            rec_level, rec_problems, rec_values = recording_status(self._recorder, self._dropped)
+            self._dropped = self._recorder.dropped
+            problems += rec_problems
+            values.update(rec_values)
         if failure is not None:
             return self._status("rig", ERROR, [f"model stopped: {failure}", *problems], "", values)
+        if rec_level == ERROR:
+            return self._status("rig", ERROR, problems, "", values)
         return self._status("rig", WARN if problems else OK, problems, "running", values)

@@ -11,8 +11,11 @@ names are relative (`pcv_sim.io.topics`); each valve keeps the emulator's interf
     out  cylinder/joint_states   sensor_msgs/JointState      prismatic `steering`: m, m/s, N   sensor data
     out  cylinder/pressure_a|b   sensor_msgs/FluidPressure   Pa, the chamber (= its valve's pressure)
     in   faults                  std_msgs/String             {fault: coil_open, valve: left} (YAML)
+    in   cylinder/external_force std_msgs/Float64            N on the rod, + extending (toward +x)   reliable, depth 10
+    srv  reset                   std_srvs/Trigger            the rig back to rest; model time goes on
     out  /diagnostics            one status per valve and one for the rig, every diagnostics_period
     out  /clock                  rosgraph_msgs/Clock (simulated time only: one clock for the whole rig)
+    in   /clock                  rosgraph_msgs/Clock (use_sim_time with time_mode real: the model follows it)
 
 Samples leave every control period (model time), measured values (sensor faults applied; a
 dropped or non-finite one is not published).
@@ -28,14 +31,36 @@ The loop is the emulator's (see `pcv_sim.node.adapter`): no executor, no timer, 
   period after they were taken.
 - Real time: `RealTimeSchedule` on the monotonic clock; an input acts at the first step stamped at
   or after its DDS reception (never before, never before the last sample shown), as the emulator.
+- External clock (`use_sim_time: true`, `time_mode: real`): model time follows /clock as in the
+  emulator (`pcv_sim.simulation.clock.ExternalClock`, shared): model time 0 is the first /clock,
+  the steps up to each new one are computed; inputs act at the present step. use_sim_time with
+  time_mode simulated is refused (that publishes /clock itself).
 Duty commands are validated with the valve's rules (`check_duty`); refused ones are counted and
 logged at most once per `reject_log_period` per valve. Fault commands act at the step the
-inputs would and are validated with the rig's fault table.
+inputs would and are validated with the rig's fault table; so do external force commands, with
+`Rig.set_external_force`'s rules (a refused one is counted and logged, the last valid one stays).
+
+Reset (`reset` service): valves at rest at their initial duty, piston at rest at its initial
+position, inputs (duties, supply pressures, external force) back to the start, faults cleared, a
+model that ran away running again; model time goes on in every mode (so /clock, stamps and a bag
+stay monotonic; in simulated time the run after it is a fresh start's, shifted in time). It acts
+at the present step in simulated time and with an external clock (the next sample shows it), in
+real time at the step an input received at the request would act at.
+
+Recording (`record.enabled`): a `pcv_sim.io.recorder.RigRecorder` (the emulator's BagRecorder
+machinery: writer thread, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
+(the rig at rest) on: each valve's topics under `<namespace>/<valve>/` as the emulator records
+them (inputs duty_cycle, supply_pressure, load_flow on change, stamped at the step they act;
+outputs pressure, current, spool_position at every published sample, as published), the
+cylinder's joint_states, pressure_a|b and external_force, the fault commands (`faults`, at the
+step they acted) and the rig's log (`rig/events`). `pcv-sim replay BAG --namespace left` replays
+one valve. The state is in the rig status of the diagnostics (`recording*` keys).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from functools import partial
@@ -43,15 +68,18 @@ from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, Header, String
+from std_srvs.srv import Trigger
 
-from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.errors import BagError, CommandError, ParameterError
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RigRecorder
 from pcv_sim.io.topics import (
-    CLOCK, CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, SPOOL_POSITION,
+    CLOCK, CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, RESET, SPOOL_POSITION,
     chamber_topic, valve_topic,
 )
 from pcv_sim.node.adapter import (
@@ -65,7 +93,10 @@ from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value, parse_fault_command, settings_from
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
-from pcv_sim.simulation.clock import RealTimeSchedule, SimulatedSchedule
+from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
+from pcv_sim.simulation.clock import (
+    NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock, RealTimeSchedule, SimulatedSchedule,
+)
 from pcv_sim.simulation.duty import check_duty
 
 __all__ = ["RigNode", "NODE_NAME", "JOINT_NAME"]
@@ -77,6 +108,8 @@ _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
 # s between polls for the controller's commands: polling beat an rcl wait set here (a wake through
 # rmw_wait took longer than a 20 us sleep; bench/rig_dds.py, BENCHMARKS.md "Rig")
 LOCKSTEP_POLL = 2e-5
+SERVICE_POLL_PERIOD = 0.01      # s (wall) between polls for service requests (reset, parameters)
+EXTERNAL_FORCE_TOPIC = f"{CYLINDER}/external_force"
 
 
 class RigNode(Node):
@@ -98,9 +131,9 @@ class RigNode(Node):
     def _setup(self, argv: list[str] | None) -> None:
         self._argv = list(sys.argv if argv is None else argv)
         s = self.settings = self._declare_parameters()
-        if self.get_parameter("use_sim_time").value:
-            raise ParameterError("use_sim_time: the rig keeps its own time (time_mode simulated publishes /clock, "
-                                 "real follows the wall clock); accepted is false")
+        self.external_clock = bool(self.get_parameter("use_sim_time").value)
+        if self.external_clock and s.time_mode == "simulated":
+            raise ParameterError(SIM_TIME_CONFLICT)
         loaded = load_rig(s.rig_config or None)
         rig_params = s.check(loaded).rig_params(loaded)
         self.rig = rig = Rig(rig_params, seed=s.seed)
@@ -154,6 +187,7 @@ class RigNode(Node):
             f"step {rig.dt * 1e3:g} ms, {mode}, samples and commands every "
             f"{rig_params.timing.control_period * 1e3:g} ms, watchdog {rig_params.timing.watchdog_timeout:g} s, "
             f"rig config {s.rig_config or 'shipped default'}")
+        self._setup_more_interface()
 
     def _declare_parameters(self) -> RigNodeSettings:
         """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
@@ -250,6 +284,8 @@ class RigNode(Node):
             except FaultError as err:            # e.g. clearing a fault that is not active
                 self.counts.faults_accepted -= 1
                 self._refuse_fault(str(err))
+            else:
+                self._record_text("faults", msg.data)
 
         self._when(_FAULTS_KEY, info, apply)
 
@@ -269,8 +305,11 @@ class RigNode(Node):
         self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
 
     def _drain(self) -> int:
-        """Take every pending input message (no executor: `take_message` polling)."""
-        return drain(self._inputs)
+        """Take every pending input message (no executor: `take_message` polling); every
+        SERVICE_POLL_PERIOD also the service requests."""
+        n = drain(self._inputs)
+        self._poll_services()
+        return n
 
     # --- outputs -------------------------------------------------------------------------------
 
@@ -280,6 +319,7 @@ class RigNode(Node):
         self._last_sample = rig.sensors.measure(rig.time, rig.sample()).tolist()
         self._shown = rig.steps
         self._send_samples()
+        self._record_sample()
 
     def _send_samples(self) -> None:
         """Publish the last sample (again, for a lockstep re-publication: not computed anew, since
@@ -330,11 +370,15 @@ class RigNode(Node):
         waiting = tuple(v for v in self.rig.valve_names if v not in self._answered) \
             if self.simulated and self.settings.lockstep else ()
         msg = DiagnosticArray()
-        stamp_ns = self.origin_ns + self.rig.steps * self.dt_ns if self.simulated else time.time_ns()
+        model_clock = self.simulated or self.external_clock
+        stamp_ns = self.origin_ns + self.rig.steps * self.dt_ns if model_clock else time.time_ns()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        for st in self._diag.build(now, rig=self.rig, counts=self.counts, time_mode=self.settings.time_mode,
+        time_mode = "external_clock" if self.external_clock else self.settings.time_mode
+        rec = self.recorder.status() if self.recorder is not None else None
+        for st in self._diag.build(now, rig=self.rig, counts=self.counts, time_mode=time_mode,
                                    lockstep=self.settings.lockstep, schedule=self._schedule, failure=self.failure,
-                                   waiting_for=waiting, last=dict(zip(self.rig.signals, self._last_sample))):
+                                   waiting_for=waiting, last=dict(zip(self.rig.signals, self._last_sample)),
+                                   recorder=rec):
             d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
             d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
             msg.status.append(d)
@@ -380,11 +424,16 @@ class RigNode(Node):
     # --- loops ---------------------------------------------------------------------------------
 
     def run(self, stop: StopFlag) -> None:
-        """Run until stop.requested (SIGINT/SIGTERM)."""
-        if self.simulated:
-            self._run_simulated(stop)
-        else:
-            self._run_real_time(stop)
+        """Run until stop.requested (SIGINT/SIGTERM); the bag (record.enabled) is finalised then."""
+        try:
+            if self.simulated:
+                self._run_simulated(stop)
+            elif self.external_clock:
+                self._run_external_clock(stop)
+            else:
+                self._run_real_time(stop)
+        finally:
+            self._stop_recording()
 
     def _wait_for_controllers(self, stop: StopFlag) -> None:
         """Lockstep: before the first sample, until every valve's duty_cycle has a matched publisher
@@ -485,3 +534,187 @@ class RigNode(Node):
             delay = sched.next_wake() - mono()
             if delay > 0.0:
                 time.sleep(delay)
+
+    # --- external force, reset, external clock, recording ------------------------------------
+
+    def _setup_more_interface(self) -> None:
+        """The endpoints beside the samples and the duty and fault commands: `cylinder/external_force`,
+        the `reset` service, /clock in (use_sim_time), the recorder (record.enabled)."""
+        force = self._on_external_force
+        self._inputs.append((self.create_subscription(Float64, EXTERNAL_FORCE_TOPIC, force, COMMAND_QOS), force))
+        self._external = ExternalClock(self.dt_ns)
+        if self.external_clock:
+            self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS), self._on_clock))
+            self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
+                                   "received, the model computes up to each new one")
+        self.create_service(Trigger, RESET, self._on_reset)
+        self._next_service_poll = 0.0
+        self._rec_logged = 0                                # rig.log entries written to the bag
+        self.recorder = self._make_recorder()
+
+    def _on_external_force(self, msg: Float64, info: Any = None) -> None:
+        """N on the rod, + extending (toward +x); Rig.set_external_force's rules; acts as the inputs do."""
+        try:
+            force = check_external_force(msg.data)
+        except CommandError as err:
+            self.counts.force_rejected += 1
+            self.counts.last_rejection = f"{EXTERNAL_FORCE_TOPIC}: {err}"
+            self._log_rejection(EXTERNAL_FORCE_TOPIC, EXTERNAL_FORCE_TOPIC, str(err),
+                                "the last valid value stays in force")
+            return
+        self.counts.force_accepted += 1
+        self._when(EXTERNAL_FORCE, info, partial(self.rig.set_external_force, force))
+
+    def _poll_services(self) -> None:
+        """Answer pending service requests (no executor), at most every SERVICE_POLL_PERIOD."""
+        now = time.monotonic()
+        if now < self._next_service_poll:
+            return
+        self._next_service_poll = now + SERVICE_POLL_PERIOD
+        for srv in list(self.services):
+            while True:
+                try:
+                    with srv.handle:
+                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                except InvalidHandle:
+                    break
+                if header is None:
+                    break
+                srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+
+    def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """The rig back to rest: valves at their initial duty, piston at its initial position and at
+        rest, faults cleared, watchdogs counting from now, a stopped (ran away) model running again.
+        Model time goes on (in simulated time too: /clock, stamps and a bag stay monotonic; the run
+        after it is a fresh start's, shifted in time). In simulated time and with an external clock
+        it acts at once, at the present step (the next sample shows it); in real time at the step an
+        input received now would act at. Inputs already scheduled for later steps still act."""
+        if self._schedule is None:
+            self._reset_rig()
+            response.message = f"reset: the rig is at rest at t = {self.rig.time:.4f} s"
+        else:
+            self._when("reset", None, self._reset_rig)
+            response.message = "reset: the rig goes back to rest at the next step"
+        response.message += (" (valves at their initial duty, piston at its initial position, faults cleared; "
+                             "model time goes on)")
+        response.success = True
+        return response
+
+    def _reset_rig(self) -> None:
+        self.rig.reset(keep_time=True)
+        self.counts.resets += 1
+        if self.failure is not None:
+            self.get_logger().info(f"reset: the model runs again (it had stopped: {self.failure})")
+            self.failure = None
+        self._forward_log()
+
+    def _on_clock(self, msg: Clock, _info: Any = None) -> None:
+        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def _run_external_clock(self, stop: StopFlag) -> None:
+        """use_sim_time (time_mode real): model time follows an external /clock, as the emulator
+        (`pcv_sim.simulation.clock.ExternalClock`): model time 0 is the first /clock (stamps are that
+        clock); whenever it advances, the steps up to it are computed and the samples of the control
+        periods passed published. An input acts at the present step (the one after the last computed).
+        The clock going back re-anchors model time there (state kept); a jump of more than 10 s ahead
+        is held but for the last 10 s."""
+        s, rig = self.settings, self.rig
+        _freeze_heap()
+        mono = time.monotonic
+        ext = self._external
+        self._diag.restart(mono(), rig.steps)
+        next_diag = mono() + s.diagnostics_period
+        loops = 0
+        while not stop.requested:
+            loops += 1
+            self._drain()
+            now = mono()
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + s.diagnostics_period, now)
+            if ext.latest_ns is None:
+                if loops == 2000:                   # ~2 s: say why nothing is published
+                    self.get_logger().warning(NO_CLOCK_YET)
+                time.sleep(1e-3)
+                continue
+            if not ext.started:
+                self.origin_ns = ext.start(rig.steps)
+                self._publish_samples()
+                continue
+            if self.failure is not None:
+                time.sleep(1e-2)
+                continue
+            plan = ext.plan(rig.steps)
+            if plan.reanchored:
+                self.origin_ns = ext.origin_ns
+                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
+            elif plan.skip:
+                rig.sim.steps += plan.skip
+                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
+            elif plan.run:
+                self._advance(rig.steps + plan.run)
+            else:
+                time.sleep(2e-4)                     # wait for the clock to advance
+
+    def _make_recorder(self) -> RigRecorder | None:
+        """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
+        s, rig = self.settings, self.rig
+        if not s.record_enabled:
+            return None
+        try:
+            recorder = RigRecorder(
+                os.path.expanduser(s.record_directory), name=s.record_name or None,
+                valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals,
+                namespace=self.get_namespace(),
+                split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
+        except BagError as err:
+            raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
+        rig.on_input = self._record_input
+        return recorder
+
+    def _record_input(self, step: int, name: str, value: float) -> None:
+        """Rig.on_input: an input in force from `step` (the duty after the watchdog, a supply, the force)."""
+        rec = self.recorder
+        if rec is not None:
+            rec.input(self.origin_ns + step * self.dt_ns, name, value)
+
+    def _record_sample(self) -> None:
+        """The sample just published (and the load flows, the rig's new log entries) into the bag;
+        the first one starts the recording with every input in force."""
+        rec = self.recorder
+        if rec is None:
+            return
+        rig = self.rig
+        t_ns = self.origin_ns + self._shown * self.dt_ns
+        if not rec.started:
+            rec.start(t_ns, {**rig.input_values(), **rig.load_flows()})
+            if rec.threaded:
+                sys.setswitchinterval(SWITCH_INTERVAL)
+            self.get_logger().info(f"recording to {rec.path}: every valve under its namespace, the cylinder, "
+                                   "faults and events (outputs every control period, inputs on change)")
+        rec.sample(t_ns, self._last_sample, rig.load_flows().values())
+        log = rig.log
+        while self._rec_logged < len(log):
+            t, text = log[self._rec_logged]
+            self._rec_logged += 1
+            rec.text(rec.events_topic, self.origin_ns + round(t / rig.dt) * self.dt_ns, text)
+
+    def _record_text(self, kind: str, text: str) -> None:
+        """A fault command (`kind` faults) at the step it acted."""
+        rec = self.recorder
+        if rec is not None:
+            rec.text(rec.faults_topic if kind == "faults" else rec.events_topic,
+                     self.origin_ns + self.rig.steps * self.dt_ns, text)
+
+    def _stop_recording(self) -> None:
+        rec = self.recorder
+        if rec is None:
+            return
+        st = rec.close()
+        text = (f"bag {st.path}: {st.messages} messages, {st.bytes} bytes in {st.files} file(s)"
+                f"{f', {st.dropped} messages dropped' if st.dropped else ''}")
+        if st.error:
+            self.get_logger().error(f"recording failed ({st.error}); {text}")
+        else:
+            self.get_logger().info(f"recording finished: {text}")

@@ -24,6 +24,7 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
+from pcv_sim.device.settings import bag_name_check
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import check_value, setting
 from pcv_sim.rig.faults import Fault, FaultError, parse_fault
@@ -101,6 +102,20 @@ class RigNodeSettings:
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo) stops the node at start (exit 2); true: "
         "warn and ignore it", _any, "bool", read_only=True)
+    record_enabled: bool = setting(
+        False, "-", "record every valve (under its namespace, as the emulator records one), the cylinder, the "
+        "fault commands and the rig's events to a rosbag2/MCAP bag from the start (the rig at rest) until "
+        "SIGINT/SIGTERM; outputs at every published sample (control_period), inputs on change at the step they "
+        "act", _any, "bool", name="record.enabled", read_only=True)
+    record_directory: str = setting(
+        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", _any, "str",
+        name="record.directory", read_only=True)
+    record_name: str = setting(
+        "", "-", "bag directory name; '' = rig[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
+        "overwritten", bag_name_check, "str", name="record.name", read_only=True)
+    record_split_size_mb: float = setting(
+        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", _non_negative,
+        name="record.split_size_mb", read_only=True)
 
     def check(self, rig: RigParams) -> RigNodeSettings:
         """Cross-checks against the rig (step multiples); returns self or raises ParameterError."""

@@ -1,0 +1,198 @@
+"""The rig node's interface beside the samples and duty commands, over real DDS (the node a separate
+process): recording (record.*), the reset service, cylinder/external_force, use_sim_time.
+
+A lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period; each test
+has its own ROS domain and namespace (test/node/conftest.py).
+"""
+import dataclasses
+import math
+import signal
+import time
+
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from .conftest import wait_until
+from .test_rig_node import _rig_status, rig_client, start_rig
+
+START = 60.0        # s: start-up and discovery on a busy 2-core machine
+HOLD = {'left': 0.5, 'right': 0.5}       # the initial duties: the rig stays at rest
+
+
+def hold(t, m):
+    return dict(HOLD)
+
+
+def steps(t, m):
+    """Duty steps on both valves (the piston moves, so the valves see a load flow)."""
+    return {'left': 0.7 if 0.05 <= t + 1e-9 < 0.15 else 0.4 if t + 1e-9 >= 0.15 else 0.5,
+            'right': 0.3 if t + 1e-9 >= 0.1 else 0.5}
+
+
+def test_a_lockstep_run_is_recorded_per_valve_namespace_and_one_valve_replays(ros):
+    """record.*: the bag holds each valve under its namespace as the emulator records one (inputs
+    stamped at the step they act, outputs at their sample time: the very samples the controller got),
+    the cylinder, the fault commands and events; SIGINT finalises it; `left` replays with a good fit."""
+    from pcv_sim.params import load_params
+    from pcv_sim.replay import load_recording, replay
+    from pcv_sim.rig import load_rig
+
+    bags = ros.tmp_path / 'bags'
+    rig = start_rig(ros, params={'record.enabled': True, 'record.directory': str(bags), 'record.name': 'run'})
+    client = rig_client(ros)
+    assert client.wait_for_rig(START), rig.output()
+    periods = client.run(steps, 200, timeout=120)
+    client.send_fault('{fault: bias, signal: right.pressure, value: 1.0e+5}')
+    periods += client.run(steps, 100, timeout=120)
+    assert rig.stop(signal.SIGINT) == 0
+    out = rig.output()
+    bag = bags / 'run'
+    assert f'recording finished: bag {bag}' in out and 'dropped' not in out and 'Traceback' not in out, out
+
+    ns = ros.ns('rig')
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        got = {t: [] for t in types}
+        for conn, t, raw in reader.messages():
+            got[conn.topic].append((t, reader.deserialize(raw, conn.msgtype)))
+    for v in ('left', 'right'):
+        assert {t: types[t] for t in types if t.startswith(f'{ns}/{v}/')} == {
+            f'{ns}/{v}/duty_cycle': 'std_msgs/msg/Float64', f'{ns}/{v}/load_flow': 'std_msgs/msg/Float64',
+            f'{ns}/{v}/supply_pressure': 'sensor_msgs/msg/FluidPressure',
+            f'{ns}/{v}/pressure': 'sensor_msgs/msg/FluidPressure', f'{ns}/{v}/current': 'std_msgs/msg/Float64',
+            f'{ns}/{v}/spool_position': 'std_msgs/msg/Float64'}
+    assert types[f'{ns}/cylinder/joint_states'] == 'sensor_msgs/msg/JointState'
+    assert types[f'{ns}/faults'] == types[f'{ns}/rig/events'] == 'std_msgs/msg/String'
+
+    # Outputs: every sample the controller answered, at its stamp, the same values (measured: the
+    # bias on right.pressure is in both).
+    for v in ('left', 'right'):
+        rec = {t: m for t, m in got[f'{ns}/{v}/pressure']}
+        assert all(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == t for t, m in rec.items())
+        assert [rec[p.stamp_ns].fluid_pressure for p in periods] == [p.measured[f'{v}.pressure'] for p in periods]
+    joint = {t: m for t, m in got[f'{ns}/cylinder/joint_states']}
+    assert [joint[p.stamp_ns].position[0] for p in periods] == [p.measured['cylinder.position'] for p in periods]
+    assert periods[-1].measured['cylinder.position'] > 1e-3                     # it moved
+    # Inputs on change, stamped at the step they act: lockstep applies the answer to the sample at T at T.
+    first = {d: next(p.stamp_ns for p in periods if p.duties['left'] == d) for d in (0.7, 0.4)}
+    assert [(t, m.data) for t, m in got[f'{ns}/left/duty_cycle']] == [(0, 0.5), (first[0.7], 0.7),
+                                                                      (first[0.4], 0.4)]
+    assert [m.fluid_pressure for _, m in got[f'{ns}/left/supply_pressure']] == [200e5]
+    [(t_fault, fault)] = got[f'{ns}/faults']
+    assert fault.data == '{fault: bias, signal: right.pressure, value: 1.0e+5}' and t_fault % 1_000_000 == 0
+    assert any(m.data.startswith('fault bias on right.pressure') and t == t_fault for t, m in got[f'{ns}/rig/events'])
+
+    rig_params = load_rig()
+    c = rig_params.cylinder
+    params = load_params()
+    chamber_a = c.dead_volume_a + c.hose_volume_a + c.area_a * (c.initial_position - c.stroke_min)
+    params = dataclasses.replace(params, circuit=dataclasses.replace(params.circuit, load_volume=chamber_a))
+    result = replay(load_recording(bag, namespace='left'), params, model='simplified')
+    fit = result.scalar_metrics()
+    assert fit['pressure_fit_percent'] > 95 and fit['spool_position_fit_percent'] > 90, fit
+
+
+def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(ros):
+    """cylinder/external_force (N, + extending; refused ones counted and logged, the last valid one
+    stays) pushes the piston; `reset` puts valves, piston, inputs and faults back to the start with
+    time going on: the periods after it are a fresh run's, bit for bit, 1 reset later."""
+    rig = start_rig(ros, params={'diagnostics_period': 0.2})
+    client = rig_client(ros)
+    assert client.wait_for_rig(START), rig.output()
+    fresh = client.run(hold, 30, timeout=120)
+    assert abs(fresh[-1].measured['cylinder.position']) < 1e-6                 # at rest: it stays
+    client.send_external_force(5000.0)
+    client.send_external_force(math.nan)
+    client.send_external_force(2e6)
+    client.send_fault('{fault: coil_open, valve: right}')
+    pushed = client.run(hold, 100, timeout=120)
+    assert pushed[-1].measured['cylinder.position'] > 5e-3                     # 5 kN extends it
+    assert pushed[-1].measured['cylinder.velocity'] > 0
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+                       .get('rejected.external_force') == '2')
+    assert diag is not None, rig.output()
+    values = diag[f'{ros.ns("rig")}/rig: rig'][2]
+    assert values['external_force_n'] == '5000' and values['accepted.external_force'] == '1'
+    assert 'coil_open@right' in values['faults_active']
+    assert ('rejected cylinder/external_force: external force nan: accepted is a finite number of N within '
+            '+-1e+06 N; the last valid value stays in force') in rig.output()
+
+    t_reset = client.periods[-1].stamp_ns + 1_000_000           # the sample the rig now waits at
+    response = client.reset()
+    assert response.success and 'model time goes on' in response.message, response.message
+    after = client.run(hold, len(fresh), timeout=120)
+    assert after[0].stamp_ns == t_reset                         # shown before the reset: still pushed
+    assert after[0].measured['cylinder.position'] > 5e-3
+    shifted = [(p.stamp_ns - t_reset, p.measured) for p in after[1:]]
+    assert shifted == [(p.stamp_ns, p.measured) for p in fresh[1:]]            # == on floats: bit for bit
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2].get('resets') == '1')
+    assert diag is not None, rig.output()
+    level, _, values = diag[f'{ros.ns("rig")}/rig: rig']
+    assert values['faults_active'] == '' and values['external_force_n'] == '0' and level == 0
+    assert 'reset: valves at rest at their initial duty' in rig.output()
+
+
+def test_use_sim_time_follows_an_external_clock_and_simulated_time_with_it_is_refused(ros):
+    """As the emulator: with time_mode real and use_sim_time the rig's model time follows /clock
+    (stamps are that clock, on the control period's grid, never ahead of it; it stands still with
+    the clock); with time_mode simulated it is refused (exit 2) saying what is accepted. Recorded
+    in this mode too: SIGTERM finalises the bag (read back with the `mcap` package)."""
+    from mcap.reader import make_reader
+    from rosgraph_msgs.msg import Clock
+
+    refused = start_rig(ros, 'both', params={'use_sim_time': True})              # time_mode simulated
+    rig = start_rig(ros, params={'time_mode': 'real', 'use_sim_time': True, 'diagnostics_period': 0.2,
+                                 'record.enabled': True, 'record.directory': str(ros.tmp_path)})
+    client = rig_client(ros)
+    pub = client.node.create_publisher(Clock, '/clock', 10)
+    assert wait_until(lambda: pub.get_subscription_count() > 0, START), rig.output()
+    t0 = 1000 * 10**9
+
+    def tick(k):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(t0 + k * 500_000, 10**9)       # 0.5 ms per tick
+        pub.publish(msg)
+
+    seen = {}
+
+    def collect():
+        client.poll()
+        for stamp, part in list(client._partial.items()):
+            if 'joint' in part.values:
+                seen[stamp] = part.values['cylinder.position']
+        return seen
+
+    k = 0
+    while not collect() and k < 10000:
+        tick(k)
+        k += 1
+        time.sleep(0.002)
+    assert seen, rig.output()
+    for _ in range(200):                               # 100 ms of simulated time, at any wall pace
+        tick(k)
+        k += 1
+        time.sleep(0.002)
+    last_clock = t0 + (k - 1) * 500_000
+    assert wait_until(lambda: max(collect()) >= last_clock - 1_000_000, 10), (max(seen), last_clock)
+    stamps = sorted(seen)
+    assert t0 <= stamps[0] and stamps[-1] <= last_clock
+    assert all((s - stamps[0]) % 1_000_000 == 0 for s in stamps)              # the 1 ms control period
+    n = len(seen)
+    time.sleep(0.3)                                    # the clock stands still: so does the model
+    assert len(collect()) == n
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+                       .get('time_mode') == 'external_clock')
+    assert diag is not None, rig.output()
+    assert diag[f'{ros.ns("rig")}/rig: rig'][2]['recording'] == 'recording'
+    assert rig.stop(signal.SIGTERM) == 0
+    [bag] = ros.tmp_path.glob('rig_pcv*')                   # rig_<namespace>_<date>: the default name
+    [mcap_file] = bag.glob('*.mcap')
+    with open(mcap_file, 'rb') as f:
+        recorded = sorted(m.log_time for _, channel, m in make_reader(f).iter_messages()
+                          if channel.topic == f'{ros.ns("rig")}/cylinder/joint_states')
+    assert set(stamps) <= set(recorded) and recorded[0] <= stamps[0] and recorded[-1] >= stamps[-1]
+    assert all(b - a == 1_000_000 for a, b in zip(recorded, recorded[1:]))      # none lost in the bag
+    assert refused.wait(START) == 2
+    out = refused.output()
+    assert ('use_sim_time: true follows another node\'s /clock, time_mode: simulated publishes /clock itself; '
+            'accepted is one of them: use_sim_time with time_mode real') in out and 'Traceback' not in out
