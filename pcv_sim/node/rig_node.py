@@ -67,7 +67,7 @@ from functools import partial
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -548,6 +548,7 @@ class RigNode(Node):
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
                                    "received, the model computes up to each new one")
         self.create_service(Trigger, RESET, self._on_reset)
+        self.add_on_set_parameters_callback(self._refuse_clock_change)
         self._next_service_poll = 0.0
         self._rec_logged = 0                                # rig.log entries written to the bag
         self.recorder = self._make_recorder()
@@ -581,6 +582,15 @@ class RigNode(Node):
                 if header is None:
                     break
                 srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+
+    def _refuse_clock_change(self, parameters: list[Any]) -> SetParametersResult:
+        """The parameter services are answered now: use_sim_time (not read-only, ROS's own) cannot change."""
+        for p in parameters:
+            if p.name == "use_sim_time" and bool(p.value) != self.external_clock:
+                return SetParametersResult(successful=False, reason=(
+                    "use_sim_time is fixed while the node runs (the model's clock is chosen at start): restart "
+                    f"with -p use_sim_time:={'true' if p.value else 'false'}"))
+        return SetParametersResult(successful=True)
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The rig back to rest: valves at their initial duty, piston at its initial position and at

@@ -196,3 +196,57 @@ def test_use_sim_time_follows_an_external_clock_and_simulated_time_with_it_is_re
     out = refused.output()
     assert ('use_sim_time: true follows another node\'s /clock, time_mode: simulated publishes /clock itself; '
             'accepted is one of them: use_sim_time with time_mode real') in out and 'Traceback' not in out
+
+
+def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(ros):
+    """In this process (the step a request is given is what decides it): in real time the reset acts
+    at the step an input received now would, after the inputs before it, before those after it;
+    a real-time run with record.enabled writes every control period's sample, finalised at the stop;
+    use_sim_time cannot be switched at run time."""
+    import threading
+
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+    from std_srvs.srv import Trigger
+
+    from pcv_sim.io import read_bag
+    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.simulation.clock import RealTimeSchedule
+
+    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[
+        Parameter('time_mode', value='real'), Parameter('record.enabled', value=True),
+        Parameter('record.directory', value=str(ros.tmp_path)), Parameter('record.name', value='rt')])
+    ns = node.get_namespace().rstrip('/')
+    try:
+        rig = node.rig
+        assert not node.set_parameters([Parameter('use_sim_time', value=True)])[0].successful
+        node._schedule = sched = RealTimeSchedule(rig.dt)
+        sched.start(time.monotonic() - 0.0024)          # 2.4 ms of wall time since the start
+        node._shown = 20
+        node._on_duty('left', Float64(data=0.8), {'received_timestamp': 1})    # long ago: at step 21
+        response = node._on_reset(Trigger.Request(), Trigger.Response())
+        assert response.success and 'at the next step' in response.message
+        reset_at = max(rig._events, key=lambda e: e.seq).step
+        assert reset_at >= 24                            # not before its reception (~2.4 ms)
+        node._on_external_force(Float64(data=300.0), {'received_timestamp': 10**12})  # after it: it stays
+        rig.advance_to(reset_at + 10)
+        assert rig.commands['left'] == 0.5 and rig.input_values()['cylinder.external_force'] == 300.0
+        assert 'reset' in rig.log[-1][1] and node.counts.resets == 1
+        rig.reset()
+        node._schedule = None
+
+        class Stop:
+            requested = False
+
+        stop = Stop()
+        timer = threading.Timer(0.5, lambda: setattr(stop, 'requested', True))
+        timer.start()
+        node.run(stop)                                   # 0.5 s of real time, then the bag is closed
+        timer.join()
+    finally:
+        node.destroy_node()
+    bag = read_bag(ros.tmp_path / 'rt')
+    assert bag.closed_cleanly
+    t = bag[f'{ns}/left/pressure'].t_ns
+    t = t - t[0]
+    assert len(t) > 200 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in zip(t, t[1:]))
