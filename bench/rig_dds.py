@@ -1,6 +1,6 @@
 """Benchmark: the rig node in lockstep over DDS with a Python controller node.
 
-    .venv-kilted/bin/python bench/rig_dds.py [--repeats 3] [--duration 2.0] [--json]
+    .venv-kilted/bin/python bench/rig_dds.py [--repeats 3] [--duration 2.0] [--json] [--record DIR]
 
 The rig node (`python -m pcv_sim.node.rig`, two simplified valves + the steering cylinder of
 config/rig.yaml at 0.1 ms) in its own process and ROS domain; in this process a controller node
@@ -39,7 +39,7 @@ def _child_env(domain: int) -> dict[str, str]:
     return env
 
 
-def one_run(context, domain: int, period: float, duration: float, k: int) -> dict[str, float]:
+def one_run(context, domain: int, period: float, duration: float, k: int, record: str = "") -> dict[str, float]:
     from steering import PositionController  # noqa: PLC0415
 
     from pcv_sim.node.rig_client import RigClient  # noqa: PLC0415
@@ -47,7 +47,9 @@ def one_run(context, domain: int, period: float, duration: float, k: int) -> dic
     ns = f"/bench{os.getpid()}_{k}"
     log = open(os.devnull, "w")
     proc = subprocess.Popen([sys.executable, "-m", "pcv_sim.node.rig", "--ros-args", "-r", f"__ns:={ns}",
-                             "-p", f"control_period:={period!r}"], env=_child_env(domain), cwd=REPO,
+                             "-p", f"control_period:={period!r}",
+                             *(["-p", "record.enabled:=true", "-p", f"record.directory:={record}"] if record else [])],
+                            env=_child_env(domain), cwd=REPO,
                             stdout=log, stderr=subprocess.STDOUT)
     client = RigClient(ns, VALVES, context=context, node_name=f"bench_ctl_{k}", currents=True)
     try:
@@ -112,6 +114,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--duration", type=float, default=2.0, help="simulated s per run")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--record", metavar="DIR", default="",
+                    help="the rig node records a bag into DIR (record.enabled): the cost of recording")
     args = ap.parse_args()
 
     import rclpy  # noqa: PLC0415
@@ -125,13 +129,13 @@ def main() -> None:
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     out: dict[str, object] = {"backend": backend(), "python": platform.python_version(), "cpus": os.cpu_count(),
-                              "load_before": os.getloadavg()[0]}
+                              "load_before": os.getloadavg()[0], "record": bool(args.record)}
     try:
         k = 0
         for period in (1e-2, 1e-3):
             runs = []
             for _ in range(args.repeats):
-                runs.append(one_run(context, domain, period, args.duration, k))
+                runs.append(one_run(context, domain, period, args.duration, k, args.record))
                 k += 1
             best = max(runs, key=lambda r: r["rtf"])
             out[f"{period * 1e3:g}ms"] = {
@@ -147,7 +151,7 @@ def main() -> None:
         print()
         return
     print(f"backend {out['backend']}, Python {out['python']}, {out['cpus']} CPUs, load average "
-          f"{out['load_before']:.1f} -> {out['load_after']:.1f}")
+          f"{out['load_before']:.1f} -> {out['load_after']:.1f}{', recording' if args.record else ''}")
     print(f"| control period | real-time factor (median of {args.repeats}) | best | one period p50 / p99 |")
     print("|---|---|---|---|")
     for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
