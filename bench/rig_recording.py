@@ -61,6 +61,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="s per configuration (over all rounds)")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--per-round", action="store_true", help="print every round")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -77,6 +78,8 @@ def main() -> None:
         for _ in range(args.rounds):
             for label in ("off", "record"):
                 r = one(context, args.duration / args.rounds, str(tmp) if label == "record" else "")
+                if args.per_round:
+                    print(label, {k: round(v, 1) for k, v in r.items()}, f"load {os.getloadavg()[0]:.1f}", flush=True)
                 acc = sums.setdefault(label, {})
                 for k, v in r.items():
                     acc[k] = max(acc.get(k, 0.0), v) if k in ("max_lag_ms", "cpu_percent") else acc.get(k, 0.0) + v

@@ -49,6 +49,7 @@ import collections
 import math
 import os
 import re
+import struct
 import threading
 import time
 from collections.abc import Iterable, Mapping
@@ -60,6 +61,7 @@ import numpy as np
 
 from pcv_sim.errors import BagError
 from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, BagWriter, Qos
+from pcv_sim.io.bag import cdr
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
@@ -486,6 +488,8 @@ class BagRecorder(_QueuedBag):
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 STRING: Final = "std_msgs/msg/String"
 _TEXT: Final = 2     # queue item (_TEXT, topic, t_ns, text)
+_STAMP_PACK: Final = struct.Struct("<iI")
+_JOINT_PACK: Final = struct.Struct("<d")
 _ROW: Final = 3      # queue item (_ROW, t_ns, measured values, load flows)
 
 
@@ -566,6 +570,11 @@ class RigRecorder(_QueuedBag):
             if chamber in ("a", "b"):
                 self._chambers.append((add(f"{ns}/cylinder/pressure_{chamber}", FLUID_PRESSURE, SENSOR_DATA_QOS),
                                        f"chamber_{chamber}", self.signals.index(f"{v}.pressure")))
+        #: (frame_id, [(topic, signal index)]) written together by `write_samples`
+        self._column_groups: list[tuple[str, list[tuple[str, int]]]] = [
+            ("load_port", [(p, jp) for p, _i, _x, _q, jp, _ji, _jx in self._valve_out]),
+            ("", [c for _p, i, x, _q, _jp, ji, jx in self._valve_out for c in ((i, ji), (x, jx))]),
+            *((frame, [(topic, j)]) for topic, frame, j in self._chambers)]
         self._joint = add(f"{ns}/cylinder/joint_states", JOINT_STATE, SENSOR_DATA_QOS)
         self._joint_i = tuple(self.signals.index(f"cylinder.{q}") for q in ("position", "velocity", "effort"))
         self._input_topic["cylinder.external_force"] = add(f"{ns}/cylinder/external_force", FLOAT64, COMMAND_QOS)
@@ -574,6 +583,7 @@ class RigRecorder(_QueuedBag):
         self.topics = dict(topics)
         self._last: dict[str, float] = {}
         self.started = False
+        self._joint_cdr: tuple[bytes, int, tuple[int, int, int]] | None = None
         self._per_row = 3 * len(self.valves) + len(self._chambers) + 1
         super().__init__(
             directory, name, topics=topics, qos=qos, max_items=max_items, split_size_bytes=split_size_bytes,
@@ -662,28 +672,51 @@ class RigRecorder(_QueuedBag):
         t = np.array([r[1] for r in rows], dtype=np.int64)
         y = np.array([r[2] for r in rows], dtype=np.float64).reshape(len(rows), len(self.signals))
 
-        def column(topic: str, j: int, frame: str = "") -> None:
-            v = y[:, j]
-            ok = np.isfinite(v)           # a dropped sample: no message (never a NaN measurement)
-            if np.all(ok):
-                w.write_samples(t, {topic: v}, frame_id=frame)
-            elif np.any(ok):
-                w.write_samples(t[ok], {topic: v[ok]}, frame_id=frame)
-
-        for p_topic, i_topic, x_topic, _q, jp, ji, jx in self._valve_out:
-            column(p_topic, jp, "load_port")
-            column(i_topic, ji)
-            column(x_topic, jx)
-        for topic, frame, j in self._chambers:
-            column(topic, j, frame)
+        groups = self._column_groups
+        if np.isfinite(y).all():                 # the usual case: one bulk call per frame_id
+            for frame, cols in groups:
+                w.write_samples(t, {topic: y[:, j] for topic, j in cols}, frame_id=frame)
+        else:
+            for frame, cols in groups:
+                for topic, j in cols:
+                    v = y[:, j]
+                    ok = np.isfinite(v)          # a dropped sample: no message (never a NaN measurement)
+                    if np.any(ok):
+                        w.write_samples(t[ok], {topic: v[ok]}, frame_id=frame)
         jp, jv, je = self._joint_i
+        template, at_stamp, at_values = self._joint_template()
+        pack = _JOINT_PACK.pack_into
         for k in range(len(rows)):
-            # A dropped signal is left out of the message (JointState allows empty arrays per field).
-            fields = [np.array([y[k, j]] if math.isfinite(y[k, j]) else [], dtype=np.float64) for j in (jp, jv, je)]
             sec, nsec = divmod(int(t[k]), 1_000_000_000)
+            p, v, e = y[k, jp], y[k, jv], y[k, je]
+            if math.isfinite(p) and math.isfinite(v) and math.isfinite(e):
+                buf = bytearray(template)          # the template filled in: ~1 µs instead of ~50 µs
+                _STAMP_PACK.pack_into(buf, at_stamp, sec, nsec)
+                for at, value in zip(at_values, (p, v, e)):
+                    pack(buf, at, value)
+                w.write_serialized(self._joint, int(t[k]), bytes(buf))
+                continue
+            # A dropped signal is left out of the message (JointState allows empty arrays per field).
+            fields = [np.array([x] if math.isfinite(x) else [], dtype=np.float64) for x in (p, v, e)]
             w.write(self._joint, int(t[k]), {
                 "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"}, "name": ["steering"],
                 "position": fields[0], "velocity": fields[1], "effort": fields[2]})
+
+    def _joint_template(self) -> tuple[bytes, int, tuple[int, int, int]]:
+        """The joint state with every field present, serialized once by the generic path with
+        sentinel values; where the stamp and the three values sit in it."""
+        if self._joint_cdr is None:
+            sec, nsec = 0x1A2B3C4D, 0x0E1F2A3B
+            marks = (1.2345678901234567e-300, -2.3456789012345678e-301, 3.4567890123456789e-302)
+            data = cdr.serialize(self._joint, JOINT_STATE, {
+                "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"}, "name": ["steering"],
+                "position": np.array(marks[:1]), "velocity": np.array(marks[1:2]), "effort": np.array(marks[2:])})
+            where = [data.find(_STAMP_PACK.pack(sec, nsec)), *(data.find(_JOINT_PACK.pack(m)) for m in marks)]
+            if min(where) < 0:
+                msg = "JointState template: a field was not found in its serialization"
+                raise BagError(msg)
+            self._joint_cdr = (data, where[0], (where[1], where[2], where[3]))
+        return self._joint_cdr
 
 
 def _normal_scheduling() -> None:

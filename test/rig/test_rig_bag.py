@@ -90,3 +90,34 @@ def test_each_valve_is_recorded_under_its_namespace_and_replays_with_a_good_fit(
                  "--fail-below", "pressure_fit_percent=95"]) == 0
     assert main(["replay", str(bag), "--namespace", "left/x"]) == 2
     assert "the bag's device namespaces" in capsys.readouterr().err
+
+
+def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic_serialization(rig, tmp_path):
+    """As on the wire: a dropped (NaN) sample has no message, a JointState leaves a dropped field
+    empty; the joint states written from the template are the generic serializer's bytes."""
+    from pcv_sim.io.bag import cdr
+    from pcv_sim.io.recorder import JOINT_STATE
+
+    rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
+                      signals=rig.signals, threaded=False)
+    y = rig.sample()
+    rec.start(0, {**rig.input_values(), **rig.load_flows()})
+    rec.sample(0, y, rig.load_flows().values())
+    y2 = y.copy()
+    y2[rig.signals.index("left.pressure")] = np.nan
+    y2[rig.signals.index("cylinder.velocity")] = np.nan
+    rec.sample(1_000_000, y2, rig.load_flows().values())
+    data, _, _ = rec._joint_template()
+    assert data == cdr.serialize("/j", JOINT_STATE, {
+        "header": {"stamp": {"sec": 0x1A2B3C4D, "nanosec": 0x0E1F2A3B}, "frame_id": "cylinder"}, "name": ["steering"],
+        "position": np.array([1.2345678901234567e-300]), "velocity": np.array([-2.3456789012345678e-301]),
+        "effort": np.array([3.4567890123456789e-302])})
+    rec.close()
+    with AnyReader([tmp_path / "d"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        got = {}
+        for conn, t, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    assert [t for t, _ in got["/left/pressure"]] == [0] and [t for t, _ in got["/right/pressure"]] == [0, 1_000_000]
+    (_, j0), (_, j1) = got["/cylinder/joint_states"]
+    assert list(j0.velocity) == [y[rig.signals.index("cylinder.velocity")]] and list(j1.velocity) == []
+    assert list(j1.position) == [y[rig.signals.index("cylinder.position")]] and j1.header.stamp.nanosec == 1_000_000

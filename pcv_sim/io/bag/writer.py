@@ -213,6 +213,15 @@ class BagWriter:
             raise BagError(msg_)
         self._append(info, timestamp_ns, cdr.serialize(topic, info.msgtype, msg))
 
+    def write_serialized(self, topic: str, t_ns: int, data: bytes) -> None:
+        """Write a message already serialized as CDR (little endian, with its 4-byte header) for
+        ``topic``'s type, e.g. a template filled in place (hot path for other types)."""
+        info = self._topics.get(topic)
+        if info is None:
+            msg_ = f"topic {topic!r} was not declared; declared topics: {sorted(self._topics)}"
+            raise BagError(msg_)
+        self._append(info, t_ns, data)
+
     def write_float64(self, topic: str, t_ns: int, value: float) -> None:
         """Write a ``std_msgs/msg/Float64`` built directly as CDR bytes (hot path)."""
         info = self._float64.get(topic)
