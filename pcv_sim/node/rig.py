@@ -62,7 +62,9 @@ def _run(argv: list[str], stop: Stop) -> int:
         prog="rig", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
         description="Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics "
                     "per valve: in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; "
-                    "cylinder/joint_states, cylinder/pressure_a|b; in faults; /diagnostics, /clock.")
+                    "cylinder/joint_states, cylinder/pressure_a|b; in faults, cylinder/external_force; service reset; "
+                    "/diagnostics, /clock (out in simulated time, in with use_sim_time); record.enabled records "
+                    "a bag.")
     reason = _rig_yaml_as_params_file(argv)
     if reason is None:
         try:
