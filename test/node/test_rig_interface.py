@@ -249,4 +249,6 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     assert bag.closed_cleanly
     t = bag[f'{ns}/left/pressure'].t_ns
     t = t - t[0]
-    assert len(t) > 200 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in zip(t, t[1:]))
+    # On the 1 ms grid, in order; how many depends on the load (a backlog beyond max_catchup is skipped)
+    assert len(t) > 20 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in zip(t, t[1:]))
+    assert bag.topic_types[f'{ns}/cylinder/joint_states'] == 'sensor_msgs/msg/JointState'
