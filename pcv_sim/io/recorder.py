@@ -4,6 +4,9 @@
 :class:`pcv_sim.device.valve.ValveDevice`, called at every model step) on top of
 :class:`pcv_sim.io.bag.BagWriter`. It writes the device topics (:mod:`pcv_sim.io.topics`) with
 the node's namespace, so a bag of the emulator in ``/left`` holds ``/left/pressure`` etc.
+:class:`RigRecorder` is the rig node's: every valve's topics the same way under its own
+namespace, plus the cylinder's and the rig's (see there). Both share the queue, the writer
+thread, the drop accounting and the finalisation described below (``_QueuedBag``).
 
 What is written, and when (log time = model sample time, one clock for inputs and outputs):
 
