@@ -9,6 +9,7 @@ status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -54,6 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the device to replay in a bag of several (the rig node's: one namespace per valve), e.g. "
                         "left or /rig/left (the full namespace or its last part); an unknown one is refused naming "
                         "the bag's device namespaces")
+    p.add_argument("--load-volume", type=float, metavar="M3",
+                   help="the oil volume at the load port (m^3) instead of the valve YAML's circuit.load_volume, "
+                        "e.g. a rig valve's chamber: dead + hose + A (x0 - stroke_min), 2.08e-4 for the shipped "
+                        "config/rig.yaml")
     p.add_argument("--report", type=Path, metavar="OUT.md|OUT.html", help="write a Markdown or HTML report with plots")
     p.add_argument("--plot-dir", type=Path, metavar="DIR",
                    help="write the plots (PNG) here; default for a Markdown report: OUT_plots/ beside it")
@@ -79,6 +84,11 @@ def run(args: argparse.Namespace) -> int:
         msg = f"--resync-ms {args.resync_ms:g}: accepted is a finite number >= 0 (ms)"
         raise ReplayError(msg)
     params = params_from(args)
+    if args.load_volume is not None:
+        if not (math.isfinite(args.load_volume) and 1e-6 <= args.load_volume <= 1.0):
+            msg = f"--load-volume {args.load_volume:g}: accepted is a volume in m^3 within 1e-06 .. 1 (0.1 L = 1e-4)"
+            raise ReplayError(msg)
+        params = dataclasses.replace(params, circuit=dataclasses.replace(params.circuit, load_volume=args.load_volume))
     recording = load_recording(args.bag, parse_topic_map(args.topic), namespace=args.namespace)
     result = replay(recording, params, model=args.model, solver=args.solver, resync=args.resync_ms / 1e3)
     failures = check_thresholds(result, above, below)

@@ -88,8 +88,12 @@ def test_each_valve_is_recorded_under_its_namespace_and_replays_with_a_good_fit(
                       .replace("load_volume: 1.0e-4", f"load_volume: {params.circuit.load_volume!r}"))
     assert main(["--config", str(config), "replay", str(bag), "--namespace", "rig/left", "--model", "simplified",
                  "--fail-below", "pressure_fit_percent=95"]) == 0
+    assert main(["replay", str(bag), "--namespace", "right", "--model", "simplified", "--load-volume",
+                 repr(params.circuit.load_volume), "--fail-below", "pressure_fit_percent=95"]) == 0
     assert main(["replay", str(bag), "--namespace", "left/x"]) == 2
     assert "the bag's device namespaces" in capsys.readouterr().err
+    assert main(["replay", str(bag), "--namespace", "left", "--load-volume", "208"]) == 2
+    assert "--load-volume 208: accepted is a volume in m^3" in capsys.readouterr().err
 
 
 def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic_serialization(rig, tmp_path):
