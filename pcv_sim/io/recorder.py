@@ -502,17 +502,22 @@ class RigRecorder(_QueuedBag):
     valve of the bag replays like an emulator's bag (``pcv-sim replay --namespace``); and the
     cylinder's and the rig's own topics. ``namespace`` is the node's; topics (``<ns>`` = it):
 
-        <ns>/<valve>/duty_cycle, supply_pressure, load_flow   inputs, at the start then on change,
+        <ns>/<valve>/duty_cycle, supply_pressure              inputs, at the start then on change,
                                                              stamped at the step they act from
+        <ns>/<valve>/load_flow                                the chamber's mean flow over each
+                                                             sample period, stamped at its start
         <ns>/<valve>/pressure, current, spool_position        the samples as published (measured)
         <ns>/cylinder/joint_states, pressure_a|b              the samples as published
         <ns>/cylinder/external_force                          input, on change
         <ns>/faults                                           the fault commands, at the step they acted
         <ns>/rig/events                                       the rig's log: faults, clears, watchdog, reset
 
-    The duty is the one in force (after the watchdog); `load_flow` is the chamber's displacement
-    flow the valve fed at each sample (a continuous input, recorded at the sample rate); a dropped
-    or non-finite measurement has no message, as on the wire. The loop side: :meth:`start`,
+    The duty is the one in force (after the watchdog). The load flow is continuous in the rig; the
+    bag holds it held over each sample period, as the mean over that period (the change of the
+    load volume / the period, stamped at the period's start, written when its end is sampled): a
+    replay then feeds the valve exactly the volume the chamber took (pressure fit 99 %; the
+    instantaneous flow at each sample gave 98 %). :meth:`restart_flows` leaves the period of a
+    jump (a reset) out. A dropped or non-finite measurement has no message, as on the wire. The loop side: :meth:`start`,
     :meth:`input`, :meth:`sample`, :meth:`text`; the rest as :class:`BagRecorder`.
 
     Args:
@@ -586,6 +591,7 @@ class RigRecorder(_QueuedBag):
         self.topics = dict(topics)
         self._last: dict[str, float] = {}
         self.started = False
+        self._volumes: tuple[int, list[float]] | None = None    # (t_ns, load volumes) at the last sample
         self._joint_cdr: tuple[bytes, int, tuple[int, int, int]] | None = None
         self._per_row = 3 * len(self.valves) + len(self._chambers) + 1
         super().__init__(
@@ -596,8 +602,8 @@ class RigRecorder(_QueuedBag):
     # --- the model loop's side ----------------------------------------------------------------
 
     def start(self, t_ns: int, inputs: Mapping[str, float]) -> None:
-        """Write every input in force at ``t_ns`` (the rig at rest; names as `Rig.on_input`'s, load
-        flows as ``<valve>.load_flow``); inputs before this are not recorded."""
+        """Write every input in force at ``t_ns`` (the rig at rest; names as `Rig.on_input`'s); inputs
+        before this are not recorded."""
         self.started = True
         for key, value in inputs.items():
             self._last.pop(key, None)
@@ -615,14 +621,24 @@ class RigRecorder(_QueuedBag):
         self._last[name] = value
         self._put((_IN, topic, t_ns, value))
 
-    def sample(self, t_ns: int, measured: Iterable[float], load_flows: Iterable[float]) -> None:
+    def sample(self, t_ns: int, measured: Iterable[float], load_volumes: Iterable[float]) -> None:
         """The sample published at ``t_ns`` (measured, in the order of `signals`; NaN: dropped) and
-        the valves' load flows at that instant (on change)."""
+        the valves' load volumes then (m^3, in the order of `valves`): the mean load flow of the
+        period since the last sample is written (on change), stamped at its start."""
         if not self.started:
             return
-        for (v, _), q in zip(self.valves, load_flows):
-            self.input(t_ns, f"{v}.{LOAD_FLOW}", float(q))
+        volumes = [float(v) for v in load_volumes]
+        last = self._volumes
+        if last is not None and t_ns > last[0]:
+            t0, before = last
+            for (v, _), a, b in zip(self.valves, before, volumes):
+                self.input(t0, f"{v}.{LOAD_FLOW}", (b - a) * 1e9 / (t_ns - t0))
+        self._volumes = (t_ns, volumes)
         self._put((_ROW, t_ns, tuple(measured)))
+
+    def restart_flows(self) -> None:
+        """The load volumes jumped (a reset): no mean flow for the period up to the next sample."""
+        self._volumes = None
 
     def text(self, topic: str, t_ns: int, text: str) -> None:
         """A std_msgs/String on `faults_topic` or `events_topic`."""

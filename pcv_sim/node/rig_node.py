@@ -50,8 +50,9 @@ real time at the step an input received at the request would act at.
 Recording (`record.enabled`): a `pcv_sim.io.recorder.RigRecorder` (the emulator's BagRecorder
 machinery: writer thread, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
 (the rig at rest) on: each valve's topics under `<namespace>/<valve>/` as the emulator records
-them (inputs duty_cycle, supply_pressure, load_flow on change, stamped at the step they act;
-outputs pressure, current, spool_position at every published sample, as published), the
+them (inputs duty_cycle, supply_pressure on change, stamped at the step they act; load_flow the
+chamber's mean flow over each control period, stamped at its start; outputs pressure, current,
+spool_position at every published sample, as published), the
 cylinder's joint_states, pressure_a|b and external_force, the fault commands (`faults`, at the
 step they acted) and the rig's log (`rig/events`). `pcv-sim replay BAG --namespace left` replays
 one valve. The state is in the rig status of the diagnostics (`recording*` keys).
@@ -613,6 +614,8 @@ class RigNode(Node):
     def _reset_rig(self) -> None:
         self.rig.reset(keep_time=True)
         self.counts.resets += 1
+        if self.recorder is not None:
+            self.recorder.restart_flows()            # the piston jumped: no mean flow across the reset
         if self.failure is not None:
             self.get_logger().info(f"reset: the model runs again (it had stopped: {self.failure})")
             self.failure = None
@@ -698,12 +701,12 @@ class RigNode(Node):
         rig = self.rig
         t_ns = self.origin_ns + self._shown * self.dt_ns
         if not rec.started:
-            rec.start(t_ns, {**rig.input_values(), **rig.load_flows()})
+            rec.start(t_ns, rig.input_values())
             if rec.threaded:
                 sys.setswitchinterval(SWITCH_INTERVAL)
             self.get_logger().info(f"recording to {rec.path}: every valve under its namespace, the cylinder, "
                                    "faults and events (outputs every control period, inputs on change)")
-        rec.sample(t_ns, self._last_sample, rig.load_flows().values())
+        rec.sample(t_ns, self._last_sample, rig.load_volumes())
         log = rig.log
         while self._rec_logged < len(log):
             t, text = log[self._rec_logged]

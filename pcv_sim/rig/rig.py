@@ -116,10 +116,10 @@ class Rig:
         self.signals = tuple(f"{n}.{s}" for n in self.valve_names for s in VALVE_SIGNALS) + tuple(
             f"cylinder.{s}" for s in CYLINDER_SIGNALS)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
-        #: per valve: the output its load flow is wired from (the chamber's flow), or -1 (its own volume)
-        self._flow_i = [plant.index("output", f"cylinder.flow_{v.chamber}") if v.chamber in ("a", "b") else -1
-                        for v in valves]
-        self._flows = [0.0] * len(valves)
+        #: per valve: the output its load volume is wired from (the chamber's), or -1 (its own, constant)
+        self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
+                          for v in valves]
+        self._volumes = [v.params.circuit.load_volume for v in valves]
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
@@ -218,13 +218,14 @@ class Rig:
         """The true values of `signals` now (SI: Pa, A, m per valve; m, m/s, N for the cylinder),
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
-        self._flows = [float(y[i]) if i >= 0 else 0.0 for i in self._flow_i]
+        self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
         return y[self._signal_i]
 
-    def load_flows(self) -> dict[str, float]:
-        """Each valve's load flow at the last `sample()` (m^3/s drawn from its load port: the
-        chamber's displacement flow; 0 for a valve on its own volume), `<valve>.load_flow` -> value."""
-        return {f"{n}.load_flow": q for n, q in zip(self.valve_names, self._flows)}
+    def load_volumes(self) -> list[float]:
+        """Each valve's load volume at the last `sample()` (m^3: its chamber's, or its own), in the
+        order of `valve_names`. Its change over an interval / the interval is the valve's mean load
+        flow there (the chamber's displacement flow is dV/dt)."""
+        return list(self._volumes)
 
     # --- inputs ------------------------------------------------------------------------------
 
