@@ -181,3 +181,22 @@ def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
     assert np.array_equal(np.array(fused), np.array(plain))
     assert fused_log == rig.log and any("watchdog fired" in text for _, text in rig.log)
     assert fused[-1][0] != fused[2][0]          # the inputs did act
+
+
+def test_a_chamber_pulled_on_by_the_piston_cavitates_at_the_floor_and_recovers(rig):
+    """Watchdog to duty 0 while the piston moves: the expanding chamber's valve relieves to tank
+    and cannot feed it; the pressure stops at the oil's cavitation pressure (R32; it went to
+    -54 bar without the floor) and rises again once the valves are commanded."""
+    floor = rig.params.valves[1].params.fluid.cavitation_pressure
+    t_wd = rig.params.timing.watchdog_timeout
+
+    def ctrl(t, m):
+        if t < 0.2:
+            return {"left": 0.9, "right": 0.3}
+        return {"left": 0.6, "right": 0.6} if t >= t_wd + 0.6 else {}
+
+    run = run_lockstep(rig, ctrl, t_wd + 0.9)
+    right = run.signal("right.pressure")
+    assert right.min() == floor                                   # reached, never passed
+    assert np.all(run.signal("left.pressure") >= floor)
+    assert right[-1] > 10 * BAR                                   # back under control
