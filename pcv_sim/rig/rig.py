@@ -29,8 +29,9 @@ import numpy as np
 
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
+from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
-from pcv_sim.rig.faults import Fault, FaultError
+from pcv_sim.rig.faults import CYLINDER, Fault, FaultError
 from pcv_sim.rig.params import RigParams
 from pcv_sim.rig.sensors import Sensors
 from pcv_sim.simulation.duty import check_duty
@@ -103,6 +104,7 @@ class Rig:
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
+        self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
         self._wd_steps = int(round(params.timing.watchdog_timeout / self.dt))
         self._safe = params.timing.safe_duty
@@ -136,6 +138,7 @@ class Rig:
             sim.set_parameters(k, self._healthy[k])
             sim.u[self._duty_i[k]] = v.initial_duty
             sim.u[self._supply_i[k]] = self._supply0[k]
+        sim.set_parameters(len(self.params.valves), self._healthy_cylinder)
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
@@ -199,12 +202,14 @@ class Rig:
             if fault.target not in self.signals:
                 raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(self.signals)}")
             self.sensors.add(fault, self.time)
+        elif fault.on_cylinder:
+            if fault.target != CYLINDER:
+                raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is {CYLINDER}")
         else:
             if fault.target not in self.valve_names:
                 raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
         self.faults[fault.key] = fault
-        if not fault.sensor:
-            self._apply_valve_faults(self.valve_names.index(fault.target))
+        self._apply_physical_faults(fault)
         self.log.append((self.time, f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip()))
 
     def clear(self, target: str, kind: str) -> None:
@@ -215,9 +220,32 @@ class Rig:
             raise FaultError(f"no active fault {kind} on {target}; active: {active}")
         if fault.sensor:
             self.sensors.clear(target, kind)
-        else:
-            self._apply_valve_faults(self.valve_names.index(target))
+        self._apply_physical_faults(fault)
         self.log.append((self.time, f"cleared {kind} on {target}"))
+
+    def _apply_physical_faults(self, fault: Fault) -> None:
+        """Re-apply every active fault on `fault`'s target (after one was set or cleared)."""
+        if fault.on_cylinder:
+            self._apply_cylinder_faults()
+        elif not fault.sensor:
+            self._apply_valve_faults(self.valve_names.index(fault.target))
+
+    def _apply_cylinder_faults(self) -> None:
+        """The cylinder's parameter vector: healthy, then every active fault on it."""
+        p = self._healthy_cylinder.copy()
+        for (target, kind), f in self.faults.items():
+            if target != CYLINDER:
+                continue
+            if kind == "cylinder_friction":
+                friction = f.values["friction"]
+                p[cylinder.F_C] = friction
+                # The friction's slope at v = 0 (F / v_s) kept at most m / dt: a steeper one is a
+                # stiffer piston than the explicit step can hold (as the sticking spool's).
+                p[cylinder.V_S] = max(p[cylinder.V_S], friction * self.dt / p[cylinder.MASS])
+            elif kind == "cylinder_jam":
+                p[cylinder.JAMMED] = 1.0
+                self.sim.x[self._state_off[-2] + 1] = 0.0      # seized where it is: no velocity
+        self.sim.set_parameters(len(self.valve_names), p)
 
     def _apply_valve_faults(self, k: int) -> None:
         """The valve's parameter vector and supply: healthy, then every active fault on it."""
