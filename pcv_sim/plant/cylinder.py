@@ -43,7 +43,8 @@ OUTPUTS = ("volume_a", "volume_b", "flow_a", "flow_b", "position", "velocity", "
 STATE_OUTPUTS = OUTPUTS[:-1]
 
 A_A, A_B, MASS, K_LOAD, DAMPING, F_C, V_S, X_MIN, X_MAX, V0_A, V0_B = range(11)
-N_PARAMS = 11
+JAMMED = 11                 # fault (pcv_sim.rig.faults): 1 = the piston is held where it is
+N_PARAMS = 12
 
 
 def pack(params: CylinderParams) -> np.ndarray:
@@ -68,9 +69,10 @@ def net_force(x, u, p):  # noqa: ANN001, ANN201
 
 @jit(inline=True)
 def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
-    """dx/dt = v, m dv/dt = net_force; held at an end stop while the force pushes into it."""
+    """dx/dt = v, m dv/dt = net_force; held at an end stop while the force pushes into it, and
+    anywhere while jammed (a fault; the rig zeroes the velocity when it is set)."""
     force = net_force(x, u, p)
-    if stops.held(x[0], x[1], force, p[X_MIN], p[X_MAX]):
+    if p[JAMMED] != 0.0 or stops.held(x[0], x[1], force, p[X_MIN], p[X_MAX]):
         dx[0] = 0.0
         dx[1] = 0.0
     else:

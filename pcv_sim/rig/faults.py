@@ -14,6 +14,14 @@ one restores the healthy value):
     contamination      metering edges' area times `area_factor` (0 < f <= 1)
     internal_leakage   a laminar leak load -> tank, q = `conductance` (p - p_t) (m^3/(s Pa))
 
+Cylinder faults (target `cylinder`: the steering linkage):
+
+    cylinder_friction  the seals' Coulomb friction is `friction` (N) instead of the configured one
+                       (worn or dry seals, a binding linkage): F tanh(v / v_s) against the motion,
+                       v_s at least F dt / m (a steeper slope at v = 0 than the step can hold)
+    cylinder_jam       the piston is held where it is (a seized linkage, a blocked wheel); the
+                       chambers keep their volumes, so the valves then hold pressure against it
+
 Sensor faults (on one measured signal, `valve.pressure`, `cylinder.position`...: what the
 controller and the recording see; the physics is untouched):
 
@@ -33,7 +41,7 @@ from typing import Any, Mapping
 
 from pcv_sim.errors import PcvSimError
 
-__all__ = ["FaultError", "Fault", "VALVE_FAULTS", "SENSOR_FAULTS", "parse_fault"]
+__all__ = ["FaultError", "Fault", "VALVE_FAULTS", "CYLINDER_FAULTS", "CYLINDER", "SENSOR_FAULTS", "parse_fault"]
 
 
 class FaultError(PcvSimError, ValueError):
@@ -50,6 +58,12 @@ VALVE_FAULTS: dict[str, dict[str, tuple[float, float, str, bool]]] = {
     "spool_stuck": {},
     "contamination": {"area_factor": (0.0, 1.0, "-", True)},
     "internal_leakage": {"conductance": (0.0, 1e-9, "m^3/(s Pa)", True)},
+}
+#: The plant's target name, the one target of CYLINDER_FAULTS.
+CYLINDER = "cylinder"
+CYLINDER_FAULTS: dict[str, dict[str, tuple[float, float, str, bool]]] = {
+    "cylinder_friction": {"friction": (0.0, 1e5, "N", False)},
+    "cylinder_jam": {},
 }
 SENSOR_FAULTS: dict[str, dict[str, tuple[float, float, str, bool]]] = {
     "bias": {"value": (-math.inf, math.inf, "SI unit of the signal", False)},
@@ -75,6 +89,10 @@ class Fault:
         return self.kind in SENSOR_FAULTS
 
     @property
+    def on_cylinder(self) -> bool:
+        return self.kind in CYLINDER_FAULTS
+
+    @property
     def key(self) -> tuple[str, str]:
         return (self.target, self.kind)
 
@@ -82,11 +100,13 @@ class Fault:
 def parse_fault(kind: Any, target: Any, values: Mapping[str, Any] | None, *, valves: tuple[str, ...],
                 signals: tuple[str, ...], where: str = "fault") -> Fault:
     """A validated Fault; FaultError naming `where` and what is accepted otherwise."""
-    table = VALVE_FAULTS if kind in VALVE_FAULTS else SENSOR_FAULTS if kind in SENSOR_FAULTS else None
+    table = (VALVE_FAULTS if kind in VALVE_FAULTS else CYLINDER_FAULTS if kind in CYLINDER_FAULTS
+             else SENSOR_FAULTS if kind in SENSOR_FAULTS else None)
     if table is None:
-        raise FaultError(f"{where}: kind {kind!r}; accepted are {', '.join(VALVE_FAULTS)} (on a valve) and "
+        raise FaultError(f"{where}: kind {kind!r}; accepted are {', '.join(VALVE_FAULTS)} (on a valve), "
+                         f"{', '.join(CYLINDER_FAULTS)} (on the {CYLINDER}) and "
                          f"{', '.join(SENSOR_FAULTS)} (on a measured signal)")
-    targets = valves if table is VALVE_FAULTS else signals
+    targets = valves if table is VALVE_FAULTS else (CYLINDER,) if table is CYLINDER_FAULTS else signals
     if target not in targets:
         raise FaultError(f"{where}: target {target!r} for {kind}; accepted are {', '.join(targets)}")
     spec = table[kind]

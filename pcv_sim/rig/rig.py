@@ -29,8 +29,9 @@ import numpy as np
 
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
+from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
-from pcv_sim.rig.faults import Fault, FaultError
+from pcv_sim.rig.faults import CYLINDER, Fault, FaultError
 from pcv_sim.rig.params import RigParams
 from pcv_sim.rig.sensors import Sensors
 from pcv_sim.simulation.duty import check_duty
@@ -122,6 +123,7 @@ class Rig:
         self._volumes = [v.params.circuit.load_volume for v in valves]
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
+        self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
         self._wd_steps = int(round(params.timing.watchdog_timeout / self.dt))
         self._safe = params.timing.safe_duty
@@ -164,6 +166,7 @@ class Rig:
             sim.set_parameters(k, self._healthy[k])
             sim.u[self._duty_i[k]] = v.initial_duty
             sim.u[self._supply_i[k]] = self._supply0[k]
+        sim.set_parameters(len(self.params.valves), self._healthy_cylinder)
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
@@ -222,7 +225,8 @@ class Rig:
         return y[self._signal_i]
 
     def load_volumes(self) -> list[float]:
-        """Each valve's load volume at the last `sample()` (m^3: its chamber's, or its own), in the
+        """Each valve's load volume at the last `sample()` (not updated by `advance_sample`'s fused
+        path; m^3: its chamber's, or its own), in the
         order of `valve_names`. Its change over an interval / the interval is the valve's mean load
         flow there (the chamber's displacement flow is dV/dt)."""
         return list(self._volumes)
@@ -262,12 +266,14 @@ class Rig:
             if fault.target not in self.signals:
                 raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(self.signals)}")
             self.sensors.add(fault, self.time)
+        elif fault.on_cylinder:
+            if fault.target != CYLINDER:
+                raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is {CYLINDER}")
         else:
             if fault.target not in self.valve_names:
                 raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
         self.faults[fault.key] = fault
-        if not fault.sensor:
-            self._apply_valve_faults(self.valve_names.index(fault.target))
+        self._apply_physical_faults(fault)
         self.log.append((self.time, f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip()))
 
     def clear(self, target: str, kind: str) -> None:
@@ -278,9 +284,32 @@ class Rig:
             raise FaultError(f"no active fault {kind} on {target}; active: {active}")
         if fault.sensor:
             self.sensors.clear(target, kind)
-        else:
-            self._apply_valve_faults(self.valve_names.index(target))
+        self._apply_physical_faults(fault)
         self.log.append((self.time, f"cleared {kind} on {target}"))
+
+    def _apply_physical_faults(self, fault: Fault) -> None:
+        """Re-apply every active fault on `fault`'s target (after one was set or cleared)."""
+        if fault.on_cylinder:
+            self._apply_cylinder_faults()
+        elif not fault.sensor:
+            self._apply_valve_faults(self.valve_names.index(fault.target))
+
+    def _apply_cylinder_faults(self) -> None:
+        """The cylinder's parameter vector: healthy, then every active fault on it."""
+        p = self._healthy_cylinder.copy()
+        for (target, kind), f in self.faults.items():
+            if target != CYLINDER:
+                continue
+            if kind == "cylinder_friction":
+                friction = f.values["friction"]
+                p[cylinder.F_C] = friction
+                # The friction's slope at v = 0 (F / v_s) kept at most m / dt: a steeper one is a
+                # stiffer piston than the explicit step can hold (as the sticking spool's).
+                p[cylinder.V_S] = max(p[cylinder.V_S], friction * self.dt / p[cylinder.MASS])
+            elif kind == "cylinder_jam":
+                p[cylinder.JAMMED] = 1.0
+                self.sim.x[self._state_off[-2] + 1] = 0.0      # seized where it is: no velocity
+        self.sim.set_parameters(len(self.valve_names), p)
 
     def _apply_valve_faults(self, k: int) -> None:
         """The valve's parameter vector and supply: healthy, then every active fault on it."""
@@ -345,10 +374,37 @@ class Rig:
                         if deadline < nxt:
                             nxt = max(deadline, sim.steps + 1)
             sim.advance(nxt - sim.steps)
-            x = sim.x
-            if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
-                raise RigError(f"the model state ran away (non-finite) before t = {sim.time:.6g} s; "
-                               f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
+            self._check_finite()
+
+    def advance_sample(self, step: int) -> np.ndarray:
+        """`advance_to(step)` then `sample()`: the same numbers, with the last stretch of steps and
+        the sampling in one compiled call when no input is due at `step` itself (the lockstep's
+        hot path: a call costs about as much as a step)."""
+        sim = self.sim
+        self._due()                                    # inputs due now act over the whole stretch
+        if step > sim.steps and self._nothing_due(step):
+            out = np.empty(len(self._signal_i))
+            if not math.isfinite(sim.advance_sample(step - sim.steps, self._signal_i, out)):
+                self._check_finite()                   # raises, naming the time and the faults
+            return out
+        self.advance_to(step)
+        return self.sample()
+
+    def _nothing_due(self, step: int) -> bool:
+        """No scheduled input and no watchdog deadline at or before `step`."""
+        if self._events and self._events[0].step <= step:
+            return False
+        if self._wd_steps:
+            for name in self.valve_names:
+                if not self.watchdog_fired[name] and self._last_cmd[name] + self._wd_steps <= step:
+                    return False
+        return True
+
+    def _check_finite(self) -> None:
+        x = self.sim.x
+        if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
+            raise RigError(f"the model state ran away (non-finite) before t = {self.sim.time:.6g} s; "
+                           f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
 
     def _due(self) -> None:
         steps = self.sim.steps

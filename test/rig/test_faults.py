@@ -138,6 +138,8 @@ def test_a_cleared_fault_returns_to_normal(rig):
     ("coil_short", "left", {"resistance_factor": 1.5}, r"resistance_factor = 1\.5; accepted is a finite number > 0 and <= 1"),
     ("bias", "left.pressure", {"value": 1e5, "offset": 1}, r"bias takes no offset"),
     ("bias", "left", {"value": 1.0}, r"target 'left' for bias; accepted are left\.pressure"),
+    ("cylinder_jam", "left", {}, r"target 'left' for cylinder_jam; accepted are cylinder"),
+    ("cylinder_friction", "cylinder", {"friction": -5.0}, r"cylinder_friction\.friction = -5\.0; accepted is a finite number >= 0"),
 ])
 def test_bad_faults_are_refused_naming_what_is_accepted(rig, kind, target, values, match):
     with pytest.raises(FaultError, match=match):
@@ -185,3 +187,32 @@ def test_a_sensor_frozen_before_the_first_sample_holds_the_first_sample(rig):
     j = rig.signals.index("cylinder.position")
     assert run.true[-1, j] > 1e-3
     assert np.all(run.measured[:, j] == run.true[0, j])
+
+
+def test_cylinder_jam_holds_the_piston_and_the_valves_hold_pressure_against_it(rig):
+    """A seized linkage: the piston stops where it is although the controller drives it; the
+    chambers no longer move, so each valve settles at its own set pressure; cleared, it moves."""
+    run_lockstep(rig, hold(0.7, 0.5), 0.05)                      # moving toward +x
+    rig.inject(fault(rig, "cylinder_jam", "cylinder"))
+    x_jam = rig.sample()[rig.signals.index("cylinder.position")]
+    run = run_lockstep(rig, hold(0.9, 0.3), 0.3)
+    x = run.signal("cylinder.position")
+    assert np.all(x == x_jam) and np.all(run.signal("cylinder.velocity") == 0.0)
+    assert run.signal("left.pressure")[-1] - run.signal("right.pressure")[-1] > 50 * BAR   # each at its set point
+    assert rig.status().faults == ("cylinder_jam@cylinder",)
+    rig.clear("cylinder", "cylinder_jam")
+    run = run_lockstep(rig, hold(0.9, 0.3), 0.05)
+    assert run.signal("cylinder.position")[-1] > x_jam + 1e-4
+
+
+def test_cylinder_friction_resists_a_small_pressure_difference(rig):
+    """Worn, binding seals: a Coulomb friction well above the force a small duty difference makes
+    slows the piston to a creep (the friction is smoothed over friction_velocity, so below it it
+    acts as a steep viscous term); the healthy cylinder moves with the same commands."""
+    healthy = run_lockstep(rig, hold(0.55, 0.5), 0.3)
+    moved = abs(healthy.signal("cylinder.position")[-1])
+    rig.reset()
+    rig.inject(fault(rig, "cylinder_friction", "cylinder", friction=20000.0))
+    binding = run_lockstep(rig, hold(0.55, 0.5), 0.3)
+    assert moved > 1e-3
+    assert abs(binding.signal("cylinder.position")[-1]) < 0.2 * moved
