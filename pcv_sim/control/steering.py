@@ -43,8 +43,9 @@ class PositionController:
         for valve in ("left", "right"):
             low = m[f"{valve}.current"] < 0.5 * self.amps_per_duty * self.duty[valve]
             since = self.low_since[valve]
-            self.low_since[valve] = (since if since is not None else t) if low else None
-            fault = fault or (low and t - self.low_since[valve] >= self.fault_time)
+            start = (since if since is not None else t) if low else None
+            self.low_since[valve] = start
+            fault = fault or (start is not None and t - start >= self.fault_time)
         self.duty = {"left": min(1.0, max(0.3, self.base + u)), "right": min(1.0, max(0.3, self.base - u))}
         return {**self.duty, "flags": {"fault_detected": float(fault)}}
 
