@@ -45,11 +45,21 @@ def _step():
      r"assertions\[3\]\.signal: got 'left.presure'; accepted are left\.pressure"),
     (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure"}), r"never_above needs max"),
     (lambda d: d.update(rig="nosuch.yaml"), r"rig: cannot read rig file"),
+    (lambda d: d.update(controller={"ros": {"namespace": "rig ns"}}), r"controller\.ros\.namespace: got 'rig ns'"),
+    (lambda d: d.update(controller={"ros": {"namespce": "/rig"}}), r"controller\.ros: unknown key\(s\) namespce"),
+    (lambda d: d.update(controller={"ros": {"command": "steering_controller"}}),
+     r"controller\.ros\.command: got 'steering_controller'; accepted is a list"),
+    (lambda d: d.update(controller={"ros": {"command": ["{pyhton}"]}}), r"accepted placeholders are \{namespace\}"),
+    (lambda d: d.update(controller={"ros": {"wait": 0}}), r"controller\.ros\.wait: got 0"),
+    (lambda d: d.update(controller={"ros": {}}, controller_params={"kp": 1.0}),
+     r"controller_params: for a Python callable"),
+    (lambda d: d.update(controller={"ros": {"namespace": "/rig", "command": ["{python}", "-m", "x"], "wait": 5}}),
+     None),
 ])
 def test_bad_scenarios_are_refused_naming_the_key(edit, match):
     data = _step()
     edit(data)
-    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault: accepted
+    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault, a full ROS spec: accepted
         scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
         return
     with pytest.raises(ScenarioError, match=match):
