@@ -19,7 +19,7 @@ this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes i
 The controller is a node the user started (in the ROS domain of $ROS_DOMAIN_ID) or the scenario's
 `command`, started here with ROS_DOMAIN_ID = `domain` and stopped (SIGINT, then SIGKILL after
 10 s) after the run. Until `wait` s pass the rig waits for a publisher on every valve's
-duty_cycle and a subscriber of cylinder/joint_states; during the run, `wait` s without an answer
+duty_cycle and a subscriber of cylinder/joint_states (matched); during the run, `wait` s without an answer
 end it. Both, and a command that exits, fail the run with the reason (`ScenarioResult.error`).
 """
 
@@ -46,7 +46,8 @@ __all__ = ["run_ros_scenario", "SETPOINT_TOPIC", "FLAGS_TOPIC"]
 SETPOINT_TOPIC = "setpoint"
 FLAGS_TOPIC = "controller/flags"
 _STOP_GRACE = 10.0          # s a started controller has to exit after SIGINT
-_SETPOINT_MATCH = 2.0       # s more for the setpoint's subscriber once the duties are matched
+_OPTIONAL_MATCH = 2.0       # s more for the setpoint's subscriber and the flags' publisher
+_SETTLE = 0.1               # s after the matching, before the first sample
 _PROC_CHECK = 0.2           # s between checks that a started command still runs
 
 
@@ -70,6 +71,7 @@ class _Host:
         self.meas = np.full((n + 1, len(names)), np.nan)
         self.duties = np.full((n + 1, len(self.valves)), np.nan)
         self.sp = np.full(n + 1, np.nan)
+        self.walls = np.full(n + 1, np.nan)
         self.flags: dict[str, np.ndarray] = {}
         self.rejected: list[tuple[float, str]] = []
         self._rejected_seen = 0
@@ -90,8 +92,9 @@ class _Host:
         self.progress = time.monotonic()
         if k > self.n:
             return
+        self.walls[k] = now = time.perf_counter()
         if k == 0:
-            self.wall0 = time.perf_counter()
+            self.wall0 = now
         self.true[k] = true
         self.meas[k] = measured
         if self.setpoint is not None:
@@ -159,7 +162,7 @@ class _Host:
         times = np.arange(self.n + 1) * self.per * rig.dt
         wall = time.perf_counter() - self.wall0
         return RigRun(times, rig.signals, self.true, self.meas, self.duties, self.valves, self.sp, self.flags,
-                      list(rig.log), list(rig.rejected) + self.rejected, wall)
+                      list(rig.log), list(rig.rejected) + self.rejected, wall, self.walls)
 
 
 def _log_tail(path: Path | None, lines: int = 15) -> str:
@@ -198,34 +201,39 @@ def _stop(proc: subprocess.Popen[bytes] | None) -> None:
         proc.wait(5)
 
 
-def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any, has_setpoint: bool) -> None:
-    """Until a publisher on every duty_cycle and a subscriber of joint_states (and, given 2 s more,
-    of the setpoint), or ControllerAbsent after `spec.wait` s."""
-    from pcv_sim.io.topics import CYLINDER, DUTY_CYCLE, JOINT_STATES, valve_topic  # noqa: PLC0415
-
-    duty = [node.resolve_topic_name(valve_topic(v, DUTY_CYCLE)) for v in node.rig.valve_names]
-    joint = node.resolve_topic_name(f"{CYLINDER}/{JOINT_STATES}")
-    sp = node.resolve_topic_name(SETPOINT_TOPIC)
-    start = time.monotonic()
-    end = start + spec.wait
+def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any, flags_sub: Any) -> None:
+    """Until the controller's endpoints are matched with the rig's: a publisher on every
+    duty_cycle and a subscriber of joint_states (required, within `spec.wait` s, else
+    ControllerAbsent), then, given _OPTIONAL_MATCH s more, a setpoint subscriber and a flags
+    publisher (a controller of the user's may have neither), then _SETTLE s: matched on this side,
+    the controller's side matches within milliseconds (a first sample it missed would cost the
+    rig's 0.5 s re-publication)."""
+    names = node.rig.valve_names
+    duty = [(node.resolve_topic_name(f"{v}/duty_cycle"), sub) for v, (sub, _h) in zip(names, node._inputs)]
+    joint = node._pub_joint
+    optional = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
+    if host.setpoint is not None:
+        optional.append((host._pub_sp.topic_name, lambda: host._pub_sp.get_subscription_count() > 0))
+    end = time.monotonic() + spec.wait
     matched_at = None
     while True:
         now = time.monotonic()
         if proc is not None and proc.poll() is not None:
             raise ControllerAbsent(f"the controller command exited with {proc.returncode} before answering")
-        missing = [t for t in duty if node.count_publishers(t) == 0]
-        if node.count_subscribers(joint) == 0:
-            missing.append(f"a subscriber of {joint}")
+        missing = [f"a publisher on {t}" for t, sub in duty if sub.get_publisher_count() == 0]
+        if joint.get_subscription_count() == 0:
+            missing.append(f"a subscriber of {joint.topic_name}")
         if not missing:
             matched_at = matched_at or now
-            if not has_setpoint or node.count_subscribers(sp) > 0 or now - matched_at > _SETPOINT_MATCH:
+            if all(ok() for _t, ok in optional) or now - matched_at > _OPTIONAL_MATCH:
+                time.sleep(_SETTLE)
                 return
         if now > end:
             where = f"namespace {spec.namespace or '/'}, ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}" \
                 if proc is None else f"namespace {spec.namespace or '/'}"
             raise ControllerAbsent(f"no ROS controller answered within {spec.wait:g} s ({where}): missing "
                                    f"{', '.join(missing)}")
-        time.sleep(0.02)
+        time.sleep(0.01)
 
 
 def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> ScenarioResult:
@@ -262,9 +270,9 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         if node.rig.params != scenario.rig:
             raise ControllerAbsent("the rig node's rig differs from the scenario's (rig_config)")
         host = _Host(node, scenario, spec, proc, log_path)
-        node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
+        flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
         schedule_timeline(node.rig, scenario)
-        _wait_for_controller(node, host, spec, proc, host.setpoint is not None)
+        _wait_for_controller(node, host, spec, proc, flags_sub)
         host.progress = time.monotonic()
         node.hook = host
         node.run(host)
