@@ -72,8 +72,9 @@ def _scenario_file(tmp_path, name, controller, duration=0.5):
 
 
 def test_a_ros_controller_that_never_appears_fails_cleanly_with_exit_1(ros, tmp_path, capsys):
-    path = _scenario_file(tmp_path, 'absent', {'ros': {'namespace': ros.ns('nobody'), 'wait': 2}})
-    assert main(['scenario', 'run', str(path), '--json']) == 1
+    """--ros replaces the file's (callable) controller by a node the user was to start."""
+    path = _scenario_file(tmp_path, 'absent', 'steering:PositionController')
+    assert main(['scenario', 'run', str(path), '--json', '--ros', ros.ns('nobody'), '--wait', '2']) == 1
     out = json.loads(capsys.readouterr().out)
     assert out['passed'] is False and out['status'] == 1
     assert out['error'].startswith(f"no ROS controller answered within 2 s (namespace {ros.ns('nobody')}, "
