@@ -38,7 +38,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples"))
 VALVES = ("left", "right")
 WARMUP = 50
-_last_walls = None
 
 
 def _child_env(domain: int) -> dict[str, str]:
@@ -91,8 +90,9 @@ def one_run(context, domain: int, period: float, duration: float, k: int) -> dic
         client.close()
 
 
-def node_controller_run(domain: int, period: float, duration: float, tmp: Path) -> float:
-    """One scenario run with the steering_controller node in its own process: its real-time factor."""
+def node_controller_run(domain: int, period: float, duration: float, tmp: Path) -> dict[str, float]:
+    """One scenario run with the steering_controller node in its own process: its real-time factor
+    and the wall time of one period (sample to sample, p50 / p99), the first WARMUP periods not timed."""
     import yaml  # noqa: PLC0415
 
     from pcv_sim.rig.scenario import run_scenario, scenario_from_mapping  # noqa: PLC0415
@@ -114,20 +114,23 @@ def node_controller_run(domain: int, period: float, duration: float, tmp: Path) 
     if not result.passed or result.run is None or result.run.sample_walls is None:
         raise RuntimeError(result.summary())
     walls = result.run.sample_walls
-    global _last_walls
-    _last_walls = walls
-    return (len(walls) - 1 - WARMUP) * period / (walls[-1] - walls[WARMUP])
+    per = sorted(walls[WARMUP + 1:] - walls[WARMUP:-1])
+    return {"rtf": (len(walls) - 1 - WARMUP) * period / (walls[-1] - walls[WARMUP]),
+            "period_p50_us": per[len(per) // 2] * 1e6, "period_p99_us": per[int(len(per) * 0.99)] * 1e6}
 
 
-def node_controller(domain: int, repeats: int, duration: float) -> dict[str, dict[str, float]]:
+def node_controller(domain: int, repeats: int, duration: float) -> dict[str, dict[str, object]]:
     import tempfile  # noqa: PLC0415
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for period in (1e-2, 1e-3):
-            rtfs = [node_controller_run(domain, period, duration, Path(tmp)) for _ in range(repeats)]
-            out[f"{period * 1e3:g}ms"] = {"rtf_median": statistics.median(rtfs), "rtf_best": max(rtfs),
-                                          "rtf_all": rtfs}
+            runs = [node_controller_run(domain, period, duration, Path(tmp)) for _ in range(repeats)]
+            rtfs = [r["rtf"] for r in runs]
+            out[f"{period * 1e3:g}ms"] = {
+                "rtf_median": statistics.median(rtfs), "rtf_best": max(rtfs), "rtf_all": rtfs,
+                "period_p50_us": statistics.median(r["period_p50_us"] for r in runs),
+                "period_p99_us": statistics.median(r["period_p99_us"] for r in runs)}
     return out
 
 
@@ -214,12 +217,13 @@ def main() -> None:
                                                                     for k, v in parts.items()))    # type: ignore[union-attr]
     if args.only != "client":
         print("scenario runner hosting the rig node + the steering_controller node process:")
-        print(f"| control period | real-time factor (median of {args.repeats}) | best | all |")
-        print("|---|---|---|---|")
+        print(f"| control period | real-time factor (median of {args.repeats}) | best | all | one period p50 / p99 |")
+        print("|---|---|---|---|---|")
         for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
             r = out["controller_node"][key]                                                    # type: ignore[index]
             print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "
-                  + ", ".join(f"{x:.1f}x" for x in r["rtf_all"]) + " |")
+                  + ", ".join(f"{x:.1f}x" for x in r["rtf_all"])
+                  + f" | {r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")
 
 
 if __name__ == "__main__":
