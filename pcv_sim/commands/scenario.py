@@ -11,7 +11,8 @@ A ROS controller (`controller: {ros: ...}` in the file, or `--ros NAMESPACE` for
 the rig node runs here, over DDS. A controller the scenario starts (`command`) runs in a ROS
 domain of the runner's own (one per parallel worker: 215 .. 232, localhost only), so parallel
 scenarios never see each other; a node the user started is reached in $ROS_DOMAIN_ID, and the
-scenarios of a directory that use one in the same namespace run one after the other.
+scenarios of a directory that use such nodes run one after the other (one rig, one /clock, in
+that domain at a time); the example node starts afresh when the next one's time starts at 0.
 """
 
 from __future__ import annotations
@@ -115,10 +116,11 @@ def _group(items: list[tuple[Path, Path | None, Path | None]], ros: str | None, 
 
 def _groups(files: list[Path], ros: str | None, wait: float) -> list[list[int]]:
     """Indices of `files` to run together, one after the other: those with a ROS controller the
-    user started, by namespace; every other file alone."""
+    user started (they share $ROS_DOMAIN_ID, where one rig's /clock at a time is accepted, and a
+    node serves one rig at a time); every other file alone."""
     from pcv_sim.errors import PcvSimError  # noqa: PLC0415
 
-    shared: dict[str, list[int]] = {}
+    shared: list[int] = []
     alone: list[list[int]] = []
     for k, f in enumerate(files):
         try:
@@ -126,10 +128,10 @@ def _groups(files: list[Path], ros: str | None, wait: float) -> list[list[int]]:
         except PcvSimError:
             sc = None                      # reported by its run
         if sc is not None and sc.ros is not None and not sc.ros.command:
-            shared.setdefault(sc.ros.namespace, []).append(k)
+            shared.append(k)
         else:
             alone.append([k])
-    return sorted([*shared.values(), *alone])
+    return sorted([shared, *alone] if shared else alone)
 
 
 def _text(r: dict[str, Any]) -> str:

@@ -27,7 +27,8 @@ coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` m
 control period (1 ms in config/rig.yaml; a warning says so when the samples come at another
 rate). With `use_sim_time: true` the node's clock follows the rig's /clock (its log stamps);
 the controller's time is always the sample's stamp. A sample stamped before the last one answered
-(the rig started again, the next scenario) starts a fresh controller. Exit status as the rig:
+(the rig started again, the next scenario) starts a fresh controller (and forgets the setpoint
+unless one came with that sample). Exit status as the rig:
 0 after SIGINT/SIGTERM, 2 for invalid parameters.
 """
 
@@ -86,6 +87,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                 raise
             self.law = PositionController(**self.gains)
             self.setpoint: float | None = None
+            self._setpoint_fresh = False
             self.client = RigClient(None, VALVES, node=self, currents=True, history=False)
             sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
@@ -117,9 +119,11 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
 
         def _on_setpoint(self, msg: Any, _info: Any) -> None:
             self.setpoint = msg.data
+            self._setpoint_fresh = True        # received since the last answer
 
         def _control(self, t: float, measured: Mapping[str, float]) -> Any:
             m = dict(measured)
+            self._setpoint_fresh = False
             if self.setpoint is not None:
                 m["setpoint"] = self.setpoint
             last, self._last_t = self._last_t, t
@@ -136,6 +140,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                                    "controller")
             self.law = PositionController(**self.gains)
             self._last_t = None
+            if not self._setpoint_fresh:       # the new run sent none before its first sample: it has none
+                self.setpoint = None
             return self._control
 
         def _publish_flags(self, stamp_ns: int, flags: Mapping[str, float]) -> None:

@@ -104,3 +104,20 @@ def test_the_node_refuses_invalid_parameters_with_exit_2(ros):
     ctl = start_controller(ros, args=['-p', 'period:=0.0'])
     assert ctl.wait(60) == 2
     assert 'invalid parameters: period: got 0.0; accepted is a number > 0' in ctl.output()
+
+
+def test_a_directory_with_a_node_the_user_started_runs_its_scenarios_one_after_the_other(ros, tmp_path, capsys):
+    """Both scenarios use the one node (and the one /clock of the domain): not in parallel. The
+    second has no setpoint: the node, started afresh, must not hold the first one's 20 mm."""
+    ctl = start_controller(ros)
+    folder = tmp_path / 'scenarios'
+    folder.mkdir()
+    spec = {'ros': {'namespace': ros.ns('rig'), 'wait': 60}}
+    _scenario_file(folder, 'a_step', spec, duration=0.5)
+    data = {'name': 'b_hold', 'rig': str(REPO / 'config' / 'rig.yaml'), 'duration': 0.3, 'controller': spec,
+            'assertions': [{'type': 'never_above', 'signal': 'cylinder.position', 'max': 1e-3},
+                           {'type': 'never_below', 'signal': 'cylinder.position', 'min': -1e-3}]}
+    (folder / 'b_hold.yaml').write_text(yaml.safe_dump(data))
+    assert main(['scenario', 'run', str(folder), '--jobs', '2']) == 0, capsys.readouterr().out + ctl.output()
+    assert '2 scenarios: 2 passed' in capsys.readouterr().out
+    assert 'a fresh controller' in ctl.output()
