@@ -52,7 +52,16 @@ def test_the_controller_node_runs_scenarios_bit_for_bit_as_the_callable_under_lo
 
     # The coil opens at 0.5 s: the node's flag, taken from controller/flags by its stamp, lands at
     # the same instant as the callable's (20 ms of low current + one period).
-    short = {'duration': 0.7, 'timeline': [{'t': 0.5, 'fault': 'coil_open', 'target': 'left'}],
+    # Sensor faults on the way: samples the rig does not publish (dropout) are absent for the node
+    # as for the callable, a biased and a delayed one are what both see.
+    short = {'duration': 0.7, 'timeline': [
+        {'t': 0.1, 'fault': 'dropout', 'target': 'cylinder.position'},
+        {'t': 0.15, 'clear': 'dropout', 'target': 'cylinder.position'},
+        {'t': 0.2, 'fault': 'dropout', 'target': 'right.current'},
+        {'t': 0.2, 'fault': 'dropout', 'target': 'left.pressure'},
+        {'t': 0.3, 'fault': 'bias', 'target': 'cylinder.velocity', 'value': 0.01},
+        {'t': 0.35, 'fault': 'delay', 'target': 'right.pressure', 'delay': 0.003},
+        {'t': 0.5, 'fault': 'coil_open', 'target': 'left'}],
              'assertions': [{'type': 'flag_within', 'signal': 'controller.fault_detected', 'at': 0.5, 'within': 0.06}]}
     coil = run_rig_scenario(EXAMPLES / 'coil_open.yaml', ros_ctl, **short)
     assert coil.passed, coil.summary() + ctl.output()
