@@ -80,17 +80,25 @@ def backend() -> str:
     return f"numba {_NUMBA.__version__}" if _NUMBA is not None else "python"
 
 
-def jit(fn: F | None = None, *, inline: bool = False) -> Any:
+def jit(fn: F | None = None, *, inline: bool = False, nrt: bool = True) -> Any:
     """Compile `fn` with numba (nopython, cached, releasing the GIL) or return it unchanged.
 
     `@jit(inline=True)` for the physics the integrator loops call: numba then inlines the function
     into its caller, which saves the call's argument passing (a tuple of a dozen arrays and their
     reference counts per call: ~60 % of a step's cost otherwise) at the price of a longer first
     compilation (BENCHMARKS.md, Model).
+
+    `@jit(nrt=False)` compiles without numba's runtime: arrays are borrowed from the caller and
+    views of them (a composite hands each system slices of its arrays) carry no reference counts.
+    With the runtime every slice costs an atomic increment and decrement: for two valves and a
+    cylinder ~75 % of a step (2.1 -> 0.55 us, bit for bit the same numbers; BENCHMARKS.md,
+    Model). Such a function cannot allocate an array (numba refuses to compile it, so the mistake
+    cannot pass unseen); the generated composite code (`pcv_sim.simulation.compile`) never does.
     """
     if fn is None:
-        return lambda f: jit(f, inline=inline)
+        return lambda f: jit(f, inline=inline, nrt=nrt)
     if _NUMBA is None:
         return fn
+    options: dict[str, Any] = {} if nrt else {"_nrt": False}   # numba's flag for it (no public name)
     return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
-                       inline="always" if inline else "never")(fn)
+                       inline="always" if inline else "never", **options)(fn)

@@ -105,8 +105,10 @@ def _one_of(*choices: str) -> Check:
     return check
 
 
-def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float") -> Any:
-    return field(metadata={"unit": unit, "source": source, "check": check, "kind": kind})
+def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float", default: Any = dataclasses.MISSING) -> Any:
+    """A valve YAML key. Required, unless it has a `default` (keys added after files were written:
+    an older YAML without them still loads, with the default)."""
+    return field(default=default, metadata={"unit": unit, "source": source, "check": check, "kind": kind})
 
 
 def setting(default: Any, unit: str, description: str, check: Check = _any_finite, kind: str = "float", *,
@@ -194,6 +196,9 @@ class FluidParams:
     density: float = _param("kg/m^3", "T1 rho", _range(500.0, 2000.0))
     bulk_modulus: float = _param("Pa", "T1 beta", _range(1e8, 5e9))
     kinematic_viscosity: float = _param("m^2/s", "T1 nu", _range(1e-7, 1e-2))
+    # Not in the paper (its valve never sees it): the gauge pressure at which the oil cavitates
+    # (gas release), the floor of the load pressure (reading R32). Optional, for older files.
+    cavitation_pressure: float = _param("Pa", "R32", _range(-1.0e5, -1.0e4), default=-0.9e5)
 
 
 @dataclass(frozen=True)
@@ -430,12 +435,11 @@ def params_from_mapping(data: Any, *, origin: str | None = "parameters", prefix:
         raw = data[name]
         if not isinstance(raw, Mapping):
             raise ParameterError(f"{origin}: section {name!r} must be a mapping of key: value")
-        names = [f.name for f in dataclasses.fields(cls)]
         try:
             values = {str(k): validate_section_value(name, str(k), v, prefix=prefix) for k, v in raw.items()}
         except ParameterError as err:  # unknown keys first: a misspelt key is not reported as missing
             raise where(err) from None
-        absent = [k for k in names if k not in raw]
+        absent = [f.name for f in dataclasses.fields(cls) if f.name not in raw and f.default is dataclasses.MISSING]
         if absent:
             raise where(ParameterError(f"missing parameter(s) {', '.join(f'{prefix}{name}.{k}' for k in absent)}"))
         sections[name] = cls(**values)

@@ -60,7 +60,8 @@ PUMP_JET_CAP, TANK_JET_CAP, G_CLOSED, GAMMA_CLOSED, COS_CLOSED, A_CLOSED = 31, 3
 #   STUCK           1 = the spool is held where it is (seized)
 #   LEAK            internal leakage load -> tank, laminar conductance (m^3/(s Pa))
 VOLTAGE_FACTOR, AREA_FACTOR, SPOOL_FRICTION, SPOOL_FRICTION_V, STUCK, LEAK = 37, 38, 39, 40, 41, 42
-N_PARAMS = 43
+P_CAVITATION = 43           # Pa gauge: the load pressure's floor (reading R32)
+N_PARAMS = 44
 
 # --- the tables f ---------------------------------------------------------------------------
 T_F1, T_F2, T_F3, T_PD, T_FORCE, T_GAP, T_HOLE, T_HOLE_EXP, T_TANK, T_TANK_EXP, T_PUMP_JET, T_TANK_JET = range(12)
@@ -107,6 +108,7 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
     p[A_CLOSED] = orf.tank_area(0.0, o.hole_radius, o.hole_count, o.gap_height, o.tank_pilot_hole_radius,
                                 o.tank_hole_offset)
     p[VOLTAGE_FACTOR], p[AREA_FACTOR], p[SPOOL_FRICTION_V] = 1.0, 1.0, 1e-3
+    p[P_CAVITATION] = params.fluid.cavitation_pressure
     return p, f
 
 
@@ -226,6 +228,10 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
     else:
         force += p[A_CC] * pl - p[DAMPING] * v                                            # Eq. 14, p_c = p
         dx[3] = c_load * (q_p - q_t - q_l + p[A_NET] * v)                                 # Eq. 15
+    # Cavitation (R32): at the floor the oil releases gas instead of falling further in pressure
+    # (a load that draws more than the valve feeds: a piston pulled on by its inertia).
+    if pl <= p[P_CAVITATION] and dx[3] < 0.0:
+        dx[3] = 0.0
     # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop. A stuck spool
     # (fault) is held anywhere; the rig zeroes its velocity when the fault is set.
     if p[STUCK] != 0.0:
@@ -264,5 +270,8 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
 
 @jit(inline=True)
 def project(x, p):  # noqa: ANN001, ANN201
-    """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2)."""
+    """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
+    not below the cavitation floor (R32)."""
     stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
+    if x[3] < p[P_CAVITATION]:
+        x[3] = p[P_CAVITATION]

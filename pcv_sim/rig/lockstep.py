@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from collections.abc import Mapping
+from typing import Any, Callable
 
 import numpy as np
 
@@ -90,9 +91,8 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     sensors = rig.sensors
     wall0 = time.perf_counter()
     for k in range(n + 1):
-        rig.advance_to(k0 + k * per)
+        y = rig.advance_sample(k0 + k * per)
         t = rig.time
-        y = rig.sample()
         true[k] = y
         m = sensors.measure(t, y)
         meas[k] = m

@@ -4,7 +4,9 @@ fixed-step integrator loops, generated as Python source and compiled with `pcv_s
 The generated module calls each system's own kernel functions (one source of the physics) with
 views of the composite's arrays, routes connections through an input buffer, and holds every
 fixed-step integrator as a loop over `n` steps, so that a whole batch of 0.1 ms steps runs in
-machine code. The source is written to the kernel cache (`pcv_sim.jit.cache_root()`), keyed by a
+machine code. The generated functions are compiled without numba's runtime (`jit(nrt=False)`):
+no reference counting of the views, which would cost more than the physics of a step; such
+code cannot allocate (numba refuses to compile it), and none does. The source is written to the kernel cache (`pcv_sim.jit.cache_root()`), keyed by a
 digest of its text, so numba's disk cache serves the next process; with numba disabled the same
 module runs as plain Python.
 
@@ -44,7 +46,7 @@ ORDERS = {"euler": 1, "rk2": 2, "rk4": 4, "erk2": 2}
 
 _LOOPS = '''
 
-@jit
+@jit(nrt=False)
 def advance_euler(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
     for j in range(n):
         derivs((k0 + j) * h, x, u, P, F, W, Y, U, s1)
@@ -53,7 +55,7 @@ def advance_euler(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
         project(x, P)
 
 
-@jit
+@jit(nrt=False)
 def advance_rk2(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
     hh = 0.5 * h
     for j in range(n):
@@ -67,7 +69,7 @@ def advance_rk2(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
         project(x, P)
 
 
-@jit
+@jit(nrt=False)
 def advance_rk4(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
     hh = 0.5 * h
     h6 = h / 6.0
@@ -88,7 +90,7 @@ def advance_rk4(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
         project(x, P)
 
 
-@jit
+@jit(nrt=False)
 def advance_erk2(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B):
     # E = exp(-lam h), A = h phi1(lam h), B = h phi2(lam h); N = dx/dt + lam x (the nonlinear rest).
     for j in range(n):
@@ -123,9 +125,29 @@ def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
 '''
 
 
+_SAMPLE = '''
+
+@jit(nrt=False)
+def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out):
+    # n steps, then the outputs at the step reached (inputs in force from there on): out[i] =
+    # Y[select[i]]. One call where advance + outputs would be two: a call from Python costs ~3 us
+    # of argument unboxing (F alone is 25 arrays for two valves), more than a step of the rig.
+    if n > 0:
+        advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
+    outputs((k0 + n) * h, x, u, P, F, W, Y, U)
+    for i in range(len(select)):
+        out[i] = Y[select[i]]
+    # Returns sum(x^2): not finite iff the state ran away (the caller's check, without another call).
+    acc = 0.0
+    for i in range(NX):
+        acc += x[i] * x[i]
+    return acc
+'''
+
+
 _RUN = '''
 
-@jit
+@jit(nrt=False)
 def run_{name}(k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, change_steps, change_values,
                sample_steps, out):
     # Inputs change_values[c] act from step change_steps[c] on; at each of sample_steps (sorted)
@@ -204,17 +226,18 @@ def generate_source(plant: Composite) -> str:
         wiring = []                         # the system reads the external inputs directly
     state_outputs = [f"    so_{k}(t, {view('x', xs, k)}, {view('P', ps, k)}, F[{k}], {view('Y', ys, k)})"
                      for k in range(len(plant.systems))]
-    body = ["", "", "@jit", "def derivs(t, x, u, P, F, W, Y, U, dx):",
+    body = ["", "", "@jit(nrt=False)", "def derivs(t, x, u, P, F, W, Y, U, dx):",
             "    # state outputs first (no feedthrough), then every input, then the right-hand sides"]
     body += state_outputs + wiring
     body += [f"    rhs_{k}(t, {view('x', xs, k)}, {view('U', us, k)}, {view('P', ps, k)}, F[{k}], "
              f"{view('W', ws, k)}, {view('dx', xs, k)})" for k in range(len(plant.systems))]
-    body += ["", "", "@jit", "def outputs(t, x, u, P, F, W, Y, U):"] + state_outputs + wiring
+    body += ["", "", "@jit(nrt=False)", "def outputs(t, x, u, P, F, W, Y, U):"] + state_outputs + wiring
     body += [f"    out_{k}(t, {view('x', xs, k)}, {view('U', us, k)}, {view('P', ps, k)}, F[{k}], "
              f"{view('W', ws, k)}, {view('Y', ys, k)})" for k in range(len(plant.systems))]
-    body += ["", "", "@jit", "def project(x, P):"]
+    body += ["", "", "@jit(nrt=False)", "def project(x, P):"]
     body += [f"    proj_{k}({view('x', xs, k)}, {view('P', ps, k)})" for k in range(len(plant.systems))]
-    return "\n".join(lines + body) + _LOOPS + "".join(_RUN.format(name=n) for n in INTEGRATORS)
+    return "\n".join(lines + body) + _LOOPS + "".join(_RUN.format(name=n) + _SAMPLE.format(name=n)
+                                                     for n in INTEGRATORS)
 
 
 _LOADED: dict[str, ModuleType] = {}

@@ -33,6 +33,7 @@ class Simulator:
         self._module = module
         self._advance = getattr(module, f"advance_{integrator}")
         self._run = getattr(module, f"run_{integrator}")
+        self._advance_sample = getattr(module, f"advance_sample_{integrator}")
         self._outputs = module.outputs
         self._derivs = module.derivs
         self._project = module.project
@@ -77,6 +78,18 @@ class Simulator:
         self._advance(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
                       s1, s2, s3, s4, xt, e, a, b)
         self.steps += n
+
+    def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray) -> float:
+        """`advance(n)` then `outputs()[select]` into `out`, in one compiled call: what a loop that
+        samples every few steps (the rig's lockstep) runs. Returns the sum of the squared states:
+        not finite if and only if the state ran away."""
+        s1, s2, s3, s4, xt = self._scratch
+        e, a, b = self._weights
+        n = max(int(n), 0)
+        norm = self._advance_sample(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
+                                    s1, s2, s3, s4, xt, e, a, b, select, out)
+        self.steps += n
+        return norm
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
         """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:

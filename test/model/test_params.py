@@ -150,6 +150,8 @@ def test_replace_param_returns_a_validated_copy() -> None:
         (set_key("circuit", "supply_pressure", 2000.0e5), r"circuit\.supply_pressure: got 200000000\.0; accepted is a plausible value 100000 \.\. 4e\+07 \(Pa\)"),
         (set_key("circuit", "tank_pressure", -1.0), r"circuit\.tank_pressure: got -1\.0; accepted is a plausible value 0 \.\. 1e\+06 \(Pa\)"),
         (set_key("fluid", "density", math.nan), r"fluid\.density: got nan; accepted is a finite number"),
+        (set_key("fluid", "cavitation_pressure", -0.9), r"fluid\.cavitation_pressure: got -0\.9; accepted is a plausible value -100000 \.\. -10000 \(Pa\)"),
+        (set_key("fluid", "cavitation_pressure", -2.0e5), r"fluid\.cavitation_pressure: got -200000\.0; accepted is a plausible value -100000 \.\. -10000"),
         (set_key("fluid", "density", math.inf), r"fluid\.density: got inf; accepted is a finite number"),
         (set_key("spool", "chamber_area", 6.36e-5), r"spool\.chamber_area=6\.36e-05 >= spool\.pressure_area"),
         (set_key("spool", "chamber_area", 7e-5), r"spool\.chamber_area=7e-05 >= spool\.pressure_area"),
@@ -274,4 +276,14 @@ def test_a_duplicate_key_is_refused_with_its_name_and_line(tmp_path: Path) -> No
     path = tmp_path / "valve.yaml"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     with pytest.raises(ParameterError, match=rf"valve\.yaml: duplicate key 'mass' at line {at + 2} \(first at line {at + 1}\)"):
+        load_params(path)
+
+
+def test_a_key_added_later_is_optional_with_its_default(tmp_path: Path, default_mapping: dict) -> None:
+    """fluid.cavitation_pressure came after valve YAMLs were written: a file without it loads with
+    the default; the keys of the paper stay required."""
+    path = write_modified(tmp_path, default_mapping, lambda d: d["fluid"].pop("cavitation_pressure"))
+    assert load_params(path).fluid.cavitation_pressure == -0.9e5
+    path = write_modified(tmp_path, default_mapping, lambda d: d["fluid"].pop("density"))
+    with pytest.raises(ParameterError, match=r"missing parameter\(s\) fluid\.density"):
         load_params(path)

@@ -154,3 +154,49 @@ def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_
         st.advance(10)
     assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
     assert run.signal("pilot.pressure")[-1] > 110 * BAR
+
+
+def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
+    """The lockstep's fused call (steps and sampling in one compiled call) against the plain path,
+    bit for bit, with inputs scheduled on, between and just after sample instants, and the
+    watchdog firing on one (those fall back to the plain path)."""
+    per = rig.params.steps_per_period
+    wd = int(round(rig.params.timing.watchdog_timeout / rig.dt))
+
+    def schedule_inputs() -> None:
+        rig.schedule(3 * per * rig.dt, lambda: rig.set_duty("left", 0.8))        # on a sample instant
+        rig.schedule((5 * per + 3) * rig.dt, lambda: rig.set_duty("right", 0.4))  # between two
+        rig.schedule((7 * per + 1) * rig.dt, lambda: rig.set_external_force(300.0))
+
+    periods = (wd + 6 * per) // per + 3          # past the watchdog (no command after 0.8 / 0.4)
+    schedule_inputs()
+    fused = [rig.advance_sample(k * per) for k in range(periods)]
+    fused_log = list(rig.log)
+    rig.reset()
+    schedule_inputs()
+    plain = []
+    for k in range(periods):
+        rig.advance_to(k * per)
+        plain.append(rig.sample())
+    assert np.array_equal(np.array(fused), np.array(plain))
+    assert fused_log == rig.log and any("watchdog fired" in text for _, text in rig.log)
+    assert fused[-1][0] != fused[2][0]          # the inputs did act
+
+
+def test_a_chamber_pulled_on_by_the_piston_cavitates_at_the_floor_and_recovers(rig):
+    """Watchdog to duty 0 while the piston moves: the expanding chamber's valve relieves to tank
+    and cannot feed it; the pressure stops at the oil's cavitation pressure (R32; it went to
+    -54 bar without the floor) and rises again once the valves are commanded."""
+    floor = rig.params.valves[1].params.fluid.cavitation_pressure
+    t_wd = rig.params.timing.watchdog_timeout
+
+    def ctrl(t, m):
+        if t < 0.2:
+            return {"left": 0.9, "right": 0.3}
+        return {"left": 0.6, "right": 0.6} if t >= t_wd + 0.6 else {}
+
+    run = run_lockstep(rig, ctrl, t_wd + 0.9)
+    right = run.signal("right.pressure")
+    assert right.min() == floor                                   # reached, never passed
+    assert np.all(run.signal("left.pressure") >= floor)
+    assert right[-1] > 10 * BAR                                   # back under control
