@@ -7,8 +7,8 @@ PI position controller (examples/steering.py) called every control period on tha
 samples, a 20 mm setpoint step: the real-time factor (simulated s per wall s) at a 1 ms and a
 10 ms control period, the median of the repeats. Also the parts of one 1 ms period: the 10
 compiled steps alone (the floor: the rig with no controller), sampling the outputs, both in the
-one compiled call the lockstep makes (`Rig.advance_sample`), the controller call. The machine's load average is printed with the figures: on a shared machine it
-changes them.
+one compiled call the lockstep makes (`Rig.advance_sample`), the controller call. The machine's
+load average is printed with the figures: on a shared machine it changes them.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def main() -> None:
         rig.sample()
     sample_us = (time.perf_counter() - t0) / n * 1e6
     t0 = time.perf_counter()
-    for k in range(n):
+    for _k in range(n):
         rig.advance_sample(sim.steps + 10)
     fused_us = (time.perf_counter() - t0) / n * 1e6
     ctrl = PositionController()

@@ -6,7 +6,8 @@ views of the composite's arrays, routes connections through an input buffer, and
 fixed-step integrator as a loop over `n` steps, so that a whole batch of 0.1 ms steps runs in
 machine code. The generated functions are compiled without numba's runtime (`jit(nrt=False)`):
 no reference counting of the views, which would cost more than the physics of a step; such
-code cannot allocate (numba refuses to compile it), and none does. The source is written to the kernel cache (`pcv_sim.jit.cache_root()`), keyed by a
+code cannot allocate (numba refuses to compile it), and none does. The source is written to the
+kernel cache (`pcv_sim.jit.cache_root()`), keyed by a
 digest of its text, so numba's disk cache serves the next process; with numba disabled the same
 module runs as plain Python.
 
