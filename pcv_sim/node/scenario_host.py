@@ -51,8 +51,8 @@ _SETTLE = 0.1               # s after the matching, before the first sample
 _PROC_CHECK = 0.2           # s between checks that a started command still runs
 
 
-class ControllerAbsent(Exception):
-    """The controller did not appear or stopped answering; the message says which."""
+class ScenarioAborted(Exception):
+    """The run could not start or go on (no controller, its command exited, another rig); the message says why."""
 
 
 class _Host:
@@ -187,7 +187,7 @@ def _start(scenario: Scenario, domain: int | None, log_path: Path) -> subprocess
             return subprocess.Popen(spec.argv(sys.executable), cwd=cwd, env=env, stdout=log,
                                     stderr=subprocess.STDOUT, start_new_session=True)
         except OSError as err:
-            raise ControllerAbsent(f"cannot start the controller command {spec.argv(sys.executable)}: {err}") from None
+            raise ScenarioAborted(f"cannot start the controller command {spec.argv(sys.executable)}: {err}") from None
 
 
 def _stop(proc: subprocess.Popen[bytes] | None) -> None:
@@ -204,7 +204,7 @@ def _stop(proc: subprocess.Popen[bytes] | None) -> None:
 def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any, flags_sub: Any) -> None:
     """Until the controller's endpoints are matched with the rig's: a publisher on every
     duty_cycle and a subscriber of joint_states (required, within `spec.wait` s, else
-    ControllerAbsent), then, given _OPTIONAL_MATCH s more, a setpoint subscriber and a flags
+    ScenarioAborted), then, given _OPTIONAL_MATCH s more, a setpoint subscriber and a flags
     publisher (a controller of the user's may have neither), then _SETTLE s: matched on this side,
     the controller's side matches within milliseconds (a first sample it missed would cost the
     rig's 0.5 s re-publication)."""
@@ -219,7 +219,7 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
     while True:
         now = time.monotonic()
         if proc is not None and proc.poll() is not None:
-            raise ControllerAbsent(f"the controller command exited with {proc.returncode} before answering")
+            raise ScenarioAborted(f"the controller command exited with {proc.returncode} before answering")
         missing = [f"a publisher on {t}" for t, sub in duty if sub.get_publisher_count() == 0]
         if joint.get_subscription_count() == 0:
             missing.append(f"a subscriber of {joint.topic_name}")
@@ -231,7 +231,7 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
         if now > end:
             where = f"namespace {spec.namespace or '/'}, ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}" \
                 if proc is None else f"namespace {spec.namespace or '/'}"
-            raise ControllerAbsent(f"no ROS controller answered within {spec.wait:g} s ({where}): missing "
+            raise ScenarioAborted(f"no ROS controller answered within {spec.wait:g} s ({where}): missing "
                                    f"{', '.join(missing)}")
         time.sleep(0.01)
 
@@ -268,7 +268,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
             proc = _start(scenario, domain, log_path)        # first: its start-up overlaps the rig's
         node = RigNode(argv=["rig"], context=context, namespace=spec.namespace or "/", parameter_overrides=overrides)
         if node.rig.params != scenario.rig:
-            raise ControllerAbsent("the rig node's rig differs from the scenario's (rig_config)")
+            raise ScenarioAborted("the rig node's rig differs from the scenario's (rig_config)")
         host = _Host(node, scenario, spec, proc, log_path)
         flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
         schedule_timeline(node.rig, scenario)
@@ -278,7 +278,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         node.run(host)
         if host.failure is None and node.failure is None and host.flags:
             _take_last_flags(node, host)
-    except ControllerAbsent as err:
+    except ScenarioAborted as err:
         wall = time.perf_counter() - wall0
         return ScenarioResult(scenario.name, path, False, [], math.nan, wall, f"{err}{_log_tail(log_path)}")
     except PcvSimError as err:        # e.g. a second /clock in the domain (ParameterError)
