@@ -155,3 +155,16 @@ def test_controller_module_beside_the_file_and_import_errors(tmp_path, capsys):
     (tmp_path / "noattr.yaml").write_text(yaml.safe_dump({**data, "controller": "mine:nothing"}))
     assert main(["scenario", "run", str(tmp_path / "noattr.yaml")]) == 2
     assert "mine has no callable 'nothing'" in capsys.readouterr().err
+
+
+def test_every_example_scenario_loads():
+    from pcv_sim.rig.scenario import load_scenario
+
+    files = sorted(EXAMPLES.rglob("*.yaml"))
+    assert EXAMPLES / "ros" / "step.yaml" in files
+    for f in files:
+        sc = load_scenario(f)
+        assert (sc.ros is not None) == (f.parent.name == "ros"), f
+    ros = load_scenario(EXAMPLES / "ros" / "step.yaml").ros
+    assert ros.namespace == "/steering" and ros.argv("py")[:3] == ["py", "-m", "pcv_sim.node.steering_controller"]
+    assert "__ns:=/steering" in ros.argv("py")
