@@ -50,6 +50,7 @@ setup(
             'emulator = pcv_sim.node.emulator:main',
             'demo = pcv_sim.node.demo:main',
             'rig = pcv_sim.node.rig:main',
+            'steering_controller = pcv_sim.node.steering_controller:main',
         ],
     },
 )

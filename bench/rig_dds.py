@@ -12,6 +12,13 @@ repeats, the first 50 periods not timed), and the wall time of one period at the
 work in one 1 ms period, timed in this process without a DDS partner (the rest of a period is
 DDS delivery, the two processes' polling and the controller's side). The machine's load
 average is printed with the figures: on a shared machine it changes them.
+
+Then the same with the example controller NODE (`ros2 run pcv_sim steering_controller`, its own
+process: `python -m pcv_sim.node.steering_controller`) as a scenario runs it: the scenario runner
+(`pcv_sim.node.scenario_host`) hosts the rig node in this process, publishes the setpoint every
+period and takes the node's flags (controller/flags); the real-time factor of the scenario's run
+(its `RigRun`, from the first sample to the last, start-up not counted), median of the repeats.
+`--only node` runs this part alone.
 """
 
 from __future__ import annotations
@@ -85,6 +92,50 @@ def one_run(context, domain: int, period: float, duration: float, k: int, record
         client.close()
 
 
+def node_controller_run(domain: int, period: float, duration: float, tmp: Path) -> dict[str, float]:
+    """One scenario run with the steering_controller node in its own process: its real-time factor
+    and the wall time of one period (sample to sample, p50 / p99), the first WARMUP periods not timed."""
+    import yaml  # noqa: PLC0415
+
+    from pcv_sim.rig.scenario import run_scenario, scenario_from_mapping  # noqa: PLC0415
+
+    rig = yaml.safe_load((REPO / "config" / "rig.yaml").read_text())
+    rig["rig"]["control_period"] = period
+    for v in rig["valves"].values():
+        v["config"] = str(REPO / "config" / v["config"])
+    rig_file = tmp / f"rig_{period:g}.yaml"
+    rig_file.write_text(yaml.safe_dump(rig))
+    cmd = ["{python}", "-m", "pcv_sim.node.steering_controller", "--ros-args", "-r", "__ns:={namespace}",
+           "-p", f"period:={period!r}"]
+    sc = scenario_from_mapping({
+        "name": f"bench_{period:g}", "rig": str(rig_file), "duration": duration,
+        "controller": {"ros": {"namespace": "/bench", "command": cmd, "wait": 60}},
+        "setpoint": [{"t": 0.0, "value": 0.0}, {"t": 0.1, "value": 0.02}],
+        "assertions": [{"type": "never_above", "signal": "controller.fault_detected", "max": 0.0}]}, path=tmp / "x.yaml")
+    result = run_scenario(sc, domain=domain)
+    if not result.passed or result.run is None or result.run.sample_walls is None:
+        raise RuntimeError(result.summary())
+    walls = result.run.sample_walls
+    per = sorted(walls[WARMUP + 1:] - walls[WARMUP:-1])
+    return {"rtf": (len(walls) - 1 - WARMUP) * period / (walls[-1] - walls[WARMUP]),
+            "period_p50_us": per[len(per) // 2] * 1e6, "period_p99_us": per[int(len(per) * 0.99)] * 1e6}
+
+
+def node_controller(domain: int, repeats: int, duration: float) -> dict[str, dict[str, object]]:
+    import tempfile  # noqa: PLC0415
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for period in (1e-2, 1e-3):
+            runs = [node_controller_run(domain, period, duration, Path(tmp)) for _ in range(repeats)]
+            rtfs = [r["rtf"] for r in runs]
+            out[f"{period * 1e3:g}ms"] = {
+                "rtf_median": statistics.median(rtfs), "rtf_best": max(rtfs), "rtf_all": rtfs,
+                "period_p50_us": statistics.median(r["period_p50_us"] for r in runs),
+                "period_p99_us": statistics.median(r["period_p99_us"] for r in runs)}
+    return out
+
+
 def node_parts(context, n: int = 2000) -> dict[str, float]:
     """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
     from rclpy.parameter import Parameter  # noqa: PLC0415
@@ -116,6 +167,8 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--record", metavar="DIR", default="",
                     help="the rig node records a bag into DIR (record.enabled): the cost of recording")
+    ap.add_argument("--only", choices=("client", "node"), default=None,
+                    help="client: the controller in this process only; node: the controller node only")
     args = ap.parse_args()
 
     import rclpy  # noqa: PLC0415
@@ -132,7 +185,7 @@ def main() -> None:
                               "load_before": os.getloadavg()[0], "record": bool(args.record)}
     try:
         k = 0
-        for period in (1e-2, 1e-3):
+        for period in (1e-2, 1e-3) if args.only != "node" else ():
             runs = []
             for _ in range(args.repeats):
                 runs.append(one_run(context, domain, period, args.duration, k, args.record))
@@ -142,9 +195,12 @@ def main() -> None:
                 "rtf_median": statistics.median(r["rtf"] for r in runs), "rtf_best": best["rtf"],
                 "period_p50_us": statistics.median(r["period_p50_us"] for r in runs),
                 "period_p99_us": statistics.median(r["period_p99_us"] for r in runs)}
-        out["node_parts_us"] = node_parts(context)
+        if args.only != "node":
+            out["node_parts_us"] = node_parts(context)
     finally:
         rclpy.try_shutdown(context=context)
+    if args.only != "client":
+        out["controller_node"] = node_controller(domain, args.repeats, args.duration)
     out["load_after"] = os.getloadavg()[0]
     if args.json:
         json.dump(out, sys.stdout, indent=2)
@@ -152,15 +208,26 @@ def main() -> None:
         return
     print(f"backend {out['backend']}, Python {out['python']}, {out['cpus']} CPUs, load average "
           f"{out['load_before']:.1f} -> {out['load_after']:.1f}{', recording' if args.record else ''}")
-    print(f"| control period | real-time factor (median of {args.repeats}) | best | one period p50 / p99 |")
-    print("|---|---|---|---|")
-    for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
-        r = out[key]
-        print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "            # type: ignore[index]
-              f"{r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")                # type: ignore[index]
-    parts = out["node_parts_us"]
-    print("the rig node's own work in a 1 ms period: " + ", ".join(f"{k} {v:.1f} µs"              # type: ignore[union-attr]
-                                                                for k, v in parts.items()))        # type: ignore[union-attr]
+    if args.only != "node":
+        print("rig node process + RigClient controller in this process:")
+        print(f"| control period | real-time factor (median of {args.repeats}) | best | one period p50 / p99 |")
+        print("|---|---|---|---|")
+        for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
+            r = out[key]
+            print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "            # type: ignore[index]
+                  f"{r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")                # type: ignore[index]
+        parts = out["node_parts_us"]
+        print("the rig node's own work in a 1 ms period: " + ", ".join(f"{k} {v:.1f} µs"          # type: ignore[union-attr]
+                                                                    for k, v in parts.items()))    # type: ignore[union-attr]
+    if args.only != "client":
+        print("scenario runner hosting the rig node + the steering_controller node process:")
+        print(f"| control period | real-time factor (median of {args.repeats}) | best | all | one period p50 / p99 |")
+        print("|---|---|---|---|---|")
+        for label, key in (("10 ms (100 Hz)", "10ms"), ("1 ms (1 kHz)", "1ms")):
+            r = out["controller_node"][key]                                                    # type: ignore[index]
+            print(f"| {label} | {r['rtf_median']:.1f}x | {r['rtf_best']:.1f}x | "
+                  + ", ".join(f"{x:.1f}x" for x in r["rtf_all"])
+                  + f" | {r['period_p50_us']:.0f} / {r['period_p99_us']:.0f} µs |")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@
 
 `rig_scenario(path_or_mapping, controller=None, **overrides)` loads the scenario (a YAML file,
 or a mapping as the file would hold; `overrides` replace top-level keys, e.g. duration=0.5),
-runs it in lockstep with `controller` (default: the one the scenario names) and returns a
+runs it in lockstep with `controller` (default: the one the scenario names; a mapping
+`{"ros": {"namespace": "/rig", "wait": 20}}` runs it with a ROS controller node, as the file's
+`controller: {ros: ...}` would) and returns a
 `ScenarioResult` (`passed`, `outcomes`, `run` with every sample). The compiled rig is shared by
 the tests of a session and reset before each run.
 """
@@ -33,9 +35,12 @@ __all__ = ["rig_scenario", "run_rig_scenario"]
 _RIGS: dict[int, Rig] = {}
 
 
-def run_rig_scenario(scenario: str | Path | Mapping[str, Any], controller: Controller | None = None,
-                     **overrides: Any) -> ScenarioResult:
+def run_rig_scenario(scenario: str | Path | Mapping[str, Any],
+                     controller: Controller | Mapping[str, Any] | None = None, **overrides: Any) -> ScenarioResult:
     """Load (with `overrides`), run and check one scenario; see the module docstring."""
+    if isinstance(controller, Mapping):          # {ros: {...}}: the file's controller key replaced
+        overrides["controller"] = controller
+        controller = None
     if isinstance(scenario, Mapping):
         data, path = dict(scenario), None
     else:
@@ -48,6 +53,8 @@ def run_rig_scenario(scenario: str | Path | Mapping[str, Any], controller: Contr
     if data is not None:
         data.update(overrides)
         sc = scenario_from_mapping(data, path=path)
+    if controller is None and sc.ros is not None:
+        return run_scenario(sc)                  # over DDS: the rig node builds its own rig
     key = hash((sc.rig, sc.seed))
     rig = _RIGS.get(key)
     if rig is None:

@@ -11,7 +11,7 @@ PACKAGE = 'pcv_sim'
 
 ROS_MODULES = {'rclpy', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'rosgraph_msgs',
                'std_srvs'}
-EXECUTABLES = ('emulator', 'pcv-sim', 'demo', 'rig')
+EXECUTABLES = ('emulator', 'pcv-sim', 'demo', 'rig', 'steering_controller')
 
 
 # --- (a) package.xml matches setup.py -------------------------------------------------

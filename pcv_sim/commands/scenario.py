@@ -2,14 +2,23 @@
 
 A scenario (`pcv_sim.rig.scenario`) names a rig, a timeline of setpoints, duties, external force
 and faults, a controller (`module:callable`) and assertions. The run is deterministic and as fast
-as the machine allows. Exit status: 0 every assertion held, 1 one failed (or the model ran away),
-2 a bad file (the message names the key). A directory runs each *.yaml in it in parallel
-processes and prints one summary; --bag and --report then name directories (one entry per scenario).
+as the machine allows. Exit status: 0 every assertion held, 1 one failed (or the model ran away,
+or a ROS controller did not answer within its `wait`, or its command exited), 2 a bad file (the
+message names the key). A directory runs each *.yaml in it in parallel processes and prints one
+summary; --bag and --report then name directories (one entry per scenario).
+
+A ROS controller (`controller: {ros: ...}` in the file, or `--ros NAMESPACE` for any scenario):
+the rig node runs here, over DDS. A controller the scenario starts (`command`) runs in a ROS
+domain of the runner's own (one per parallel worker: 215 .. 232, localhost only), so parallel
+scenarios never see each other; a node the user started is reached in $ROS_DOMAIN_ID, and the
+scenarios of a directory that use such nodes run one after the other (one rig, one /clock, in
+that domain at a time); the example node starts afresh when the next one's time starts at 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -32,17 +41,59 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     run.add_argument("--bag", type=Path, metavar="BAG_DIR", help="write the run as a rosbag2/MCAP bag (a directory for DIR)")
     run.add_argument("--jobs", type=int, default=0, metavar="N",
                      help="parallel processes for a directory (default: the number of CPUs)")
+    run.add_argument("--ros", metavar="NAMESPACE", default=None,
+                     help="run with the ROS 2 controller node you started in NAMESPACE ('/' for the root; "
+                          "$ROS_DOMAIN_ID) instead of the file's controller")
+    run.add_argument("--wait", type=float, default=30.0, metavar="S",
+                     help="with --ros: s to wait for the node to answer (default 30)")
 
 
-def _one(path: Path, bag: Path | None, report: Path | None) -> dict[str, Any]:
-    """Load, run, record one scenario; a dict (picklable) with `status` 0/1/2."""
+DOMAINS = range(215, 233)   # ROS domains for controllers the runner starts: above the ephemeral ports' range
+_worker_domain: int | None = None
+
+
+def private_domain(slot: int) -> int:
+    return DOMAINS[slot % len(DOMAINS)]
+
+
+def _init_worker(counter: Any, base: int) -> None:
+    """Each worker process of a directory run takes a ROS domain of its own."""
+    global _worker_domain
+    with counter.get_lock():
+        slot = counter.value
+        counter.value += 1
+    _worker_domain = private_domain(base + slot)
+
+
+def _load(path: Path, ros: str | None, wait: float) -> Any:
+    """The scenario, its controller replaced by the ROS node in `ros` when given."""
+    import dataclasses  # noqa: PLC0415
+
+    from pcv_sim.rig.scenario import RosController, load_scenario, ros_controller  # noqa: PLC0415
+
+    scenario = load_scenario(path)
+    if ros is not None:
+        spec: RosController = ros_controller({"ros": {"namespace": ros, "wait": wait}})
+        scenario = dataclasses.replace(scenario, controller=None, controller_params=None, ros=spec)
+    return scenario
+
+
+def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = None, wait: float = 30.0,
+         domain: int | None = None) -> dict[str, Any]:
+    """Load, run, record one scenario; a dict (picklable) with `status` 0/1/2. A controller the
+    scenario starts runs in ROS domain `domain` (None: this worker's, or one from the pid)."""
     from pcv_sim.errors import PcvSimError  # noqa: PLC0415
     from pcv_sim.rig.record import render_html, write_bag  # noqa: PLC0415
-    from pcv_sim.rig.scenario import load_scenario, run_scenario  # noqa: PLC0415
+    from pcv_sim.rig.scenario import run_scenario  # noqa: PLC0415
 
     try:
-        scenario = load_scenario(path)
-        result = run_scenario(scenario)
+        scenario = _load(path, ros, wait)
+        if scenario.ros is not None and scenario.ros.command:
+            if domain is None:
+                domain = _worker_domain if _worker_domain is not None else private_domain(os.getpid())
+        else:
+            domain = None                  # a node the user started: in $ROS_DOMAIN_ID
+        result = run_scenario(scenario, domain=domain)
     except PcvSimError as err:
         return {"name": path.stem, "path": str(path), "status": 2, "error": str(err)}
     out = result.to_dict()
@@ -56,6 +107,31 @@ def _one(path: Path, bag: Path | None, report: Path | None) -> dict[str, Any]:
         report.write_text(render_html(result), encoding="utf-8")
         out["report"] = str(report)
     return out
+
+
+def _group(items: list[tuple[Path, Path | None, Path | None]], ros: str | None, wait: float) -> list[dict[str, Any]]:
+    """Scenarios one after the other (they share a controller node the user started)."""
+    return [_one(path, bag, report, ros, wait) for path, bag, report in items]
+
+
+def _groups(files: list[Path], ros: str | None, wait: float) -> list[list[int]]:
+    """Indices of `files` to run together, one after the other: those with a ROS controller the
+    user started (they share $ROS_DOMAIN_ID, where one rig's /clock at a time is accepted, and a
+    node serves one rig at a time); every other file alone."""
+    from pcv_sim.errors import PcvSimError  # noqa: PLC0415
+
+    shared: list[int] = []
+    alone: list[list[int]] = []
+    for k, f in enumerate(files):
+        try:
+            sc = _load(f, ros, wait)
+        except PcvSimError:
+            sc = None                      # reported by its run
+        if sc is not None and sc.ros is not None and not sc.ros.command:
+            shared.append(k)
+        else:
+            alone.append([k])
+    return sorted([shared, *alone] if shared else alone)
 
 
 def _text(r: dict[str, Any]) -> str:
@@ -75,6 +151,13 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--config: a scenario takes each valve's YAML from its rig file (valves.<name>.config); "
                          "accepted is no --config")
     path: Path = args.path
+    if args.ros is not None:
+        from pcv_sim.rig.scenario import ScenarioError, ros_controller  # noqa: PLC0415
+
+        try:
+            ros_controller({"ros": {"namespace": args.ros, "wait": args.wait}})
+        except ScenarioError as err:
+            raise UsageError(f"--ros/--wait: {err}") from None
     if path.is_dir():
         files = sorted(path.glob("*.yaml"))
         if not files:
@@ -88,8 +171,16 @@ def run(args: argparse.Namespace) -> int:
         reports = [args.report / f"{f.stem}.html" if args.report else None for f in files]
         if args.bag:
             args.bag.mkdir(parents=True)
-        with ProcessPoolExecutor(max_workers=min(jobs, len(files))) as pool:
-            results = list(pool.map(_one, files, bags, reports))
+        groups = _groups(files, args.ros, args.wait)
+        counter = multiprocessing.Value("i", 0)
+        results: list[dict[str, Any]] = [{} for _ in files]
+        with ProcessPoolExecutor(max_workers=min(jobs, len(groups), len(DOMAINS)), initializer=_init_worker,
+                                 initargs=(counter, os.getpid())) as pool:
+            done = pool.map(_group, [[(files[k], bags[k], reports[k]) for k in g] for g in groups],
+                            [args.ros] * len(groups), [args.wait] * len(groups))
+            for g, rs in zip(groups, done):
+                for k, r in zip(g, rs):
+                    results[k] = r
         status = max(r["status"] for r in results)
         if args.json:
             emit_json({"passed": status == 0, "scenarios": results})
@@ -104,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{path}: no such scenario file or directory")
     if args.bag is not None and args.bag.exists():
         raise UsageError(f"--bag {args.bag}: exists; accepted is a path that does not exist yet")
-    r = _one(path, args.bag, args.report)
+    r = _one(path, args.bag, args.report, args.ros, args.wait)
     if args.json:
         emit_json(r)
     else:

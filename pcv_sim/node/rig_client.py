@@ -4,16 +4,24 @@ Used by the tests and `bench/rig_dds.py`. Like the node it polls its subscriptio
 `take_message` instead of spinning an executor (~125 us per `spin_once`, against a control period
 of 1 ms), so what it measures is the rig and DDS, not rclpy's executor.
 
-A control period is complete when every valve's `pressure` and the cylinder's `joint_states`
-stamped with the same model time have arrived; the controller is then called with the
-measurements (`<valve>.pressure` Pa, with `currents` also `<valve>.current` A: the latest
-received, as std_msgs/Float64 carries no stamp; `cylinder.position` m, `cylinder.velocity` m/s,
-`cylinder.effort` N) and its duties are published on every valve's `duty_cycle`. A sample the rig
-publishes again (unanswered for 0.5 s) is answered again, with the same duties.
+A control period is complete when the cylinder's `joint_states` stamped with its model time has
+arrived (the rig publishes it last) and the topics published before it have been taken once more;
+the controller is then called with the measurements of that period: `<valve>.pressure` Pa (by
+stamp), with `currents` also `<valve>.current` A (std_msgs/Float64 carries no stamp: the one
+received since the last answer, published by the rig before joint_states), `cylinder.position` m,
+`cylinder.velocity` m/s, `cylinder.effort` N; a sample the rig dropped (a sensor fault) is absent,
+as in the in-process lockstep. Its duties are published on every valve's `duty_cycle`; flags it
+returns (`{"flags": {name: value}}`) go to `on_flags`. A sample the rig publishes again
+(unanswered for 0.5 s) is answered again, with the same duties. A sample stamped before the last
+one answered is a new run (the rig restarted): `rewind` gives a fresh controller.
+
+`RigClient` makes its own node, or works on a node it is given (`node=`: the
+`steering_controller` node, with its parameters and its own inputs added by `add_input`).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
@@ -36,7 +44,7 @@ __all__ = ["RigClient", "Period"]
 
 POLL = 2e-5             # s between polls; with the default 50 us timer slack a sleep lasts ~100 us
                         # (the caller may tighten it, as bench/rig_dds.py does)
-RigController = Callable[[float, Mapping[str, float]], Mapping[str, float]]
+RigController = Callable[[float, Mapping[str, float]], Mapping[str, Any]]
 
 
 @dataclass
@@ -46,6 +54,7 @@ class Period:
     stamp_ns: int
     measured: dict[str, float]
     duties: dict[str, float]
+    flags: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -54,25 +63,27 @@ class _Partial:
 
 
 class RigClient:
-    """Talks to the rig node in `namespace` (its valves named `valves`) from its own node."""
+    """Talks to the rig node in `namespace` (its valves named `valves`) from its own node, or
+    from `node` (then `namespace` and `context` are the node's)."""
 
-    def __init__(self, namespace: str, valves: tuple[str, ...], *, context: Any = None,
-                 node_name: str = "rig_controller", currents: bool = False) -> None:
+    def __init__(self, namespace: str | None, valves: tuple[str, ...], *, context: Any = None,
+                 node_name: str = "rig_controller", currents: bool = False, node: Any = None,
+                 history: bool = True) -> None:
         self.valves = valves
-        self.node = rclpy.create_node(node_name, namespace=namespace, context=context)
+        self._own_node = node is None
+        self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
         node = self.node
+        #: keep every answered Period and every current received (a long-running node: False)
+        self.history = history
         cmd = QoSProfile(depth=10)
         self.duty_pubs = {v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
         self.fault_pub = node.create_publisher(String, FAULTS, cmd)
         self.force_pub = node.create_publisher(Float64, f"{CYLINDER}/external_force", cmd)
-        # Services on a node of their own, spun only while a call waits (spinning this node would
-        # take the samples that `poll` takes).
-        self._srv_node = rclpy.create_node(f"{node_name}_services", namespace=namespace, context=context)
-        self._reset: Any = self._srv_node.create_client(Trigger, RESET)
-        self._srv_executor = SingleThreadedExecutor(context=self._srv_node.context)
-        self._srv_executor.add_node(self._srv_node)
+        # Services on a node of their own, made at the first call and spun only while a call waits
+        # (spinning self.node would take the samples that `poll` takes): (node, client, executor).
+        self._srv: tuple[Any, Any, SingleThreadedExecutor] | None = None
         qos = sample_qos(1000)
-        self._subs: list[tuple[Any, Callable[[Any, Any], None]]] = []
+        self._subs: list[tuple[Any, Callable[..., None]]] = []
         for v in valves:
             self._subs.append((node.create_subscription(FluidPressure, valve_topic(v, PRESSURE), _ignore, qos),
                                self._pressure(v)))
@@ -81,15 +92,23 @@ class RigClient:
                                    self._current(v)))
         self._subs.append((node.create_subscription(JointState, f"{CYLINDER}/{JOINT_STATES}", _ignore, qos),
                            self._joint))
-        self._subs.append((node.create_subscription(DiagnosticArray, DIAGNOSTICS, _ignore, QoSProfile(depth=50)),
-                           self._diagnostic))
+        if history:
+            self._subs.append((node.create_subscription(DiagnosticArray, DIAGNOSTICS, _ignore, QoSProfile(depth=50)),
+                               self._diagnostic))
         self.currents: dict[str, list[tuple[int, float]]] = {v: [] for v in valves}   # (latest stamp seen, A)
         self.diagnostics: list[dict[str, tuple[int, str, dict[str, str]]]] = []        # status name -> ...
         self.periods: list[Period] = []
+        self.answered = 0                    # periods answered (once each), history or not
         self._partial: dict[int, _Partial] = {}
+        self._fresh: dict[str, float] = {}   # <valve>.current received since the last answer
         self._answers: dict[int, dict[str, float]] = {}
+        self._last_answered = -1
         self._latest = -1
-        self._need = len(valves) + 1
+        self._currents = currents
+
+    def add_input(self, subscription: Any, handler: Callable[..., None]) -> None:
+        """Take `subscription`'s messages with `handler(msg, info)` in every poll, after the rig's."""
+        self._subs.append((subscription, handler))
 
     # --- taking messages --------------------------------------------------------------------
 
@@ -105,8 +124,14 @@ class RigClient:
         return take
 
     def _current(self, valve: str) -> Callable[[Any, Any], None]:
+        key = f"{valve}.current"
+
         def take(msg: Float64, _info: Any) -> None:
-            self.currents[valve].append((self._latest, msg.data))
+            self._fresh[key] = msg.data
+            seen = self.currents[valve]
+            if not self.history:
+                seen.clear()
+            seen.append((self._latest, msg.data))
         return take
 
     def _joint(self, msg: JointState, _info: Any) -> None:
@@ -135,43 +160,74 @@ class RigClient:
             time.sleep(0.01)
         return True
 
-    def _complete(self, stamp: int) -> bool:
-        p = self._partial.get(stamp)
-        return p is not None and "joint" in p.values and all(f"{v}.pressure" in p.values for v in self.valves)
+    def _all_there(self, values: dict[str, float]) -> bool:
+        return all(f"{v}.pressure" in values for v in self.valves) and (
+            not self._currents or all(f"{v}.current" in self._fresh for v in self.valves))
 
-    def run(self, controller: RigController, periods: int, *, timeout: float = 60.0,
-            before: Callable[[int], None] | None = None) -> list[Period]:
-        """Answer `periods` control periods with `controller(t, measured) -> {valve: duty}`;
-        `before(k)` runs before the k-th answer (e.g. to inject a fault). The answered periods."""
-        end = time.monotonic() + timeout
-        answered = len(self.periods)
-        goal = answered + periods
-        while len(self.periods) < goal:
+    def _take_complete(self) -> list[tuple[int, dict[str, float]]]:
+        """The periods whose joint_states arrived, oldest first, with what was published before it
+        (taken once more when something is missing: it left the rig before joint_states)."""
+        done = sorted(s for s, p in self._partial.items() if "joint" in p.values)
+        if not done:
+            return []
+        if not all(self._all_there(self._partial[s].values) for s in done):
+            self.poll()
+        out = []
+        for stamp in done:
+            values = self._partial.pop(stamp).values
+            values.pop("joint")
+            out.append((stamp, values))
+        for stale in [s for s in self._partial if s < done[-1]]:
+            del self._partial[stale]              # an incomplete period the rig will not finish (lost joint)
+        return out
+
+    def run(self, controller: RigController, periods: int | None, *, timeout: float | None = 60.0,
+            before: Callable[[int], None] | None = None, stop: Any = None,
+            on_flags: Callable[[int, Mapping[str, float]], None] | None = None,
+            rewind: Callable[[], RigController] | None = None) -> list[Period]:
+        """Answer `periods` control periods (None: until `stop.requested`) with
+        `controller(t, measured) -> {valve: duty, "flags": {name: value}}`; `before(k)` runs
+        before the k-th answer (e.g. to inject a fault), `on_flags(stamp_ns, flags)` before the
+        duties are published. The answered periods (kept only with `history`)."""
+        end = math.inf if timeout is None else time.monotonic() + timeout
+        answered = self.answered
+        first = len(self.periods)
+        goal = math.inf if periods is None else answered + periods
+        while self.answered < goal and not (stop is not None and stop.requested):
             if time.monotonic() > end:
-                raise TimeoutError(f"rig lockstep: {len(self.periods) - answered} of {periods} periods answered in "
+                raise TimeoutError(f"rig lockstep: {self.answered - answered} of {periods} periods answered in "
                                    f"{timeout} s")
             if not self.poll():
                 time.sleep(POLL)
                 continue
-            for stamp in sorted(s for s in self._partial if self._complete(s)):
-                values = self._partial.pop(stamp).values
-                values.pop("joint")
-                for v, seen in self.currents.items():
-                    if seen:           # Float64 has no stamp: the latest received (published before joint_states)
-                        values[f"{v}.current"] = seen[-1][1]
+            for stamp, values in self._take_complete():
+                if self._currents:
+                    values.update(self._fresh)
+                    self._fresh.clear()
                 again = self._answers.get(stamp)
                 if again is not None:                 # published again by the rig: same answer
                     self._send(again)
                     continue
-                if len(self.periods) >= goal:
+                if stamp < self._last_answered:       # the rig started again from 0: a new run
+                    self._answers.clear()
+                    if rewind is not None:
+                        controller = rewind()
+                if self.answered >= goal:
                     continue
                 if before is not None:
-                    before(len(self.periods))
-                duties = {v: float(d) for v, d in controller(stamp * 1e-9, values).items()}
+                    before(self.answered)
+                out = controller(stamp * 1e-9, values)
+                flags = {str(k): float(f) for k, f in dict(out.get("flags") or {}).items()}
+                duties = {v: float(d) for v, d in out.items() if v != "flags"}
                 self._answers = {stamp: duties}
-                self.periods.append(Period(stamp, values, duties))
+                self._last_answered = stamp
+                self.answered += 1
+                if self.history:
+                    self.periods.append(Period(stamp, values, duties, flags))
+                if flags and on_flags is not None:
+                    on_flags(stamp, flags)
                 self._send(duties)
-        return self.periods[answered:]
+        return self.periods[first:]
 
     def _send(self, duties: Mapping[str, float]) -> None:
         for v, d in duties.items():
@@ -186,18 +242,28 @@ class RigClient:
     def reset(self, timeout: float = 10.0) -> Any:
         """Call the rig's `reset` service; its response (TimeoutError if none within `timeout` s)."""
         end = time.monotonic() + timeout
-        if not self._reset.wait_for_service(timeout_sec=timeout):
+        if self._srv is None:
+            node = rclpy.create_node(f"{self.node.get_name()}_services", namespace=self.node.get_namespace(),
+                                     context=self.node.context)
+            executor = SingleThreadedExecutor(context=node.context)
+            executor.add_node(node)
+            self._srv = (node, node.create_client(Trigger, RESET), executor)
+        _, client, executor = self._srv
+        if not client.wait_for_service(timeout_sec=timeout):
             raise TimeoutError(f"no reset service within {timeout} s")
-        future = self._reset.call_async(Trigger.Request())
-        self._srv_executor.spin_until_future_complete(future, timeout_sec=max(0.0, end - time.monotonic()))
+        future = client.call_async(Trigger.Request())
+        executor.spin_until_future_complete(future, timeout_sec=max(0.0, end - time.monotonic()))
         if not future.done():
             raise TimeoutError(f"reset: no response within {timeout} s")
         return future.result()
 
     def close(self) -> None:
-        self._srv_executor.shutdown()
-        self._srv_node.destroy_node()
-        self.node.destroy_node()
+        if self._srv is not None:
+            self._srv[2].shutdown()
+            self._srv[0].destroy_node()
+            self._srv = None
+        if self._own_node:
+            self.node.destroy_node()
 
 
 def _ignore(_msg: Any) -> None:

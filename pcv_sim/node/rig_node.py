@@ -152,6 +152,9 @@ class RigNode(Node):
         self._suppressed: dict[str, int] = {}
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
+        #: a scenario's hook (pcv_sim.node.scenario_host): `sampled(true, measured)` before each period's
+        #: samples are published, `answered()` when every valve answered, before the next period
+        self.hook: Any = None
 
         sensor = qos_profile_sensor_data
         self._valve_pubs = []
@@ -305,6 +308,12 @@ class RigNode(Node):
         tail = f" ({more} more rejected since the last message)" if more else ""
         self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
 
+    def add_input(self, msg_type: Any, topic: str, handler: Callable[..., None], qos: Any) -> Any:
+        """One more input taken with the node's own (`handler(msg, info)`, after the duties and faults)."""
+        sub = self.create_subscription(msg_type, topic, handler, qos)
+        self._inputs.append((sub, handler))
+        return sub
+
     def _drain(self) -> int:
         """Take every pending input message (no executor: `take_message` polling); every
         SERVICE_POLL_PERIOD also the service requests."""
@@ -317,8 +326,11 @@ class RigNode(Node):
     def _publish_samples(self) -> None:
         """The measured samples at the present step (sensor faults applied; non-finite: not published)."""
         rig = self.rig
-        self._last_sample = rig.sensors.measure(rig.time, rig.sample()).tolist()
+        true = rig.sample()
+        self._last_sample = rig.sensors.measure(rig.time, true).tolist()
         self._shown = rig.steps
+        if self.hook is not None:
+            self.hook.sampled(true, self._last_sample)
         self._send_samples()
         self._record_sample()
 
@@ -496,6 +508,8 @@ class RigNode(Node):
                 if ready > now:
                     time.sleep(min(ready - now, 1e-3))
                     continue
+            if self.hook is not None:
+                self.hook.answered()
             self._answered.clear()
             if self._advance(rig.steps + self.per):
                 sim.advance(self.per)

@@ -48,6 +48,7 @@ class RigRun:
     log: list[tuple[float, str]] = field(default_factory=list)
     rejected: list[tuple[float, str]] = field(default_factory=list)
     wall_time: float = 0.0
+    sample_walls: np.ndarray | None = None  # perf_counter (s) at each instant's sample: a run over DDS
 
     @property
     def duration(self) -> float:

@@ -7,6 +7,12 @@
     controller: steering:PositionController   # `module:callable`; module.py beside this file or importable
     controller_params: {kp: 5.0}     # optional: a class is instantiated with them, a function called
                                      # with them to make the controller; without, a function is the controller
+    # or a ROS 2 controller node (pcv_sim.node.scenario_host): the runner hosts the rig node
+    # (`ros2 run pcv_sim rig`) in lockstep in `namespace` and waits up to `wait` s for the node
+    # to answer; `command`, if given, is started by the runner (in a ROS domain of its own, cwd
+    # this file's folder; `{namespace}` and `{python}` are replaced) and stopped after the run
+    # controller: {ros: {namespace: /rig, wait: 30,
+    #                    command: ["{python}", -m, pcv_sim.node.steering_controller, --ros-args, -r, "__ns:={namespace}"]}}
     setpoint:                        # optional, m: each segment holds from its t until the next one's
       - {t: 0.0, value: 0.0}
       - {t: 0.5, value: 0.02}
@@ -22,6 +28,13 @@
       - {type: never_below, signal: left.pressure, min: 0.0}
       - {type: flag_within, signal: controller.fault_detected, at: 0.5, within: 0.05}
 
+With a ROS controller the setpoint is published each period on `<namespace>/setpoint`
+(std_msgs/Float64, m) before the period's samples, and the node's flags are taken from
+`<namespace>/controller/flags` (diagnostic_msgs/DiagnosticArray, header.stamp = the sample's model
+time, KeyValue `name: value`); docs/interface.md. A controller that does not answer within `wait`
+(or whose command exits) fails the run with that reason (the CLI exits 1, as for a model that ran
+away; 2 stays for a file that is wrong as written).
+
 Signals: `<valve>.pressure|current|spool_position|duty`, `cylinder.position|velocity|effort`,
 `setpoint`, and the controller's flags `controller.<name>`. A bad file raises `ScenarioError`
 naming the key and what is accepted (the CLI exits 2).
@@ -35,6 +48,7 @@ import importlib
 import importlib.util
 import inspect
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -50,16 +64,32 @@ from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.rig import Rig, RigError
 
-__all__ = ["Scenario", "ScenarioError", "Outcome", "ScenarioResult", "load_scenario", "run_scenario",
-           "ASSERTION_TYPES"]
+__all__ = ["Scenario", "ScenarioError", "Outcome", "ScenarioResult", "RosController", "load_scenario",
+           "run_scenario", "scenario_result", "ASSERTION_TYPES"]
 
 ASSERTION_TYPES = ("max_error", "never_above", "never_below", "flag_within")
 _TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions")
 _MAX_DURATION = 3600.0
+_ROS_KEYS = ("namespace", "command", "wait")
+_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
 class ScenarioError(PcvSimError, ValueError):
     """A scenario file that cannot be run as written."""
+
+
+@dataclass(frozen=True)
+class RosController:
+    """A controller that is a ROS 2 node: in `namespace` ('' = the root), started by the runner
+    with `command` (None: the user starts it), answering within `wait` s."""
+
+    namespace: str = ""
+    command: tuple[str, ...] | None = None
+    wait: float = 30.0
+
+    def argv(self, python: str) -> list[str]:
+        """The command with `{namespace}` and `{python}` replaced."""
+        return [c.format(namespace=self.namespace or "/", python=python) for c in self.command or ()]
 
 
 @dataclass(frozen=True)
@@ -74,6 +104,8 @@ class Scenario:
     setpoint: tuple[Mapping[str, Any], ...]
     timeline: tuple[Mapping[str, Any], ...]
     assertions: tuple[Mapping[str, Any], ...]
+    ros: RosController | None = None       # the controller is a ROS node (then `controller` is None)
+    rig_file: Path | None = None            # the rig YAML (None: the shipped one), for the rig node
 
     def setpoint_function(self) -> Callable[[float], float] | None:
         """The setpoint (m) as a function of time, or None when the scenario has none."""
@@ -293,11 +325,19 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ScenarioError(f"seed: got {seed!r}; accepted is an integer >= 0")
         ctrl = data.get("controller")
-        if ctrl is not None and (not isinstance(ctrl, str) or ctrl.count(":") != 1 or not all(ctrl.split(":"))):
-            raise ScenarioError(f"controller: got {ctrl!r}; accepted is 'module:callable' (e.g. steering:controller)")
+        ros = None
+        if isinstance(ctrl, Mapping):
+            ros = ros_controller(ctrl)
+            ctrl = None
+        elif ctrl is not None and (not isinstance(ctrl, str) or ctrl.count(":") != 1 or not all(ctrl.split(":"))):
+            raise ScenarioError(f"controller: got {ctrl!r}; accepted is 'module:callable' (e.g. steering:controller) "
+                                "or {ros: {namespace, command, wait}}")
         params = data.get("controller_params")
         if params is not None and not isinstance(params, Mapping):
             raise ScenarioError(f"controller_params: got {params!r}; accepted is a mapping of keyword arguments")
+        if params is not None and ros is not None:
+            raise ScenarioError("controller_params: for a Python callable; a ROS controller takes its ROS parameters "
+                                "(in its command: --ros-args -p name:=value)")
         if params is not None and ctrl is None:
             raise ScenarioError("controller_params: given without a controller")
         setpoint = _check_setpoint(data.get("setpoint"))
@@ -308,7 +348,35 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
             raise ScenarioError(f"name: got {name!r}; accepted is a non-empty string")
     except ScenarioError as err:
         raise ScenarioError(f"{origin}: {err}") from None
-    return Scenario(name, path, rig, duration, seed, ctrl, params, setpoint, timeline, assertions)
+    return Scenario(name, path, rig, duration, seed, ctrl, params, setpoint, timeline, assertions, ros,
+                    (base / rig_file).resolve() if rig_file else None)
+
+
+def ros_controller(raw: Any) -> RosController:
+    """`{ros: {namespace, command, wait}}` validated (ScenarioError naming the key)."""
+    if not isinstance(raw, Mapping) or set(raw) != {"ros"}:
+        raise ScenarioError(f"controller: got {raw!r}; accepted is 'module:callable' or {{ros: {{namespace, command, "
+                            "wait}}}")
+    spec = raw["ros"] if raw["ros"] is not None else {}
+    _mapping("controller.ros", spec, _ROS_KEYS)
+    _unknown("controller.ros", spec, _ROS_KEYS)
+    ns = spec.get("namespace", "")
+    if not isinstance(ns, str) or not _NAMESPACE.match("" if ns == "/" else ns):
+        raise ScenarioError(f"controller.ros.namespace: got {ns!r}; accepted is a ROS namespace such as /rig ('' or / "
+                            "for the root)")
+    cmd = spec.get("command")
+    if cmd is not None:
+        if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) and c for c in cmd):
+            raise ScenarioError(f"controller.ros.command: got {cmd!r}; accepted is a list of non-empty strings, e.g. "
+                                "[ros2, run, pcv_sim, steering_controller, --ros-args, -r, \"__ns:={namespace}\"]")
+        for c in cmd:
+            try:
+                c.format(namespace="", python="")
+            except (KeyError, IndexError, ValueError) as err:
+                raise ScenarioError(f"controller.ros.command: {c!r}: {err!r}; accepted placeholders are {{namespace}} "
+                                    "and {python}") from None
+    wait = _num("controller.ros.wait", spec.get("wait", 30.0), lo=0.1, hi=_MAX_DURATION, what="a time in s")
+    return RosController("" if ns == "/" else ns, tuple(cmd) if cmd is not None else None, wait)
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -434,9 +502,16 @@ def check_assertion(run: RigRun, a: Mapping[str, Any]) -> Outcome:
                    f"{sig} at least {worst:.6g}, limit {float(a['min']):g}")
 
 
-def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None) -> ScenarioResult:
+def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None,
+                 domain: int | None = None) -> ScenarioResult:
     """Run `scenario` in lockstep (with `controller`, or the one the file names) and check its
-    assertions. A run whose model runs away fails with the reason (no exception)."""
+    assertions. A run whose model runs away fails with the reason (no exception). A ROS
+    controller (`scenario.ros`, no `controller` given) runs over DDS in ROS domain `domain`
+    (None: $ROS_DOMAIN_ID), the rig hosted as the rig node (`pcv_sim.node.scenario_host`)."""
+    if controller is None and scenario.ros is not None:
+        from pcv_sim.node.scenario_host import run_ros_scenario  # noqa: PLC0415 - ROS only when asked for
+
+        return run_ros_scenario(scenario, domain=domain)
     if controller is None and scenario.controller is not None:
         controller = resolve_controller(scenario.controller, scenario.controller_params,
                                         scenario.path.parent if scenario.path else None)
@@ -453,6 +528,11 @@ def run_scenario(scenario: Scenario, controller: Controller | None = None, *, ri
         wall = time.perf_counter() - wall0
         return ScenarioResult(scenario.name, path, False, [], scenario.duration / wall if wall else math.inf, wall,
                               f"the run stopped at t = {rig.time:.4f} s: {err}")
+    return scenario_result(scenario, run)
+
+
+def scenario_result(scenario: Scenario, run: RigRun) -> ScenarioResult:
+    """The assertions of `scenario` checked on `run`."""
     outcomes = [check_assertion(run, a) for a in scenario.assertions]
-    return ScenarioResult(scenario.name, path, all(o.passed for o in outcomes), outcomes, run.real_time_factor,
-                          run.wall_time, None, run)
+    return ScenarioResult(scenario.name, str(scenario.path) if scenario.path else "", all(o.passed for o in outcomes),
+                          outcomes, run.real_time_factor, run.wall_time, None, run)

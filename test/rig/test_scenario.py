@@ -45,11 +45,21 @@ def _step():
      r"assertions\[3\]\.signal: got 'left.presure'; accepted are left\.pressure"),
     (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure"}), r"never_above needs max"),
     (lambda d: d.update(rig="nosuch.yaml"), r"rig: cannot read rig file"),
+    (lambda d: d.update(controller={"ros": {"namespace": "rig ns"}}), r"controller\.ros\.namespace: got 'rig ns'"),
+    (lambda d: d.update(controller={"ros": {"namespce": "/rig"}}), r"controller\.ros: unknown key\(s\) namespce"),
+    (lambda d: d.update(controller={"ros": {"command": "steering_controller"}}),
+     r"controller\.ros\.command: got 'steering_controller'; accepted is a list"),
+    (lambda d: d.update(controller={"ros": {"command": ["{pyhton}"]}}), r"accepted placeholders are \{namespace\}"),
+    (lambda d: d.update(controller={"ros": {"wait": 0}}), r"controller\.ros\.wait: got 0"),
+    (lambda d: d.update(controller={"ros": {}}, controller_params={"kp": 1.0}),
+     r"controller_params: for a Python callable"),
+    (lambda d: d.update(controller={"ros": {"namespace": "/rig", "command": ["{python}", "-m", "x"], "wait": 5}}),
+     None),
 ])
 def test_bad_scenarios_are_refused_naming_the_key(edit, match):
     data = _step()
     edit(data)
-    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault: accepted
+    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault, a full ROS spec: accepted
         scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
         return
     with pytest.raises(ScenarioError, match=match):
@@ -145,3 +155,16 @@ def test_controller_module_beside_the_file_and_import_errors(tmp_path, capsys):
     (tmp_path / "noattr.yaml").write_text(yaml.safe_dump({**data, "controller": "mine:nothing"}))
     assert main(["scenario", "run", str(tmp_path / "noattr.yaml")]) == 2
     assert "mine has no callable 'nothing'" in capsys.readouterr().err
+
+
+def test_every_example_scenario_loads():
+    from pcv_sim.rig.scenario import load_scenario
+
+    files = sorted(EXAMPLES.rglob("*.yaml"))
+    assert EXAMPLES / "ros" / "step.yaml" in files
+    for f in files:
+        sc = load_scenario(f)
+        assert (sc.ros is not None) == (f.parent.name == "ros"), f
+    ros = load_scenario(EXAMPLES / "ros" / "step.yaml").ros
+    assert ros.namespace == "/steering" and ros.argv("py")[:3] == ["py", "-m", "pcv_sim.node.steering_controller"]
+    assert "__ns:=/steering" in ros.argv("py")

@@ -1,0 +1,53 @@
+"""The example steering position controller for the rig: a callable `controller(t, measurements)`.
+
+One control law for both ways of running it: in-process by a scenario (examples/steering.py
+re-exports it) and as the ROS 2 node `steering_controller` (`pcv_sim.node.steering_controller`).
+
+PI on the piston position error with velocity damping, split over the two valves around a
+common base duty: the valve on chamber a (left) gets base + u, the one on chamber b (right)
+base - u, so a positive u pushes the piston toward +x. Duties are clamped to 0.3 .. 1.0, where
+the valve regulates (below ~0.3 the spool sits on its stop). A coil monitor flags a coil
+current below half of what the commanded duty drives at rest (V D / R: a coil open, a broken
+driver) for `fault_time` s: the flag `fault_detected` goes to the rig's record. (The current,
+not the pressure: while the piston moves the pressures leave their set points by design.)
+
+Measurements (SI): `left.pressure` (Pa), `cylinder.position` (m), `cylinder.velocity` (m/s),
+`setpoint` (m), ... A missing key is a dropped sample: the controller holds its last value.
+"""
+
+from __future__ import annotations
+
+
+class PositionController:
+    """PI + velocity feedback on the steering position (gains in duty per m, per m s, per m/s)."""
+
+    def __init__(self, kp: float = 15.0, ki: float = 30.0, kv: float = 0.5, base: float = 0.6,
+                 period: float = 1e-3, fault_time: float = 0.02, coil_volts: float = 12.0,
+                 coil_ohm: float = 5.6) -> None:
+        self.kp, self.ki, self.kv, self.base, self.period = kp, ki, kv, base, period
+        self.fault_time, self.amps_per_duty = fault_time, coil_volts / coil_ohm
+        self.integral = 0.0
+        self.last: dict[str, float] = {}
+        self.low_since: dict[str, float | None] = {"left": None, "right": None}
+        self.duty = {"left": base, "right": base}
+
+    def __call__(self, t: float, m: dict[str, float]) -> dict[str, object]:
+        self.last.update(m)              # a dropped sample keeps the last one seen
+        m = self.last
+        error = m.get("setpoint", 0.0) - m["cylinder.position"]
+        u_unsat = self.kp * error + self.ki * self.integral - self.kv * m["cylinder.velocity"]
+        u = max(-0.35, min(0.35, u_unsat))
+        if u == u_unsat:                 # anti-windup: integrate only while not saturated
+            self.integral += error * self.period
+        fault = False
+        for valve in ("left", "right"):
+            low = m[f"{valve}.current"] < 0.5 * self.amps_per_duty * self.duty[valve]
+            since = self.low_since[valve]
+            start = (since if since is not None else t) if low else None
+            self.low_since[valve] = start
+            fault = fault or (start is not None and t - start >= self.fault_time)
+        self.duty = {"left": min(1.0, max(0.3, self.base + u)), "right": min(1.0, max(0.3, self.base - u))}
+        return {**self.duty, "flags": {"fault_detected": float(fault)}}
+
+
+__all__ = ["PositionController"]

@@ -1,0 +1,195 @@
+"""The `steering_controller` executable: the example steering position controller as a ROS 2 node.
+
+    ros2 run pcv_sim steering_controller --ros-args -r __ns:=/rig -p use_sim_time:=true
+    python -m pcv_sim.node.steering_controller --ros-args -p period:=0.01
+
+The control law is `pcv_sim.control.steering.PositionController`, the class a scenario calls
+in-process (examples/steering.py): the node only moves its inputs and outputs over DDS. It talks
+to the rig node (`ros2 run pcv_sim rig`) in its namespace, in lockstep: every control period it
+takes the samples the rig published (stamped with their model time), calls the controller with
+them and answers with both valves' duties (`pcv_sim.node.rig_client.RigClient`, no executor:
+`take_message` polling, as the rig). Topics, relative to the namespace:
+
+    in   <valve>/pressure        sensor_msgs/FluidPressure   Pa, stamp = model time (left, right)
+    in   <valve>/current         std_msgs/Float64            A
+    in   cylinder/joint_states   sensor_msgs/JointState      joint `steering`: m, m/s, N
+    in   setpoint                std_msgs/Float64            m: the position to hold; the latest
+                                                             received holds (0 before the first)
+    out  <valve>/duty_cycle      std_msgs/Float64            fraction, one per valve per period
+    out  controller/flags        diagnostic_msgs/DiagnosticArray, one per period, published before
+                                 the duties: header.stamp = the answered sample's model time; one
+                                 status `steering_controller` (level ERROR while fault_detected,
+                                 else OK) with a KeyValue per flag, the value as repr(float)
+                                 (`fault_detected`: "0.0" or "1.0")
+
+Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
+coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` must be the rig's
+control period (1 ms in config/rig.yaml; a warning says so when the samples come at another
+rate). With `use_sim_time: true` the node's clock follows the rig's /clock (its log stamps);
+the controller's time is always the sample's stamp. A sample stamped before the last one answered
+(the rig started again, the next scenario) starts a fresh controller (and forgets the setpoint
+unless one came with that sample). Exit status as the rig:
+0 after SIGINT/SIGTERM, 2 for invalid parameters.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Mapping
+
+from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
+
+__all__ = ["main", "NODE_NAME", "FLAGS_TOPIC", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES"]
+
+NODE_NAME = "steering_controller"
+FLAGS_TOPIC = "controller/flags"
+SETPOINT_TOPIC = "setpoint"
+STATUS_NAME = "steering_controller"
+VALVES = ("left", "right")        # the valves PositionController drives (chambers a and b)
+
+
+def _parameters() -> dict[str, float]:
+    """PositionController's keyword arguments and their defaults: the node's parameters."""
+    import inspect  # noqa: PLC0415
+
+    from pcv_sim.control.steering import PositionController  # noqa: PLC0415
+
+    return {name: float(p.default) for name, p in inspect.signature(PositionController).parameters.items()}
+
+
+def make_node(argv: list[str], **kwargs: Any) -> Any:
+    """The node (rclpy initialized); ParameterError for an invalid parameter."""
+    import math  # noqa: PLC0415
+
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: PLC0415
+    from rcl_interfaces.msg import ParameterDescriptor  # noqa: PLC0415
+    from rclpy.node import Node  # noqa: PLC0415
+    from rclpy.qos import QoSProfile  # noqa: PLC0415
+    from std_msgs.msg import Float64  # noqa: PLC0415
+
+    from pcv_sim.control.steering import PositionController  # noqa: PLC0415
+    from pcv_sim.errors import ParameterError  # noqa: PLC0415
+    from pcv_sim.node.adapter import _freeze_heap, _tighten_timer_slack  # noqa: PLC0415
+    from pcv_sim.node.polling import linger_for_rosout  # noqa: PLC0415
+    from pcv_sim.node.rig_client import RigClient, _ignore  # noqa: PLC0415
+
+    class SteeringControllerNode(Node):
+        """PositionController between the rig's samples and its duty commands; `run(stop)`."""
+
+        def __init__(self) -> None:
+            super().__init__(NODE_NAME, **kwargs)
+            try:
+                self.gains = self._declare()
+            except ParameterError as err:
+                self.get_logger().error(f"invalid parameters: {err}")
+                linger_for_rosout(self)
+                self.destroy_node()
+                raise
+            self.law = PositionController(**self.gains)
+            self.setpoint: float | None = None
+            self._setpoint_fresh = False
+            self.client = RigClient(None, VALVES, node=self, currents=True, history=False)
+            sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
+            self.client.add_input(sub, self._on_setpoint)
+            self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
+            ts = getattr(self, "_time_source", None)
+            clock_sub = getattr(ts, "_clock_sub", None)
+            if self.get_parameter("use_sim_time").value and clock_sub is not None:
+                # No executor: the TimeSource's own /clock subscription is taken by the polling.
+                self.client.add_input(clock_sub, lambda msg, _info: ts.clock_callback(msg))  # type: ignore[union-attr]
+            self._last_t: float | None = None
+            self._warned = False
+            self.get_logger().info(
+                f"steering controller: valves {', '.join(VALVES)}, period {self.gains['period'] * 1e3:g} ms, "
+                + ", ".join(f"{k} {v:g}" for k, v in self.gains.items() if k != "period")
+                + f"; setpoint on {self.resolve_topic_name(SETPOINT_TOPIC)}, flags on "
+                f"{self.resolve_topic_name(FLAGS_TOPIC)}; waiting for the rig's samples")
+
+        def _declare(self) -> dict[str, float]:
+            values = {}
+            for name, default in _parameters().items():
+                desc = ParameterDescriptor(description=f"PositionController({name}=...)", dynamic_typing=True)
+                v: Any = self.declare_parameter(name, default, desc).value
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ParameterError(f"{name}: got {v!r}; accepted is a finite number")
+                if name in ("period", "fault_time", "coil_ohm") and v <= 0.0:
+                    raise ParameterError(f"{name}: got {v!r}; accepted is a number > 0")
+                values[name] = float(v)
+            return values
+
+        def _on_setpoint(self, msg: Any, _info: Any) -> None:
+            self.setpoint = msg.data
+            self._setpoint_fresh = True        # received since the last answer
+
+        def _control(self, t: float, measured: Mapping[str, float]) -> Any:
+            m = dict(measured)
+            self._setpoint_fresh = False
+            if self.setpoint is not None:
+                m["setpoint"] = self.setpoint
+            last, self._last_t = self._last_t, t
+            period = self.gains["period"]
+            if last is not None and not self._warned and abs(t - last - period) > 1e-7:
+                self._warned = True
+                self.get_logger().warning(f"samples {(t - last) * 1e3:g} ms apart, the controller's period is "
+                                          f"{period * 1e3:g} ms: set -p period:={t - last:g} (the rig's "
+                                          "control_period)")
+            return self.law(t, m)
+
+        def _rewind(self) -> Any:
+            self.get_logger().info("a sample before the last one answered: the rig started again; a fresh "
+                                   "controller")
+            self.law = PositionController(**self.gains)
+            self._last_t = None
+            if not self._setpoint_fresh:       # the new run sent none before its first sample: it has none
+                self.setpoint = None
+            return self._control
+
+        def _publish_flags(self, stamp_ns: int, flags: Mapping[str, float]) -> None:
+            msg = DiagnosticArray()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            fault = flags.get("fault_detected", 0.0) != 0.0
+            st = DiagnosticStatus(level=DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK, name=STATUS_NAME,
+                                  message="coil fault detected" if fault else "ok")
+            st.values = [KeyValue(key=k, value=repr(v)) for k, v in flags.items()]
+            msg.status.append(st)
+            self._pub_flags.publish(msg)
+
+        def run(self, stop: Stop) -> None:
+            _tighten_timer_slack()       # the lockstep polls in 20 us sleeps, as the rig node's
+            _freeze_heap()               # no 17 ms collection over rclpy's objects in a period
+            self.client.run(self._control, None, timeout=None, stop=stop, on_flags=self._publish_flags,
+                            rewind=self._rewind)
+
+    return SteeringControllerNode()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point `steering_controller`: 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
+    return main_process(_run, args)
+
+
+def _run(argv: list[str], stop: Stop) -> int:
+    import argparse  # noqa: PLC0415 - after the signal handlers (pcv_sim.node.process)
+
+    from rclpy.utilities import remove_ros_args  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(
+        prog=NODE_NAME, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="The example steering position controller (pcv_sim.control.steering) as a ROS 2 node, in "
+                    "lockstep with the rig node in its namespace: in <valve>/pressure, <valve>/current, "
+                    "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
+                    "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
+        epilog="parameters (--ros-args -p NAME:=VALUE): " + ", ".join(f"{k} = {v:g}" for k, v in _parameters().items())
+               + "; period must be the rig's control period; use_sim_time follows the rig's /clock")
+    try:
+        parser.parse_args(remove_ros_args(argv)[1:])
+    except Exception as err:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError
+        print(f"{NODE_NAME}: invalid parameters: --ros-args: {err}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETERS
+    if stop.requested:
+        return EXIT_OK
+    return serve(NODE_NAME, argv, stop, lambda argv: make_node(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
