@@ -23,8 +23,9 @@ dropped or non-finite one is not published).
 The loop is the emulator's (see `pcv_sim.node.adapter`): no executor, no timer, inputs taken by
 `take_message` polling, because at 1 kHz an executor costs more than the work.
 - Simulated time, lockstep (default): publish /clock and the samples at T = k x control period,
-  wait until every valve has had a duty_cycle message since then, apply them at T (they act on
-  [T, T + dt] onwards, as `pcv_sim.rig.run_lockstep`), compute to T + control period, repeat:
+  wait until every valve has had a duty_cycle message since then, apply them from T + dt, the
+  first step not shown (the sample at T shows the inputs in force at T; as
+  `pcv_sim.rig.run_lockstep`), compute to T + control period, repeat:
   bit for bit the same run for a controller that answers the same way. A sample left unanswered
   for 0.5 s is published again (a controller not yet connected).
 - Simulated, `lockstep: false`: periods back to back at `real_time_factor`; inputs act from the
@@ -234,10 +235,11 @@ class RigNode(Node):
     # --- inputs --------------------------------------------------------------------------------
 
     def _at_step(self, info: Any) -> int:
-        """The step an input takes effect at: in simulated time the present step (the period being
-        computed next); in real time the first step stamped at or after its DDS reception."""
+        """The step an input takes effect at: never one whose sample was shown (in lockstep the step
+        after the sample the controller answers, as `run_lockstep`); in real time the first step
+        stamped at or after its DDS reception."""
         rig = self.rig
-        first = rig.steps if self.simulated else max(rig.steps, self._shown + 1)
+        first = max(rig.steps, self._shown + 1)
         sched = self._schedule
         if sched is None:
             return first
@@ -247,11 +249,8 @@ class RigNode(Node):
         return max(at, first)
 
     def _when(self, key: str, info: Any, action: Callable[[], None]) -> None:
-        """Run `action` at its step: now in simulated time, scheduled in the rig in real time (two
-        inputs on one topic never act at the same step, so none is lost unseen)."""
-        if self._schedule is None:
-            action()
-            return
+        """Run `action` at its step, scheduled in the rig (two inputs on one topic never act at the
+        same step, so none is lost unseen)."""
         at = max(self._at_step(info), self._last_input.get(key, -1) + 1)
         self._last_input[key] = at
         self.rig.schedule(at * self.rig.dt, action)
@@ -508,10 +507,16 @@ class RigNode(Node):
                 if ready > now:
                     time.sleep(min(ready - now, 1e-3))
                     continue
+            target = rig.steps + self.per
             if self.hook is not None:
-                self.hook.answered()
+                # The answers act from the step after the sample (scheduled there): take that one
+                # step first, so the hook sees the duties in force after the instant.
+                k = self._shown // self.per
+                if not self._advance(rig.steps + 1):
+                    continue
+                self.hook.answered(k)
             self._answered.clear()
-            if self._advance(rig.steps + self.per):
+            if self._advance(target):
                 sim.advance(self.per)
             published = mono()
 

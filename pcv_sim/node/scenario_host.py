@@ -105,9 +105,10 @@ class _Host:
             self.duties[k] = [rig.duties[v] for v in self.valves]
             self.done = True
 
-    def answered(self) -> None:
+    def answered(self, k: int) -> None:
+        """The controller answered the sample of instant k; the rig is one step past it, so
+        `rig.duties` are those in force after the instant (as `run_lockstep` records them)."""
         rig = self.node.rig
-        k = rig.steps // self.per
         if k < self.n:
             self.duties[k] = [rig.duties[v] for v in self.valves]
         counts = self.node.counts

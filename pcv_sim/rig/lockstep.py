@@ -7,12 +7,16 @@ after the sensor faults), the controller is called with the measurements (a dict
 value`, SI; a dropped sample is absent; `setpoint` holds the scenario's setpoint when there is
 one) and returns a mapping `valve -> duty` (a valve left out keeps its command, and its watchdog
 runs) and, optionally, `flags: {name: number}` which are recorded as `controller.<name>` (e.g.
-`fault_detected`). The commands act from step k N on (the next step computed), the rig runs N
-steps, and so on: deterministic bit for bit, as fast as the machine allows.
+`fault_detected`). The commands act from step k N + 1 on: the sample at t_k was shown before
+they existed, so it shows the inputs in force at t_k (the project's one rule: a sample at step k
+shows the inputs in force from k on; an input acts from the first step not yet shown). The rig
+then runs to the next instant, and so on: deterministic bit for bit, as fast as the machine
+allows. The rig node in lockstep applies a controller's answers at the same step.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -41,7 +45,7 @@ class RigRun:
     signals: tuple[str, ...]
     true: np.ndarray                        # (n, signals): the physics
     measured: np.ndarray                    # (n, signals): what the controller saw (NaN: dropped)
-    duties: np.ndarray                      # (n, valves): the duty in force from each instant on
+    duties: np.ndarray                      # (n, valves): the duty in force after each instant (its step + 1)
     valves: tuple[str, ...]
     setpoint: np.ndarray                    # (n,) NaN where none
     flags: dict[str, np.ndarray] = field(default_factory=dict)
@@ -104,6 +108,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if setpoint is not None:
                 sp[k] = measurement["setpoint"] = setpoint(t)
             commands = controller(t, measurement)
+            step = rig.steps + 1              # the first step not shown
             if commands is not None:
                 if not isinstance(commands, Mapping):
                     raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
@@ -117,13 +122,13 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                                 arr = flags[f"controller.{fname}"] = np.full(n + 1, np.nan)
                             arr[k] = float(fv)
                     elif key in valves:
-                        try:
-                            rig.set_duty(key, value)
-                        except CommandError:
-                            pass            # counted in rig.rejected; the last valid command stays
+                        # As the rig node schedules an answer: after the step's timeline inputs,
+                        # before its watchdog check.
+                        rig.schedule(step * rig.dt, functools.partial(_set_duty, rig, key, value))
                     else:
                         raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
                                               f"valves {', '.join(valves)} and 'flags'")
+            rig.advance_to(step)
         elif setpoint is not None:
             sp[k] = setpoint(t)
         for j, v in enumerate(valves):
@@ -131,3 +136,10 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     wall = time.perf_counter() - wall0
     times = (k0 + np.arange(n + 1) * per) * rig.dt
     return RigRun(times, names, true, meas, duties, valves, sp, flags, list(rig.log), list(rig.rejected), wall)
+
+
+def _set_duty(rig: Rig, valve: str, value: Any) -> None:
+    try:
+        rig.set_duty(valve, value)
+    except CommandError:
+        pass            # counted in rig.rejected; the last valid command stays

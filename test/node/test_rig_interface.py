@@ -73,13 +73,15 @@ def test_a_lockstep_run_is_recorded_per_valve_namespace_and_one_valve_replays(ro
     joint = {t: m for t, m in got[f'{ns}/cylinder/joint_states']}
     assert [joint[p.stamp_ns].position[0] for p in periods] == [p.measured['cylinder.position'] for p in periods]
     assert periods[-1].measured['cylinder.position'] > 1e-3                     # it moved
-    # Inputs on change, stamped at the step they act: lockstep applies the answer to the sample at T at T.
+    # Inputs on change, stamped at the step they act: lockstep applies the answer to the sample at T
+    # at T + dt, the first step not shown (the sample at T shows the inputs in force at T).
+    dt_ns = 100_000
     first = {d: next(p.stamp_ns for p in periods if p.duties['left'] == d) for d in (0.7, 0.4)}
-    assert [(t, m.data) for t, m in got[f'{ns}/left/duty_cycle']] == [(0, 0.5), (first[0.7], 0.7),
-                                                                      (first[0.4], 0.4)]
+    assert [(t, m.data) for t, m in got[f'{ns}/left/duty_cycle']] == [(0, 0.5), (first[0.7] + dt_ns, 0.7),
+                                                                      (first[0.4] + dt_ns, 0.4)]
     assert [m.fluid_pressure for _, m in got[f'{ns}/left/supply_pressure']] == [200e5]
     [(t_fault, fault)] = got[f'{ns}/faults']
-    assert fault.data == '{fault: bias, signal: right.pressure, value: 1.0e+5}' and t_fault % 1_000_000 == 0
+    assert fault.data == '{fault: bias, signal: right.pressure, value: 1.0e+5}' and (t_fault - dt_ns) % 1_000_000 == 0
     assert any(m.data.startswith('fault bias on right.pressure') and t == t_fault for t, m in got[f'{ns}/rig/events'])
 
     rig_params = load_rig()
@@ -90,6 +92,9 @@ def test_a_lockstep_run_is_recorded_per_valve_namespace_and_one_valve_replays(ro
     result = replay(load_recording(bag, namespace='left'), params, model='simplified')
     fit = result.scalar_metrics()
     assert fit['pressure_fit_percent'] > 97 and fit['spool_position_fit_percent'] > 95, fit
+    # The current jumps with the duty (R27): with answers acting at T (before the fix) the sample at
+    # T showed the old duty's current while the bag had the new duty from T: 96 % fit; now 99.9 %.
+    assert fit['current_fit_percent'] > 99, fit
 
 
 def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(ros):

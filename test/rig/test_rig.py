@@ -148,10 +148,13 @@ def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_
     st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
     pressures = []
     for k in range(len(run.times)):
-        if k == 10:
-            st.set_duty(0.7)
         pressures.append(st.pressure)
-        st.advance(10)
+        if k == 10:          # the command answered at t = 0.01 s acts from the step after it
+            st.advance(1)
+            st.set_duty(0.7)
+            st.advance(9)
+        else:
+            st.advance(10)
     assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
     assert run.signal("pilot.pressure")[-1] > 110 * BAR
 
