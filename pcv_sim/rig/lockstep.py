@@ -2,7 +2,8 @@
 
     controller(t, measurements) -> commands
 
-At each control instant t_k = k T the rig's signals are sampled (true values; the measured ones
+At each control instant t_k = k T (given to the controller as the sample's stamp would give it
+to a controller node: integer ns x 1e-9 s) the rig's signals are sampled (true values; the measured ones
 after the sensor faults), the controller is called with the measurements (a dict `signal ->
 value`, SI; a dropped sample is absent; `setpoint` holds the scenario's setpoint when there is
 one) and returns a mapping `valve -> duty` (a valve left out keeps its command, and its watchdog
@@ -93,6 +94,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     sp = np.full(n + 1, np.nan)
     flags: dict[str, np.ndarray] = {}
     sensors = rig.sensors
+    dt_ns = round(rig.dt * 1e9)
     wall0 = time.perf_counter()
     for k in range(n + 1):
         y = rig.advance_sample(k0 + k * per)
@@ -107,7 +109,9 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                 measurement = dict(zip(names, m.tolist()))
             if setpoint is not None:
                 sp[k] = measurement["setpoint"] = setpoint(t)
-            commands = controller(t, measurement)
+            # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
+            # a callable and a node see the same number to the last bit (steps x dt may differ).
+            commands = controller((rig.steps * dt_ns) * 1e-9, measurement)
             step = rig.steps + 1              # the first step not shown
             if commands is not None:
                 if not isinstance(commands, Mapping):

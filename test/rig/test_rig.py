@@ -229,3 +229,13 @@ def test_a_chamber_pulled_on_by_the_piston_cavitates_at_the_floor_and_recovers(r
     assert right.min() == floor                                   # reached, never passed
     assert np.all(run.signal("left.pressure") >= floor)
     assert right[-1] > 10 * BAR                                   # back under control
+
+
+def test_the_controller_gets_the_time_a_node_reads_from_the_stamp(rig):
+    """t is the sample's stamp in integer ns x 1e-9, what a controller node computes from the
+    message header: the same float to the last bit (steps x dt differs at some instants)."""
+    seen = []
+    run_lockstep(rig, lambda t, m: seen.append(t) or {}, 0.2)
+    stamps_ns = [k * rig.params.steps_per_period * 100_000 for k in range(len(seen))]
+    assert seen == [s * 1e-9 for s in stamps_ns]
+    assert any(s * 1e-9 != k * rig.params.steps_per_period * rig.dt for k, s in enumerate(stamps_ns))
