@@ -97,12 +97,16 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     dt_ns = round(rig.dt * 1e9)
     wall0 = time.perf_counter()
     for k in range(n + 1):
-        y = rig.advance_sample(k0 + k * per)
-        t = rig.time
+        at = k0 + k * per
+        answer = controller is not None and k < n
+        # With a controller the step after the sample (still the old inputs: the answer acts
+        # from at + 1) is taken in the same compiled call, when nothing else falls due there.
+        y = rig.advance_sample(at, 1 if answer else 0)
+        t = at * rig.dt
         true[k] = y
         m = sensors.measure(t, y)
         meas[k] = m
-        if controller is not None and k < n:
+        if answer and controller is not None:
             if sensors.active:
                 measurement = {s: v for s, v in zip(names, m.tolist()) if v == v}   # NaN: dropped
             else:
@@ -111,8 +115,8 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                 sp[k] = measurement["setpoint"] = setpoint(t)
             # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
             # a callable and a node see the same number to the last bit (steps x dt may differ).
-            commands = controller((rig.steps * dt_ns) * 1e-9, measurement)
-            step = rig.steps + 1              # the first step not shown
+            commands = controller((at * dt_ns) * 1e-9, measurement)
+            taken = rig.steps == at + 1       # the step after the sample was taken with it
             if commands is not None:
                 if not isinstance(commands, Mapping):
                     raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
@@ -126,13 +130,16 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                                 arr = flags[f"controller.{fname}"] = np.full(n + 1, np.nan)
                             arr[k] = float(fv)
                     elif key in valves:
-                        # As the rig node schedules an answer: after the step's timeline inputs,
-                        # before its watchdog check.
-                        rig.schedule(step * rig.dt, functools.partial(_set_duty, rig, key, value))
+                        if taken:             # nothing else falls due at at + 1: it acts from now
+                            _set_duty(rig, key, value)
+                        else:                 # as the rig node schedules an answer: after the step's
+                            # timeline inputs, before its watchdog check
+                            rig.schedule((at + 1) * rig.dt, functools.partial(_set_duty, rig, key, value))
                     else:
                         raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
                                               f"valves {', '.join(valves)} and 'flags'")
-            rig.advance_to(step)
+            if not taken:
+                rig.advance_to(at + 1)
         elif setpoint is not None:
             sp[k] = setpoint(t)
         for j, v in enumerate(valves):

@@ -364,41 +364,35 @@ class Rig:
             self._due()
             if sim.steps >= step:
                 break
-            nxt = step
-            if self._events and self._events[0].step < nxt:
-                nxt = self._events[0].step
-            if self._wd_steps:
-                for name in self.valve_names:
-                    if not self.watchdog_fired[name]:
-                        deadline = self._last_cmd[name] + self._wd_steps
-                        if deadline < nxt:
-                            nxt = max(deadline, sim.steps + 1)
-            sim.advance(nxt - sim.steps)
+            sim.advance(min(step, self._next_due()) - sim.steps)
             self._check_finite()
 
-    def advance_sample(self, step: int) -> np.ndarray:
-        """`advance_to(step)` then `sample()`: the same numbers, with the last stretch of steps and
-        the sampling in one compiled call when no input is due at `step` itself (the lockstep's
-        hot path: a call costs about as much as a step)."""
+    def advance_sample(self, step: int, after: int = 0) -> np.ndarray:
+        """`advance_to(step)`, `sample()`, then `after` more steps with the same inputs: the same
+        numbers as those calls, in one compiled call when no input falls due before the last step
+        (the lockstep's hot path: a call costs about as much as five steps). Returns the sample at
+        `step`; the rig is then at `step + after`, or at `step` if an input fell due on the way
+        (the caller checks `steps`)."""
         sim = self.sim
         self._due()                                    # inputs due now act over the whole stretch
-        if step > sim.steps and self._nothing_due(step):
+        if step >= sim.steps and self._next_due() > step + after:
             out = np.empty(len(self._signal_i))
-            if not math.isfinite(sim.advance_sample(step - sim.steps, self._signal_i, out)):
+            if not math.isfinite(sim.advance_sample(step - sim.steps, self._signal_i, out, after)):
                 self._check_finite()                   # raises, naming the time and the faults
             return out
         self.advance_to(step)
         return self.sample()
 
-    def _nothing_due(self, step: int) -> bool:
-        """No scheduled input and no watchdog deadline at or before `step`."""
-        if self._events and self._events[0].step <= step:
-            return False
+    def _next_due(self) -> int:
+        """The first step after the present one at which a scheduled input or a watchdog deadline
+        falls (a large number if none): where a batch of compiled steps must stop."""
+        sim = self.sim
+        nxt = self._events[0].step if self._events else sim.steps + (1 << 62)
         if self._wd_steps:
             for name in self.valve_names:
-                if not self.watchdog_fired[name] and self._last_cmd[name] + self._wd_steps <= step:
-                    return False
-        return True
+                if not self.watchdog_fired[name]:
+                    nxt = min(nxt, self._last_cmd[name] + self._wd_steps)
+        return max(nxt, sim.steps + 1)
 
     def _check_finite(self) -> None:
         x = self.sim.x

@@ -128,15 +128,18 @@ def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
 _SAMPLE = '''
 
 @jit(nrt=False)
-def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out):
+def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after):
     # n steps, then the outputs at the step reached (inputs in force from there on): out[i] =
-    # Y[select[i]]. One call where advance + outputs would be two: a call from Python costs ~3 us
-    # of argument unboxing (F alone is 25 arrays for two valves), more than a step of the rig.
+    # Y[select[i]], then `after` more steps with the same inputs. One call where advance +
+    # outputs + advance would be three: a call from Python costs ~3 us of argument unboxing (F
+    # alone is 25 arrays for two valves), more than a step of the rig.
     if n > 0:
         advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
     outputs((k0 + n) * h, x, u, P, F, W, Y, U)
     for i in range(len(select)):
         out[i] = Y[select[i]]
+    if after > 0:
+        advance_{name}(after, k0 + n, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
     # Returns sum(x^2): not finite iff the state ran away (the caller's check, without another call).
     acc = 0.0
     for i in range(NX):

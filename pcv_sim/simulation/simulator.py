@@ -79,16 +79,16 @@ class Simulator:
                       s1, s2, s3, s4, xt, e, a, b)
         self.steps += n
 
-    def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray) -> float:
-        """`advance(n)` then `outputs()[select]` into `out`, in one compiled call: what a loop that
-        samples every few steps (the rig's lockstep) runs. Returns the sum of the squared states:
-        not finite if and only if the state ran away."""
+    def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray, after: int = 0) -> float:
+        """`advance(n)`, `outputs()[select]` into `out`, then `advance(after)`, in one compiled
+        call: what a loop that samples every few steps (the rig's lockstep) runs. Returns the sum of
+        the squared states: not finite if and only if the state ran away."""
         s1, s2, s3, s4, xt = self._scratch
         e, a, b = self._weights
-        n = max(int(n), 0)
+        n, after = max(int(n), 0), max(int(after), 0)
         norm = self._advance_sample(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
-                                    s1, s2, s3, s4, xt, e, a, b, select, out)
-        self.steps += n
+                                    s1, s2, s3, s4, xt, e, a, b, select, out, after)
+        self.steps += n + after
         return norm
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:

@@ -210,6 +210,27 @@ def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
     assert np.array_equal(np.array(fused), np.array(plain))
     assert fused_log == rig.log and any("watchdog fired" in text for _, text in rig.log)
     assert fused[-1][0] != fused[2][0]          # the inputs did act
+    # With the step after each sample taken in the same call (the lockstep's answer path): the
+    # same samples and the same state at the end; where an input falls due up to that step (the
+    # left duty at 3 per and the force at 7 per + 1; not the right duty at 5 per + 3) it stops at
+    # the sample and the plain path runs.
+    ends = []
+    for after in (1, 0):
+        rig.reset()
+        schedule_inputs()
+        got, stopped = [], []
+        for k in range(periods):
+            if after:
+                got.append(rig.advance_sample(k * per, 1))
+                stopped.append(rig.steps == k * per)
+            else:
+                rig.advance_to(k * per)
+                got.append(rig.sample())
+                rig.advance_to(k * per + 1)
+        ends.append((np.array(got), rig.sim.x.copy()))
+        if after:
+            assert stopped[3] and stopped[7] and not stopped[5] and not all(stopped)
+    assert np.array_equal(ends[0][0], ends[1][0]) and np.array_equal(ends[0][1], ends[1][1])
 
 
 def test_a_chamber_pulled_on_by_the_piston_cavitates_at_the_floor_and_recovers(rig):
