@@ -37,13 +37,9 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 
+from node_realtime import _cpu_seconds      # bench/ is on sys.path when run as bench/rig_realtime.py
 from pcv_sim.node.client import sample_qos
 from pcv_sim.node.polling import drain
-
-
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _ignore(_msg: object) -> None:
