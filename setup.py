@@ -1,6 +1,6 @@
 """Install pcv_sim the ament_python way (colcon build) or with pip (pip install -e .)."""
-from glob import glob
 import os
+from glob import glob
 
 from setuptools import find_packages, setup
 

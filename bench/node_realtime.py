@@ -30,12 +30,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from pathlib import Path
 import random
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -173,7 +173,7 @@ def _rclpy_version() -> str:
         for name in ("ros-rclpy", "ros-jazzy-rclpy"):
             try:
                 return version(name)
-            except Exception:  # noqa: BLE001
+            except Exception:
                 continue
     except ImportError:
         pass

@@ -35,15 +35,16 @@ for `--duration` s each; late steps, lags, CPU and the bag's size from its files
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import os
-from pathlib import Path
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 LOOP_CONFIGS = ("off", "hook", "inline", "thread per-message 5ms", "thread per-message", "thread 5ms", "thread")
@@ -74,8 +75,7 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
             d = perf() - t
             spent[0] += d
             spent[2] += 1
-            if d > spent[1]:
-                spent[1] = d
+            spent[1] = max(spent[1], d)
         return hook
 
     if config == "hook":
@@ -86,10 +86,8 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
         dev.recorder, dev.record_every = timed(rec), 1
         sys.setswitchinterval(0.005 if config.endswith("5ms") else
                               float(config.split("@")[1]) * 1e-3 if "@" in config else SWITCH_INTERVAL)
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(29, 1, 0, 0, 0)        # PR_SET_TIMERSLACK 1 ns, as the node
-    except (OSError, AttributeError):
-        pass
     gc.collect()
     gc.freeze()
     sched = RealTimeSchedule(dev.dt, wake_period=1e-3, late_threshold=1e-3, max_catchup=0.05)
@@ -177,8 +175,8 @@ def part_loop(duration: float, rounds: int) -> list[dict]:
     results = [_merge(runs[c]) for c in LOOP_CONFIGS]
     print(f"\nLoop without ROS, {duration:g} s per configuration ({rounds} rounds), all signals at every 0.1 ms "
           "step:\n")
-    print("| configuration | late steps (of ~{:.0f}) | max lag before / after a batch [ms] | recorder µs per step "
-          "| longest hook call [ms] | CPU [% of a core] | bag [MB/min] |".format(duration * 1e4))
+    print(f"| configuration | late steps (of ~{duration * 1e4:.0f}) | max lag before / after a batch [ms] | recorder µs per step "
+          "| longest hook call [ms] | CPU [% of a core] | bag [MB/min] |")
     print("|---|---|---|---|---|---|---|")
     for r in results:
         name = r["config"].replace(" 5ms", "") + (f" ({r['switch_interval_s'] * 1e3:g} ms switch interval)"

@@ -48,7 +48,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--skip-ms", type=float, default=55.0)
     args = ap.parse_args()
-    skip = int(round(args.skip_ms * 10))
+    skip = round(args.skip_ms * 10)
     ref = run(-1, 0)
     print("| skip at [ms] | " + " | ".join(f"+{a} ms [bar]" for a in AFTER_MS) + " |")
     print("|---|" + "---|" * len(AFTER_MS))

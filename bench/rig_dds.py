@@ -47,9 +47,9 @@ def _child_env(domain: int) -> dict[str, str]:
 
 
 def one_run(context, domain: int, period: float, duration: float, k: int, record: str = "") -> dict[str, float]:
-    from steering import PositionController  # noqa: PLC0415
+    from steering import PositionController
 
-    from pcv_sim.node.rig_client import RigClient  # noqa: PLC0415
+    from pcv_sim.node.rig_client import RigClient
 
     ns = f"/bench{os.getpid()}_{k}"
     log = open(os.devnull, "w")
@@ -70,7 +70,7 @@ def one_run(context, domain: int, period: float, duration: float, k: int, record
             return {v: out[v] for v in VALVES}
 
         client.run(controller, WARMUP, timeout=60)
-        n = int(round(duration / period))
+        n = round(duration / period)
         walls = []
         last = time.perf_counter()
         t0 = last
@@ -95,9 +95,9 @@ def one_run(context, domain: int, period: float, duration: float, k: int, record
 def node_controller_run(domain: int, period: float, duration: float, tmp: Path) -> dict[str, float]:
     """One scenario run with the steering_controller node in its own process: its real-time factor
     and the wall time of one period (sample to sample, p50 / p99), the first WARMUP periods not timed."""
-    import yaml  # noqa: PLC0415
+    import yaml
 
-    from pcv_sim.rig.scenario import run_scenario, scenario_from_mapping  # noqa: PLC0415
+    from pcv_sim.rig.scenario import run_scenario, scenario_from_mapping
 
     rig = yaml.safe_load((REPO / "config" / "rig.yaml").read_text())
     rig["rig"]["control_period"] = period
@@ -122,7 +122,7 @@ def node_controller_run(domain: int, period: float, duration: float, tmp: Path) 
 
 
 def node_controller(domain: int, repeats: int, duration: float) -> dict[str, dict[str, object]]:
-    import tempfile  # noqa: PLC0415
+    import tempfile
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -138,9 +138,9 @@ def node_controller(domain: int, repeats: int, duration: float) -> dict[str, dic
 
 def node_parts(context, n: int = 2000) -> dict[str, float]:
     """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
-    from rclpy.parameter import Parameter  # noqa: PLC0415
+    from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+    from pcv_sim.node.rig_node import RigNode
 
     node = RigNode(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
     rig = node.rig
@@ -171,10 +171,10 @@ def main() -> None:
                     help="client: the controller in this process only; node: the controller node only")
     args = ap.parse_args()
 
-    import rclpy  # noqa: PLC0415
+    import rclpy
 
-    from pcv_sim.node.adapter import _tighten_timer_slack  # noqa: PLC0415
-    from pcv_sim.jit import backend  # noqa: PLC0415
+    from pcv_sim.jit import backend
+    from pcv_sim.node.adapter import _tighten_timer_slack
 
     _tighten_timer_slack()      # the controller polls in 20 us sleeps, as the rig node does
     domain = 150 + os.getpid() % 50

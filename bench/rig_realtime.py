@@ -33,11 +33,11 @@ from pathlib import Path
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from node_realtime import _cpu_seconds  # bench/ is on sys.path when run as bench/rig_realtime.py
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 
-from node_realtime import _cpu_seconds      # bench/ is on sys.path when run as bench/rig_realtime.py
 from pcv_sim.node.client import sample_qos
 from pcv_sim.node.polling import drain
 
@@ -65,7 +65,7 @@ def measure(kind: str, duration: float, domain: int) -> dict[str, object]:
     counts = dict.fromkeys(valves, 0)
     diags: list[dict[str, str]] = []
 
-    def on_pressure(v: str):  # noqa: ANN202
+    def on_pressure(v: str):
         def take(_msg: FluidPressure, _info: object) -> None:
             counts[v] += 1
         return take
@@ -119,7 +119,7 @@ def measure(kind: str, duration: float, domain: int) -> dict[str, object]:
             "kind": kind, "window_s": wall, "cpu_percent": 100.0 * cpu / wall,
             "late_steps": int(last["late_steps"]) - int(first["late_steps"]),
             "skipped_steps": int(last["skipped_steps"]) - int(first["skipped_steps"]),
-            "steps": int(round(wall / 1e-4)),
+            "steps": round(wall / 1e-4),
             "max_lag_ms": max(lags) if lags else float("nan"),
             "samples_per_valve": {v.rstrip("/") or "valve": counts[v] - n0[v] for v in valves},
             "samples_expected": int(wall / 1e-3),
@@ -158,7 +158,7 @@ def main() -> int:
     print("|---|---|---|")
     e, r = results
 
-    def row(name: str, fmt) -> None:  # noqa: ANN001
+    def row(name: str, fmt) -> None:
         print(f"| {name} | {fmt(e)} | {fmt(r)} |")
 
     row("node CPU, % of one core", lambda x: f"{x['cpu_percent']:.1f}")

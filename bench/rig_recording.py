@@ -31,9 +31,9 @@ class _Stop:
 
 
 def one(context, duration: float, record: str) -> dict[str, float]:
-    from rclpy.parameter import Parameter  # noqa: PLC0415
+    from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+    from pcv_sim.node.rig_node import RigNode
 
     params = [Parameter("time_mode", value="real"), Parameter("diagnostics_period", value=100.0)]
     if record:
@@ -65,7 +65,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    import rclpy  # noqa: PLC0415
+    import rclpy
 
     domain = 150 + os.getpid() % 50
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -34,10 +34,10 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    from steering import PositionController  # noqa: PLC0415
+    from steering import PositionController
 
-    from pcv_sim.jit import backend  # noqa: PLC0415
-    from pcv_sim.rig import Rig, load_rig, run_lockstep  # noqa: PLC0415
+    from pcv_sim.jit import backend
+    from pcv_sim.rig import Rig, load_rig, run_lockstep
 
     base = load_rig()
     out: dict[str, object] = {"backend": backend(), "python": platform.python_version(),
@@ -86,7 +86,7 @@ def main() -> None:
     r1, r10 = out["rtf_1ms"], out["rtf_10ms"]
     print(f"backend {out['backend']}, Python {out['python']}, {out['cpus']} CPUs, load average "
           f"{out['load_before']:.1f} -> {out['load_after']:.1f}")
-    print("| control period | real-time factor (median of %d) | best |" % args.repeats)
+    print(f"| control period | real-time factor (median of {args.repeats}) | best |")
     print("|---|---|---|")
     print(f"| 1 ms (1 kHz) | {r1['median']:.1f}x | {r1['best']:.1f}x |")        # type: ignore[index]
     print(f"| 10 ms (100 Hz) | {r10['median']:.1f}x | {r10['best']:.1f}x |")    # type: ignore[index]

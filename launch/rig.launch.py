@@ -7,11 +7,12 @@ install; launch is not on PyPI).
     ros2 launch pcv_sim rig.launch.py time_mode:=real use_sim_time:=true   # follow a simulation's /clock
     ros2 launch pcv_sim rig.launch.py record:=true record_directory:=bags  # record a bag until Ctrl-C
 """
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
+
+from launch import LaunchDescription
 
 
 def generate_launch_description():

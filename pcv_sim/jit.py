@@ -14,10 +14,11 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
 
-__all__ = ["ENV_VAR", "enabled", "jit", "backend", "cache_root", "source_digest"]
+__all__ = ["ENV_VAR", "backend", "cache_root", "enabled", "jit", "source_digest"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -56,7 +57,7 @@ def _numba() -> Any:
     if "NUMBA_CACHE_DIR" not in os.environ:      # must be set before numba is imported
         os.environ["NUMBA_CACHE_DIR"] = str(cache_root() / "numba" / source_digest())
     try:
-        import numba  # noqa: PLC0415 - optional dependency
+        import numba
     except ImportError:
         return None
     return numba

@@ -15,32 +15,33 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import yaml
 
 from pcv_sim.errors import ParameterError
 
 __all__ = [
-    "ValveParams",
+    "DEFAULT_CONFIG",
+    "CalibrationParams",
+    "CircuitParams",
+    "CommandParams",
+    "DampingParams",
+    "FitParams",
+    "FluidParams",
+    "OrificeParams",
+    "SimulationParams",
     "SolenoidParams",
     "SpoolParams",
-    "OrificeParams",
-    "FitParams",
-    "DampingParams",
-    "FluidParams",
-    "CircuitParams",
-    "CalibrationParams",
-    "CommandParams",
-    "SimulationParams",
-    "DEFAULT_CONFIG",
+    "ValveParams",
+    "check_value",
+    "default_params",
     "load_params",
     "params_from_mapping",
     "params_to_mapping",
-    "default_params",
-    "check_value",
     "replace_param",
     "setting",
     "yaml_load_unique",
@@ -54,10 +55,10 @@ def _installed_default() -> Path:
     if DEFAULT_CONFIG.is_file():
         return DEFAULT_CONFIG
     try:
-        from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+        from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("pcv_sim")) / "config" / "valve.yaml"
-    except Exception:  # noqa: BLE001 - not installed through ament: report the source path
+    except Exception:
         return DEFAULT_CONFIG
 
 
@@ -479,7 +480,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 def yaml_load_unique(text: str, origin: str) -> Any:
     """yaml.safe_load that refuses duplicate keys; ParameterError naming `origin`, the key and line."""
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except ParameterError as err:
         raise ParameterError(f"{origin}: {err}") from None
     except yaml.YAMLError as err:
@@ -501,7 +502,7 @@ _DEFAULT: ValveParams | None = None
 
 def default_params() -> ValveParams:
     """The shipped configuration (cached: ValveParams is immutable)."""
-    global _DEFAULT  # noqa: PLW0603 - immutable cache
+    global _DEFAULT
     if _DEFAULT is None:
         _DEFAULT = load_params()
     return _DEFAULT

@@ -1,8 +1,8 @@
 """Shared fixtures: `colcon_install`, a real colcon build of this package."""
 import os
-from pathlib import Path
 import subprocess
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest

@@ -23,15 +23,15 @@ BAR = 1e5
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def strict_json(text: str):  # noqa: ANN201
+def strict_json(text: str):
     """JSON as other tools read it: NaN and Infinity are not JSON."""
-    def refuse(token: str):  # noqa: ANN202
+    def refuse(token: str):
         raise ValueError(f"not JSON: {token}")
 
     return json.loads(text, parse_constant=refuse)
 
 
-def run_json(capsys: pytest.CaptureFixture[str], *argv: str):  # noqa: ANN201
+def run_json(capsys: pytest.CaptureFixture[str], *argv: str):
     assert main([*argv, "--json"]) == 0
     return strict_json(capsys.readouterr().out)
 

@@ -1,10 +1,10 @@
 """The package installs the ament way, and the model stays free of ROS imports."""
 import ast
 import os
-from pathlib import Path
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'pcv_sim'

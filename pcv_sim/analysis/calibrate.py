@@ -50,8 +50,8 @@ __all__ = [
     "fit_calibration",
     "fit_net_area",
     "point_params",
-    "required_constants",
     "report",
+    "required_constants",
     "write_calibration",
 ]
 

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["NOISE_BAND_SIGMAS", "NOISE_FRACTION", "SMOOTH_SAMPLES", "StepMetrics", "step_metrics", "FitMetrics", "fit_metrics"]
+__all__ = ["NOISE_BAND_SIGMAS", "NOISE_FRACTION", "SMOOTH_SAMPLES", "FitMetrics", "StepMetrics", "fit_metrics", "step_metrics"]
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ def step_metrics(
     before = t < t_step
     win = (t >= t_step) & (t <= t_end)
     tw, yw = t[win] - t_step, y[win]
-    n_tail = max(1, int(round(tail * len(yw))))
+    n_tail = max(1, round(tail * len(yw)))
     final = float(np.mean(yw[-n_tail:])) if final is None else float(final)
     initial = float(y[before][-1]) if before.any() else float(y[0])
     sigma = _noise(yw) if robust else 0.0

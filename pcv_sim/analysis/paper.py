@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["WorkingPoint", "WORKING_POINTS", "WORKING_POINT_DUTY"]
+__all__ = ["WORKING_POINTS", "WORKING_POINT_DUTY", "WorkingPoint"]
 
 
 @dataclass(frozen=True)

@@ -23,15 +23,15 @@ from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 
 __all__ = [
-    "StaticPoint",
-    "PressureFlowCurve",
     "EquilibriumError",
+    "PressureFlowCurve",
+    "StaticPoint",
     "balance_pressure",
+    "equilibrium_at_flow",
+    "pressure_flow_curve",
     "static_point",
     "stop_point",
     "zero_flow_equilibrium",
-    "equilibrium_at_flow",
-    "pressure_flow_curve",
 ]
 
 

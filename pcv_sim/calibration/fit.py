@@ -53,8 +53,8 @@ __all__ = [
     "CORRELATION_LIMIT",
     "CalibrationError",
     "CalibrationResult",
-    "FitParameter",
     "Estimate",
+    "FitParameter",
     "SignalFit",
     "calibrate",
     "first_order",
@@ -340,7 +340,7 @@ def calibrate(
     # The model at every sample, and on a grid of grid_step around each input change: y(t - lag)
     # is interpolated from these, so a lag between two samples of the current's jump at a duty
     # step (R27) is not smeared; elsewhere the response is smooth at the sample spacing.
-    step_ns = int(round(grid_step * _NS))
+    step_ns = round(grid_step * _NS)
     around = np.arange(-5, 16, dtype=np.int64) * step_ns
     sample_ns = []
     for b, rec in enumerate(recordings):
@@ -353,7 +353,7 @@ def calibrate(
         jumps = tl.t_ns[1:][np.abs(np.diff(tl.duty)) >= 0.005][:1000]   # steps, not a noisy command's jitter
         dense = (jumps[:, None] + around[None, :]).ravel()
         dense = dense[(dense >= 0) & (dense <= end)]
-        sample_ns.append(np.unique(np.concatenate(times + [dense])))
+        sample_ns.append(np.unique(np.concatenate([*times, dense])))
     all_roles = sorted({d.role for d in data}, key=OUTPUT_ROLES.index)
     lag_roles = all_roles if lag_bounds is not None else []
     tc_roles = all_roles if time_constant_bounds is not None else []

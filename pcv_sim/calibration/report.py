@@ -53,18 +53,17 @@ def fitted_yaml(source: str, result: CalibrationResult, origin: Sequence[str],
         if start is None:
             msg = f"cannot find section {section!r} in the source YAML to write {key}"
             raise CalibrationError(msg)
+        found = False
         for k in range(start + 1, len(lines)):
             line = lines[k]
             if line and not line[0].isspace() and not line.startswith("#"):
-                k = -1
                 break
             m = re.match(rf"^(\s+{re.escape(name)}:\s*)(\S[^#]*?|)(\s*)(#.*)?$", line)
             if m:
                 lines[k] = f"{m.group(1)}{text_value}   {note}"
+                found = True
                 break
-        else:
-            k = -1
-        if k < 0:
+        if not found:
             msg = f"cannot find {key} in the source YAML's section {section!r}"
             raise CalibrationError(msg)
     header = [f"# Calibrated with pcv-sim calibrate ({result.model} model) from: {', '.join(origin)}",
@@ -279,10 +278,10 @@ def render_html(r: CalibrationResult, steps: Sequence[tuple[str, list[list[str]]
 
 def plot_fit(r: CalibrationResult, bags: Sequence[str]) -> dict[str, bytes]:
     """PNG per bag and signal: measured, model before and after (with lag and offset), errors."""
-    import matplotlib  # noqa: PLC0415 - only reports pay for matplotlib
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     out: dict[str, bytes] = {}
     for (b, role), (t, meas, before, after) in r.traces.items():

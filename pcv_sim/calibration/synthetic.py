@@ -55,17 +55,17 @@ def write_rig_csv(
     noise = dict(noise or {})
     offset = dict(offset or {})
     rng = np.random.default_rng(seed)
-    n = int(round(len(duties) * hold_s * rate_hz))
-    period_ns = int(round(_NS / rate_hz))
+    n = round(len(duties) * hold_s * rate_hz)
+    period_ns = round(_NS / rate_hz)
     t_ns = np.arange(n, dtype=np.int64) * period_ns
-    hold_ns = int(round(hold_s * _NS))
+    hold_ns = round(hold_s * _NS)
     change_ns = np.arange(len(duties), dtype=np.int64) * hold_ns
     flows = np.zeros(len(duties)) if load_flows_lpm is None else np.asarray(load_flows_lpm, float) * 1e-3 / 60.0
     tl = InputTimeline(change_ns, np.asarray(duties, float), flows,
                        np.full(len(duties), params.circuit.supply_pressure))
     # The model at every sample time and at every lagged one (before 0 it rests).
     tcs = dict(time_constant_s or {})
-    lag_ns = {r: int(round(lag_s.get(r, 0.0) * _NS)) for r in _DISPLAY}
+    lag_ns = {r: round(lag_s.get(r, 0.0) * _NS) for r in _DISPLAY}
     times = [np.clip(t_ns - lag_ns[r], 0, None) for r in _DISPLAY]
     if tcs:  # the filter integrates the model exactly only between close samples: a 0.1 ms grid
         times.append(np.arange(0, int(t_ns[-1]) + 1, 100_000, dtype=np.int64))

@@ -7,8 +7,9 @@ import json
 import math
 import sys
 import time
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, Iterable, Iterator, TypeVar
+from typing import Any, TypeVar
 
 from pcv_sim.params import ValveParams, load_params
 
@@ -81,11 +82,11 @@ def progress(items: Iterable[T], total: int, label: str) -> Iterator[T]:
         sys.stderr.write(f"\r{label}: {total}/{total} ({time.monotonic() - start:.1f} s)\n")
 
 
-def pyplot():  # noqa: ANN201 - matplotlib's module
-    import matplotlib  # noqa: PLC0415 - only commands that plot pay for matplotlib
+def pyplot():
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     return plt
 

@@ -67,9 +67,9 @@ def _init_worker(counter: Any, base: int) -> None:
 
 def _load(path: Path, ros: str | None, wait: float) -> Any:
     """The scenario, its controller replaced by the ROS node in `ros` when given."""
-    import dataclasses  # noqa: PLC0415
+    import dataclasses
 
-    from pcv_sim.rig.scenario import RosController, load_scenario, ros_controller  # noqa: PLC0415
+    from pcv_sim.rig.scenario import RosController, load_scenario, ros_controller
 
     scenario = load_scenario(path)
     if ros is not None:
@@ -82,9 +82,9 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
          domain: int | None = None) -> dict[str, Any]:
     """Load, run, record one scenario; a dict (picklable) with `status` 0/1/2. A controller the
     scenario starts runs in ROS domain `domain` (None: this worker's, or one from the pid)."""
-    from pcv_sim.errors import PcvSimError  # noqa: PLC0415
-    from pcv_sim.rig.record import render_html, write_bag  # noqa: PLC0415
-    from pcv_sim.rig.scenario import run_scenario  # noqa: PLC0415
+    from pcv_sim.errors import PcvSimError
+    from pcv_sim.rig.record import render_html, write_bag
+    from pcv_sim.rig.scenario import run_scenario
 
     try:
         scenario = _load(path, ros, wait)
@@ -118,7 +118,7 @@ def _groups(files: list[Path], ros: str | None, wait: float) -> list[list[int]]:
     """Indices of `files` to run together, one after the other: those with a ROS controller the
     user started (they share $ROS_DOMAIN_ID, where one rig's /clock at a time is accepted, and a
     node serves one rig at a time); every other file alone."""
-    from pcv_sim.errors import PcvSimError  # noqa: PLC0415
+    from pcv_sim.errors import PcvSimError
 
     shared: list[int] = []
     alone: list[list[int]] = []
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
                          "accepted is no --config")
     path: Path = args.path
     if args.ros is not None:
-        from pcv_sim.rig.scenario import ScenarioError, ros_controller  # noqa: PLC0415
+        from pcv_sim.rig.scenario import ScenarioError, ros_controller
 
         try:
             ros_controller({"ros": {"namespace": args.ros, "wait": args.wait}})

@@ -15,8 +15,8 @@ import sys
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
-from pcv_sim.errors import UsageError
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, pyplot, save
+from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_output_options(p)
 
 
-def step_params(args: argparse.Namespace):  # noqa: ANN201 - ValveParams
+def step_params(args: argparse.Namespace):
     return with_damping(params_from(args), getattr(args, "damping", None))
 
 
@@ -56,7 +56,7 @@ def simulate_step(args: argparse.Namespace) -> Trajectory:
     profile = DutyProfile.step(args.start, args.end, args.at, rate)
     if args.model == "full":
         return simulate_reference(ValveModel(params, "full"), profile, args.duration)
-    from pcv_sim.params import replace_param  # noqa: PLC0415
+    from pcv_sim.params import replace_param
 
     stepper = RealTimeStepper(replace_param(params, "command.duty_fall_rate_limit", rate), duty=args.start)
     return stepper.run(profile, args.duration)

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import yaml
 
@@ -25,8 +26,16 @@ from pcv_sim.errors import ParameterError
 from pcv_sim.params import yaml_load_unique
 
 __all__ = [
-    "ROS_OWN_PARAMETERS", "Override", "check_params_files", "command_line_overrides", "is_ros_own",
-    "override_not_taken", "parse_override_value", "params_files", "refuse_unknown", "unknown_parameters_message",
+    "ROS_OWN_PARAMETERS",
+    "Override",
+    "check_params_files",
+    "command_line_overrides",
+    "is_ros_own",
+    "override_not_taken",
+    "params_files",
+    "parse_override_value",
+    "refuse_unknown",
+    "unknown_parameters_message",
 ]
 
 #: Parameters rclpy declares itself on every node: never "unknown".
@@ -130,7 +139,7 @@ def _same(a: Any, b: Any) -> bool:
             return False
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
-    return type(a) is type(b) and a == b or (
+    return (type(a) is type(b) and a == b) or (
         isinstance(a, (int, float)) and isinstance(b, (int, float))
         and not isinstance(a, bool) and not isinstance(b, bool) and a == b)
 

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import RECORDABLE, check_signals
@@ -25,9 +26,17 @@ from pcv_sim.simulation.clock import steps_per
 from pcv_sim.simulation.duty import check_duty
 
 __all__ = [
-    "MODEL_PREFIX", "NODE_PARAMETERS", "ModelParameter", "NodeParameter", "NodeSettings",
-    "RUNTIME_FIXED_MODEL", "check_node_value", "model_parameters", "model_value_from_ros",
-    "params_with", "settings_with",
+    "MODEL_PREFIX",
+    "NODE_PARAMETERS",
+    "RUNTIME_FIXED_MODEL",
+    "ModelParameter",
+    "NodeParameter",
+    "NodeSettings",
+    "check_node_value",
+    "model_parameters",
+    "model_value_from_ros",
+    "params_with",
+    "settings_with",
 ]
 
 MODEL_PREFIX = "model."

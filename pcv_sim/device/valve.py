@@ -25,15 +25,19 @@ from __future__ import annotations
 import bisect
 import copy
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping, Protocol
+from typing import Protocol
 
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import (
-    MAX_SUPPLY_PRESSURE, RealTimeStepper, check_load_flow, check_supply_pressure,
+    MAX_SUPPLY_PRESSURE,
+    RealTimeStepper,
+    check_load_flow,
+    check_supply_pressure,
 )
 
 __all__ = [

@@ -35,7 +35,7 @@ from pcv_sim.io.topics import (
     role_of,
 )
 
-__all__ = ["RANGES", "UNITS", "BadRow", "Range", "CsvImportError", "CsvImportResult", "import_csv", "parse_units"]
+__all__ = ["RANGES", "UNITS", "BadRow", "CsvImportError", "CsvImportResult", "Range", "import_csv", "parse_units"]
 
 TIME: Final = "time"
 _PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": 1e5, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
@@ -227,7 +227,7 @@ def import_csv(
     if delimiter == " ":
         rows = [(n, [f for f in fields if f]) for n, fields in rows]
 
-    first_n, first = rows[0]
+    _first_n, first = rows[0]
     header_units: dict[str, str] = {}
     header_roles: list[str] | None = None
     ignored: list[str] = []

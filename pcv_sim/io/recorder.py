@@ -49,6 +49,7 @@ the failure is kept in :attr:`RecorderStatus.error`; the device keeps running ei
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import os
 import re
@@ -63,8 +64,7 @@ from typing import Any, Final, Literal, Self
 import numpy as np
 
 from pcv_sim.errors import BagError
-from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, BagWriter, Qos
-from pcv_sim.io.bag import cdr
+from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, BagWriter, Qos, cdr
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
@@ -82,8 +82,8 @@ from pcv_sim.io.topics import (
 )
 
 __all__ = [
-    "ROLE_QOS",
     "RECORDABLE",
+    "ROLE_QOS",
     "SWITCH_INTERVAL",
     "BagRecorder",
     "RecorderStatus",
@@ -285,10 +285,8 @@ class _QueuedBag:
         files = self._writer.files
         size = 0
         for f in files:
-            try:
+            with contextlib.suppress(OSError):
                 size += f.stat().st_size
-            except OSError:
-                pass
         state: Literal["recording", "failed", "closed"] = (
             "failed" if self._error else "closed" if self._closed else "recording")
         return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
@@ -740,9 +738,7 @@ class RigRecorder(_QueuedBag):
 
 def _normal_scheduling() -> None:
     """The writer thread never runs under SCHED_FIFO, even if its creator later does."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        pass
 
 

@@ -11,7 +11,7 @@ import math
 
 from pcv_sim.jit import jit
 
-__all__ = ["jet_cosine", "flow_force"]
+__all__ = ["flow_force", "jet_cosine"]
 
 
 @jit(inline=True)

@@ -32,8 +32,19 @@ from pcv_sim.params import ValveParams
 from pcv_sim.units import MM_PER_M
 
 __all__ = [
-    "STATES", "INPUTS", "OUTPUTS", "STATE_OUTPUTS", "pack", "edges", "rhs", "state_output", "output",
-    "project", "coil_current", "chamber_rate", "static_force",
+    "INPUTS",
+    "OUTPUTS",
+    "STATES",
+    "STATE_OUTPUTS",
+    "chamber_rate",
+    "coil_current",
+    "edges",
+    "output",
+    "pack",
+    "project",
+    "rhs",
+    "state_output",
+    "static_force",
 ]
 
 STATES = {
@@ -113,7 +124,7 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
 
 
 @jit(inline=True)
-def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
+def coil_voltage(duty, t, p):
     """V_s (V): the PWM average D * V (reading R15) or the switched 200 Hz waveform, times the
     fault factor VOLTAGE_FACTOR (0: coil open circuit, the driver no longer drives it)."""
     if p[SWITCHED] != 0.0:
@@ -129,7 +140,7 @@ def coil_voltage(duty, t, p):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
+def edges(x, x_mm, p_load, p_s, p, f):
     """Eqs. 16-27 and 30-32 at spool x (m and mm), load pressure and supply pressure (Pa):
     (pump flow + pump -> load, tank flow + load -> tank, pump flow force, tank flow force)."""
     rho, nu = p[RHO], p[NU]
@@ -168,7 +179,7 @@ def edges(x, x_mm, p_load, p_s, p, f):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
+def coil_current(lam, x, v_s, i_guess, p, f):
     """Eqs. 1-8: the coil current for flux linkage lam at spool x (m) and coil voltage v_s."""
     c1, c2, c3, _, _, _, _ = sol.coefficients_at(x * MM_PER_M + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
                                                  f[T_FORCE])
@@ -177,7 +188,7 @@ def coil_current(lam, x, v_s, i_guess, p, f):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
+def static_force(i, x, p_load, p_s, p, f):
     """Eq. 14 at rest (v = 0, p_c = p): the net force on the spool (N, + toward +x) with coil
     current i at spool x (m), load and supply pressure (Pa): what the static characteristic and
     the rest states solve (pcv_sim.model.statics)."""
@@ -189,7 +200,7 @@ def static_force(i, x, p_load, p_s, p, f):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
+def rhs(t, x, u, p, f, w, dx):
     """d(state)/dt into dx; the coil current into w[0]. Eqs. 1-3 (solenoid), 14 (spool), 15 and
     28-29 (continuity, chamber).
 
@@ -234,10 +245,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
         dx[3] = 0.0
     # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop. A stuck spool
     # (fault) is held anywhere; the rig zeroes its velocity when the fault is set.
-    if p[STUCK] != 0.0:
-        dx[1] = 0.0
-        dx[2] = 0.0
-    elif stops.held(xs, v, force, p[X_MIN], p[X_MAX]):
+    if p[STUCK] != 0.0 or stops.held(xs, v, force, p[X_MIN], p[X_MAX]):
         dx[1] = 0.0
         dx[2] = 0.0
     else:
@@ -246,21 +254,21 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def chamber_rate(p):  # noqa: ANN001, ANN201
+def chamber_rate(p):
     """The damping chamber's pole K_d beta / V_c (1/s, ~2.6e8): the exact linear decay of p_c in
     Eq. 29, which the exponential integrator treats exactly (0 for the simplified model)."""
     return p[K_D] * p[BETA] / p[V_C] if p[FULL] != 0.0 else 0.0
 
 
 @jit(inline=True)
-def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
+def state_output(t, x, p, f, y):
     """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
     y[0] = x[3]
     y[2] = x[1]
 
 
 @jit(inline=True)
-def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
+def output(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
     y[0] = x[3]
@@ -269,9 +277,8 @@ def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def project(x, p):  # noqa: ANN001, ANN201
+def project(x, p):
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
     not below the cavitation floor (R32)."""
     stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
-    if x[3] < p[P_CAVITATION]:
-        x[3] = p[P_CAVITATION]
+    x[3] = max(x[3], p[P_CAVITATION])

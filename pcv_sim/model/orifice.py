@@ -17,19 +17,19 @@ import math
 from pcv_sim.jit import jit
 
 __all__ = [
-    "segment_area",
-    "pump_area",
-    "tank_area",
-    "gap_geometry_factor",
-    "gap_discharge_coefficient",
-    "hole_geometry_factor",
-    "transition_exponent",
-    "hole_discharge_coefficient",
     "blend",
-    "pump_discharge_coefficient",
-    "tank_geometry_factor",
-    "tank_discharge_coefficient",
+    "gap_discharge_coefficient",
+    "gap_geometry_factor",
+    "hole_discharge_coefficient",
+    "hole_geometry_factor",
     "orifice_flow",
+    "pump_area",
+    "pump_discharge_coefficient",
+    "segment_area",
+    "tank_area",
+    "tank_discharge_coefficient",
+    "tank_geometry_factor",
+    "transition_exponent",
 ]
 
 

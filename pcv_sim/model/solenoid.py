@@ -13,25 +13,25 @@ from typing import Any
 from pcv_sim.jit import jit
 
 __all__ = [
-    "poly",
     "coefficients_at",
+    "dissipating_current",
+    "dissipating_range",
+    "dissipating_slope",
+    "flux_linkage_at_rest",
+    "flux_linkage_derivative",
+    "force_from_coefficients",
+    "poly",
     "restoring_coefficients",
     "restoring_current",
-    "dissipating_current",
-    "dissipating_slope",
+    "solenoid_force",
+    "solenoid_force_slope",
     "solve_current",
     "solve_current_in",
-    "dissipating_range",
-    "flux_linkage_derivative",
-    "solenoid_force",
-    "force_from_coefficients",
-    "solenoid_force_slope",
-    "flux_linkage_at_rest",
 ]
 
 
 @jit(inline=True)
-def poly(coeffs, z):  # noqa: ANN001, ANN201 - tuples or arrays (compiled per type)
+def poly(coeffs, z):
     """Horner evaluation, highest power first (the order of Table 1)."""
     acc = 0.0
     for c in coeffs:
@@ -40,7 +40,7 @@ def poly(coeffs, z):  # noqa: ANN001, ANN201 - tuples or arrays (compiled per ty
 
 
 @jit(inline=True)
-def coefficients_at(core_mm, f1, f2, f3, force):  # noqa: ANN001, ANN201
+def coefficients_at(core_mm, f1, f2, f3, force):
     """Eqs. 5-7 and 10-13 at one core position (mm): (f_1, f_2, f_3, p_fs1, p_fs2, p_fs3, p_fs4).
 
     The same polynomials as `restoring_coefficients` and `solenoid_force`, in one pass: this runs
@@ -77,7 +77,7 @@ def restoring_current(lam: float, c1: float, c2: float, c3: float) -> float:
 
 
 @jit(inline=True)
-def dissipating_current(v_l, pd):  # noqa: ANN001, ANN201
+def dissipating_current(v_l, pd):
     """Eq. 8: energy-dissipating current i_d(V_L) = p_d1 V_L^3 + ... + p_d4 (A); V_L in V.
 
     It carries the magnetic hysteresis: the same flux linkage needs more current while the flux
@@ -127,7 +127,7 @@ def solve_current(
 
 
 @jit(inline=True)
-def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):  # noqa: ANN001, ANN201
+def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):
     """`solve_current` with the clamp interval given (the compiled kernel's form)."""
     p1, p2, p3, p4 = pd[0], pd[1], pd[2], pd[3]
     i = i_guess
@@ -148,13 +148,13 @@ def solve_current_in(i_r, v_s, resistance, pd, i_guess, v_lo, v_hi):  # noqa: AN
 
 
 @jit(inline=True)
-def _current_residual(i, i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
+def _current_residual(i, i_r, v_s, resistance, pd, v_lo, v_hi):
     v_l = min(max(v_s - i * resistance, v_lo), v_hi)
     return i - i_r - dissipating_current(v_l, pd)
 
 
 @jit(inline=True)
-def _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi):  # noqa: ANN001, ANN202
+def _bisect_current(i_r, v_s, resistance, pd, v_lo, v_hi):
     lo = i_r + dissipating_current(v_lo, pd) - 1e-9
     hi = i_r + dissipating_current(v_hi, pd) + 1e-9
     if not (math.isfinite(lo) and math.isfinite(hi)):

@@ -18,13 +18,13 @@ from pcv_sim.errors import PcvSimError
 from pcv_sim.model.valve import ValveModel
 
 __all__ = [
-    "StaticPoint",
     "EquilibriumError",
+    "StaticPoint",
     "balance_pressure",
-    "static_point",
-    "zero_flow_equilibrium",
     "equilibrium_at_flow",
+    "static_point",
     "stop_point",
+    "zero_flow_equilibrium",
 ]
 
 
@@ -119,11 +119,11 @@ def equilibrium_at_flow(
         # The first bracket in the scan's order; points beyond it are not needed (the rest state
         # of a replay, a restart or a rig reset computes ~40 % of the grid instead of all of it).
         if a is not None and b is not None and (a.load_flow - load_flow) * (b.load_flow - load_flow) <= 0.0:
-            x = brentq(
-                lambda x: static_point(model, duty, x, ps).load_flow - load_flow,
+            root = brentq(
+                lambda xs: static_point(model, duty, xs, ps).load_flow - load_flow,
                 a.spool_position, b.spool_position, xtol=1e-13, rtol=1e-12,
             )
-            return static_point(model, duty, x, ps)
+            return static_point(model, duty, root, ps)
     valid = [p for p in points if p is not None]
     # No free equilibrium delivers it: the spool is pushed onto a stop. The solenoid too weak
     # everywhere (or more flow than wanted even at x_min) -> min stop; too little -> max stop.

@@ -27,7 +27,7 @@ from pcv_sim.model import solenoid as sol
 from pcv_sim.params import ValveParams
 from pcv_sim.units import MM_PER_M, to_fit_mm
 
-__all__ = ["ValveModel", "Hydraulics", "ModelKind", "STATE_NAMES"]
+__all__ = ["STATE_NAMES", "Hydraulics", "ModelKind", "ValveModel"]
 
 ModelKind = Literal["simplified", "full"]
 STATE_NAMES = kernel.STATES
@@ -178,7 +178,7 @@ class ValveModel:
         """A state at rest: steady flux linkage for D's current at x, chamber pressure = p."""
         lam = self.flux_linkage_at_rest(self.steady_current(duty), x)
         base = (lam, x, 0.0, p)
-        return base + (p,) if self.kind == "full" else base
+        return (*base, p) if self.kind == "full" else base
 
     @property
     def state_names(self) -> tuple[str, ...]:

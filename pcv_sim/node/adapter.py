@@ -49,6 +49,7 @@ queues samples. Its state is in the diagnostics (`recording*` keys).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import gc
 import math
@@ -56,8 +57,9 @@ import os
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -71,25 +73,47 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from pcv_sim.device.diagnostics import DiagnosticsBuilder
+from pcv_sim.device.parameters import (
+    Override,
+    check_params_files,
+    command_line_overrides,
+    is_ros_own,
+    override_not_taken,
+    refuse_unknown,
+    unknown_parameters_message,
+)
+from pcv_sim.device.settings import (
+    MODEL_PREFIX,
+    NODE_PARAMETERS,
+    NodeSettings,
+    check_node_value,
+    model_parameters,
+    params_with,
+    settings_with,
+)
+from pcv_sim.device.valve import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
 from pcv_sim.io.topics import (
-    CLOCK, CURRENT, DIAGNOSTICS, DUTY_CYCLE, LOAD_FLOW, PRESSURE, RESET, SPOOL_POSITION, SUPPLY_PRESSURE,
-)
-from pcv_sim.device.diagnostics import DiagnosticsBuilder
-from pcv_sim.device.valve import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
-from pcv_sim.device.settings import (
-    MODEL_PREFIX, NODE_PARAMETERS, NodeSettings, check_node_value, model_parameters, params_with,
-    settings_with,
-)
-from pcv_sim.device.parameters import (
-    Override, check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
-    unknown_parameters_message,
+    CLOCK,
+    CURRENT,
+    DIAGNOSTICS,
+    DUTY_CYCLE,
+    LOAD_FLOW,
+    PRESSURE,
+    RESET,
+    SPOOL_POSITION,
+    SUPPLY_PRESSURE,
 )
 from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock, RealTimeSchedule, SimulatedSchedule,
+    NO_CLOCK_YET,
+    SIM_TIME_CONFLICT,
+    ExternalClock,
+    RealTimeSchedule,
+    SimulatedSchedule,
 )
 
 __all__ = ["EmulatorNode", "StopFlag"]
@@ -261,7 +285,7 @@ class EmulatorNode(Node):
         unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
         if unknown:
             return SetParametersResult(successful=False, reason=unknown_parameters_message(
-                unknown, self._declared, hint=_UNKNOWN_HINT.split("; allow_unknown")[0]))
+                unknown, self._declared, hint=_UNKNOWN_HINT.split("; allow_unknown", maxsplit=1)[0]))
         return self.set_parameters_atomically(parameters)
 
     def _on_set_parameters(self, request: Any, response: Any) -> Any:
@@ -297,7 +321,7 @@ class EmulatorNode(Node):
             stepper = self.device.prepare(params) if model_changes else None
         except (ParameterError, ValueError) as err:
             return SetParametersResult(successful=False, reason=str(err))
-        except Exception as err:  # noqa: BLE001 - e.g. no equilibrium for these parameters: refuse, keep running
+        except Exception as err:
             return SetParametersResult(successful=False,
                                        reason=f"the model cannot run with these parameters: {type(err).__name__}: {err}")
         self._staged = (settings, params, stepper)
@@ -525,7 +549,7 @@ class EmulatorNode(Node):
         response = srv.srv_type.Response()
         try:
             return srv.callback(request, response)
-        except Exception as err:  # noqa: BLE001 - the loop must go on; the caller learns why
+        except Exception as err:
             self._staged = None
             self._ready.clear()
             self.get_logger().error(f"{srv.srv_name}: {type(err).__name__}: {err}")
@@ -537,7 +561,7 @@ class EmulatorNode(Node):
         """Worker thread: the rest state at the present operating point, on trial; the loop installs it."""
         try:
             stepper = self.device.prepare()
-        except Exception as err:  # noqa: BLE001 - the device stays as it was; the caller learns why
+        except Exception as err:
             response.success = False
             response.message = f"reset failed: {type(err).__name__}: {err}"
             self.get_logger().error(response.message)
@@ -824,10 +848,8 @@ class EmulatorNode(Node):
 
 def _tighten_timer_slack() -> None:
     """Ask Linux for 1 ns timer slack (default 50 us): wakes land ~50 us closer to the grid."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(29, 1, 0, 0, 0)   # PR_SET_TIMERSLACK
-    except (OSError, AttributeError):
-        pass
 
 
 def _freeze_heap() -> None:

@@ -11,8 +11,9 @@ sample should do.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -26,7 +27,14 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pcv_sim.io.topics import (
-    CURRENT, DIAGNOSTICS, DUTY_CYCLE, LOAD_FLOW, PRESSURE, RESET, SPOOL_POSITION, SUPPLY_PRESSURE,
+    CURRENT,
+    DIAGNOSTICS,
+    DUTY_CYCLE,
+    LOAD_FLOW,
+    PRESSURE,
+    RESET,
+    SPOOL_POSITION,
+    SUPPLY_PRESSURE,
 )
 
 __all__ = ["EmulatorClient", "PressureSample", "sample_qos"]

@@ -19,7 +19,7 @@ __all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main"]
 
 
 def _parameter_help() -> str:
-    from pcv_sim.device.settings import MODEL_PREFIX, NODE_PARAMETERS  # noqa: PLC0415 - after the handlers
+    from pcv_sim.device.settings import MODEL_PREFIX, NODE_PARAMETERS
 
     lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file config/emulator.yaml):"]
     for spec in NODE_PARAMETERS:
@@ -36,9 +36,9 @@ def main(args: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str], stop: Stop) -> int:
-    import argparse  # noqa: PLC0415 - imports after the signal handlers, see the module docstring
+    import argparse
 
-    from rclpy.utilities import remove_ros_args  # noqa: PLC0415
+    from rclpy.utilities import remove_ros_args
 
     parser = argparse.ArgumentParser(
         prog="emulator", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
@@ -48,7 +48,7 @@ def _run(argv: list[str], stop: Stop) -> int:
     if stop.requested:
         print(f"emulator: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK
-    from pcv_sim.node.adapter import EmulatorNode  # noqa: PLC0415
+    from pcv_sim.node.adapter import EmulatorNode
 
     return serve("emulator", argv, stop, lambda argv: EmulatorNode(argv=argv))
 

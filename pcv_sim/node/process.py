@@ -11,9 +11,10 @@ from __future__ import annotations
 import faulthandler
 import signal
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["EXIT_OK", "EXIT_INVALID_PARAMETERS", "Stop", "main_process", "serve"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main_process", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
@@ -52,10 +53,10 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
 def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]], Any]) -> int:
     """rclpy up, the node made (`make_node(argv)`; a ParameterError -> exit 2 naming it), run until
     the stop (`node.run(stop)`), then destroyed and rclpy shut down, whatever happened."""
-    import rclpy  # noqa: PLC0415 - after the signal handlers, see the module docstring
-    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
 
-    from pcv_sim.errors import ParameterError  # noqa: PLC0415
+    from pcv_sim.errors import ParameterError
 
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None

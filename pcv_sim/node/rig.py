@@ -19,7 +19,7 @@ __all__ = ["main"]
 
 
 def _parameter_help() -> str:
-    from pcv_sim.node.rig_settings import RIG_PARAMETERS  # noqa: PLC0415 - after the handlers
+    from pcv_sim.node.rig_settings import RIG_PARAMETERS
 
     lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file FILE):"]
     for spec in RIG_PARAMETERS:
@@ -32,9 +32,9 @@ def _parameter_help() -> str:
 def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
     """The rig YAML (config/rig.yaml) given as `--params-file`: rcl cannot read it (it is not a
     ROS parameter file) and would fail with a parse error; say what to write instead."""
-    import yaml  # noqa: PLC0415
+    import yaml
 
-    from pcv_sim.device.parameters import params_files  # noqa: PLC0415
+    from pcv_sim.device.parameters import params_files
 
     for name in params_files(argv):
         try:
@@ -54,9 +54,9 @@ def main(args: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str], stop: Stop) -> int:
-    import argparse  # noqa: PLC0415 - imports after the signal handlers, see the module docstring
+    import argparse
 
-    from rclpy.utilities import remove_ros_args  # noqa: PLC0415
+    from rclpy.utilities import remove_ros_args
 
     parser = argparse.ArgumentParser(
         prog="rig", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
@@ -69,7 +69,7 @@ def _run(argv: list[str], stop: Stop) -> int:
     if reason is None:
         try:
             parser.parse_args(remove_ros_args(argv)[1:])
-        except Exception as err:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError: a bad params file or remap
+        except Exception as err:
             reason = f"--ros-args: {err}"
     if reason is not None:
         print(f"rig: invalid parameters: {reason}", file=sys.stderr)
@@ -77,7 +77,7 @@ def _run(argv: list[str], stop: Stop) -> int:
     if stop.requested:
         print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK
-    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+    from pcv_sim.node.rig_node import RigNode
 
     return serve("rig", argv, stop, lambda argv: RigNode(argv=argv))
 

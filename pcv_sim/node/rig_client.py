@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -35,12 +36,20 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from pcv_sim.io.topics import (
-    CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, RESET, valve_topic,
+    CURRENT,
+    CYLINDER,
+    DIAGNOSTICS,
+    DUTY_CYCLE,
+    FAULTS,
+    JOINT_STATES,
+    PRESSURE,
+    RESET,
+    valve_topic,
 )
-from pcv_sim.node.polling import drain
 from pcv_sim.node.client import sample_qos
+from pcv_sim.node.polling import drain
 
-__all__ = ["RigClient", "Period"]
+__all__ = ["Period", "RigClient"]
 
 POLL = 2e-5             # s between polls; with the default 50 us timer slack a sleep lasts ~100 us
                         # (the caller may tighten it, as bench/rig_dds.py does)

@@ -16,6 +16,7 @@ node's full name (REP 107 style, as the emulator's).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -107,7 +108,7 @@ class RigDiagnostics:
         for key, signal, fmt in (("pressure_pa", "pressure", ".1f"), ("current_a", "current", ".5f"),
                                  ("spool_position_m", "spool_position", ".4e")):
             v = y.get(f"{name}.{signal}")
-            values[key] = format(v, fmt) if v is not None and v == v else ""
+            values[key] = format(v, fmt) if v is not None and not math.isnan(v) else ""
         return self._status(name, WARN if problems else OK, problems, "ok", values)
 
     def _rig(self, rig: Rig, counts: RigCounts, new: dict[str, int], time_mode: str, lockstep: bool,

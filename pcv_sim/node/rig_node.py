@@ -65,8 +65,9 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -78,18 +79,38 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
+from pcv_sim.device.parameters import (
+    check_params_files,
+    command_line_overrides,
+    is_ros_own,
+    override_not_taken,
+    refuse_unknown,
+)
 from pcv_sim.errors import BagError, CommandError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RigRecorder
 from pcv_sim.io.topics import (
-    CLOCK, CURRENT, CYLINDER, DIAGNOSTICS, DUTY_CYCLE, FAULTS, JOINT_STATES, PRESSURE, RESET, SPOOL_POSITION,
-    chamber_topic, valve_topic,
+    CLOCK,
+    CURRENT,
+    CYLINDER,
+    DIAGNOSTICS,
+    DUTY_CYCLE,
+    FAULTS,
+    JOINT_STATES,
+    PRESSURE,
+    RESET,
+    SPOOL_POSITION,
+    chamber_topic,
+    valve_topic,
 )
 from pcv_sim.node.adapter import (
-    CLOCK_DISCOVERY, CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, LOCKSTEP_RESEND, StopFlag, _freeze_heap,
+    CLOCK_DISCOVERY,
+    CLOCK_QOS,
+    COMMAND_QOS,
+    DIAGNOSTICS_QOS,
+    LOCKSTEP_RESEND,
+    StopFlag,
+    _freeze_heap,
     _tighten_timer_slack,
-)
-from pcv_sim.device.parameters import (
-    check_params_files, command_line_overrides, is_ros_own, override_not_taken, refuse_unknown,
 )
 from pcv_sim.node.polling import drain, linger_for_rosout
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
@@ -97,11 +118,15 @@ from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock, RealTimeSchedule, SimulatedSchedule,
+    NO_CLOCK_YET,
+    SIM_TIME_CONFLICT,
+    ExternalClock,
+    RealTimeSchedule,
+    SimulatedSchedule,
 )
 from pcv_sim.simulation.duty import check_duty
 
-__all__ = ["RigNode", "NODE_NAME", "JOINT_NAME"]
+__all__ = ["JOINT_NAME", "NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
 JOINT_NAME = "steering"

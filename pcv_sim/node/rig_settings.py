@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import yaml
 
@@ -31,7 +32,7 @@ from pcv_sim.rig.faults import Fault, FaultError, parse_fault
 from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.clock import steps_per
 
-__all__ = ["RIG_PARAMETERS", "RigNodeSettings", "FaultCommand", "check_rig_value", "parse_fault_command"]
+__all__ = ["RIG_PARAMETERS", "FaultCommand", "RigNodeSettings", "check_rig_value", "parse_fault_command"]
 
 
 def _positive(v: float) -> str | None:

@@ -41,7 +41,7 @@ from pcv_sim.errors import PcvSimError
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.scenario import RosController, Scenario, ScenarioResult, scenario_result, schedule_timeline
 
-__all__ = ["run_ros_scenario", "SETPOINT_TOPIC", "FLAGS_TOPIC"]
+__all__ = ["FLAGS_TOPIC", "SETPOINT_TOPIC", "run_ros_scenario"]
 
 SETPOINT_TOPIC = "setpoint"
 FLAGS_TOPIC = "controller/flags"
@@ -59,13 +59,13 @@ class _Host:
     """The hook on the rig node, and the stop flag its loop polls."""
 
     def __init__(self, node: Any, scenario: Scenario, ros: RosController, proc: Any, log_path: Path | None) -> None:
-        from std_msgs.msg import Float64  # noqa: PLC0415
+        from std_msgs.msg import Float64
 
         self.node, self.scenario, self.ros, self.proc, self.log_path = node, scenario, ros, proc, log_path
         rig = node.rig
         self.per = rig.params.steps_per_period
         self.period_ns = self.per * node.dt_ns
-        self.n = n = int(round(scenario.duration / rig.params.timing.control_period))
+        self.n = n = round(scenario.duration / rig.params.timing.control_period)
         names, self.valves = rig.signals, rig.valve_names
         self.true = np.full((n + 1, len(names)), np.nan)
         self.meas = np.full((n + 1, len(names)), np.nan)
@@ -239,13 +239,13 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
 
 def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> ScenarioResult:
     """Run `scenario` (its controller a ROS node) over DDS; see the module docstring."""
-    import rclpy  # noqa: PLC0415
-    from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
-    from rclpy.parameter import Parameter  # noqa: PLC0415
-    from rclpy.qos import QoSProfile  # noqa: PLC0415
-    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile
+    from rclpy.signals import SignalHandlerOptions
 
-    from pcv_sim.node.rig_node import RigNode  # noqa: PLC0415
+    from pcv_sim.node.rig_node import RigNode
 
     spec = scenario.ros
     assert spec is not None

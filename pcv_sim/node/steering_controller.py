@@ -35,11 +35,12 @@ unless one came with that sample). Exit status as the rig:
 from __future__ import annotations
 
 import sys
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
 
-__all__ = ["main", "NODE_NAME", "FLAGS_TOPIC", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES"]
+__all__ = ["FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "main"]
 
 NODE_NAME = "steering_controller"
 FLAGS_TOPIC = "controller/flags"
@@ -50,28 +51,28 @@ VALVES = ("left", "right")        # the valves PositionController drives (chambe
 
 def _parameters() -> dict[str, float]:
     """PositionController's keyword arguments and their defaults: the node's parameters."""
-    import inspect  # noqa: PLC0415
+    import inspect
 
-    from pcv_sim.control.steering import PositionController  # noqa: PLC0415
+    from pcv_sim.control.steering import PositionController
 
     return {name: float(p.default) for name, p in inspect.signature(PositionController).parameters.items()}
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
     """The node (rclpy initialized); ParameterError for an invalid parameter."""
-    import math  # noqa: PLC0415
+    import math
 
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: PLC0415
-    from rcl_interfaces.msg import ParameterDescriptor  # noqa: PLC0415
-    from rclpy.node import Node  # noqa: PLC0415
-    from rclpy.qos import QoSProfile  # noqa: PLC0415
-    from std_msgs.msg import Float64  # noqa: PLC0415
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile
+    from std_msgs.msg import Float64
 
-    from pcv_sim.control.steering import PositionController  # noqa: PLC0415
-    from pcv_sim.errors import ParameterError  # noqa: PLC0415
-    from pcv_sim.node.adapter import _freeze_heap, _tighten_timer_slack  # noqa: PLC0415
-    from pcv_sim.node.polling import linger_for_rosout  # noqa: PLC0415
-    from pcv_sim.node.rig_client import RigClient, _ignore  # noqa: PLC0415
+    from pcv_sim.control.steering import PositionController
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.adapter import _freeze_heap, _tighten_timer_slack
+    from pcv_sim.node.polling import linger_for_rosout
+    from pcv_sim.node.rig_client import RigClient, _ignore
 
     class SteeringControllerNode(Node):
         """PositionController between the rig's samples and its duty commands; `run(stop)`."""
@@ -169,9 +170,9 @@ def main(args: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str], stop: Stop) -> int:
-    import argparse  # noqa: PLC0415 - after the signal handlers (pcv_sim.node.process)
+    import argparse
 
-    from rclpy.utilities import remove_ros_args  # noqa: PLC0415
+    from rclpy.utilities import remove_ros_args
 
     parser = argparse.ArgumentParser(
         prog=NODE_NAME, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -183,12 +184,12 @@ def _run(argv: list[str], stop: Stop) -> int:
                + "; period must be the rig's control period; use_sim_time follows the rig's /clock")
     try:
         parser.parse_args(remove_ros_args(argv)[1:])
-    except Exception as err:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError
+    except Exception as err:
         print(f"{NODE_NAME}: invalid parameters: --ros-args: {err}", file=sys.stderr)
         return EXIT_INVALID_PARAMETERS
     if stop.requested:
         return EXIT_OK
-    return serve(NODE_NAME, argv, stop, lambda argv: make_node(argv))
+    return serve(NODE_NAME, argv, stop, make_node)
 
 
 if __name__ == "__main__":

@@ -6,4 +6,4 @@ core's composition test and the example of how a new system plugs in).
 (`pcv_sim.rig`); its parameters: `pcv_sim.plant.params.CylinderParams`.
 """
 
-__all__ = ["mass_spring", "cylinder", "params"]
+__all__ = ["cylinder", "mass_spring", "params"]

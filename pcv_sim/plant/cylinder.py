@@ -35,7 +35,7 @@ from pcv_sim.model import stops
 from pcv_sim.plant.params import CylinderParams
 from pcv_sim.simulation.system import Kernel, Stop, System
 
-__all__ = ["cylinder_system", "INPUTS", "OUTPUTS", "STATE_OUTPUTS", "STATES", "pack"]
+__all__ = ["INPUTS", "OUTPUTS", "STATES", "STATE_OUTPUTS", "cylinder_system", "pack"]
 
 STATES = ("position", "velocity")
 INPUTS = ("pressure_a", "pressure_b", "external_force")
@@ -60,7 +60,7 @@ def pack(params: CylinderParams) -> np.ndarray:
 
 
 @jit(inline=True)
-def net_force(x, u, p):  # noqa: ANN001, ANN201
+def net_force(x, u, p):
     """m dv/dt (N): A_a p_a - A_b p_b - k x - c v - F_c tanh(v / v_s) + F_ext (+ toward +x)."""
     pos, v = x[0], x[1]
     return (p[A_A] * u[0] - p[A_B] * u[1] - p[K_LOAD] * pos - p[DAMPING] * v
@@ -68,7 +68,7 @@ def net_force(x, u, p):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
+def rhs(t, x, u, p, f, w, dx):
     """dx/dt = v, m dv/dt = net_force; held at an end stop while the force pushes into it, and
     anywhere while jammed (a fault; the rig zeroes the velocity when it is set)."""
     force = net_force(x, u, p)
@@ -81,7 +81,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
+def state_output(t, x, p, f, y):
     """Chamber volumes (m^3), displacement flows (m^3/s, + drawn from the valve), position, velocity."""
     y[0] = p[V0_A] + p[A_A] * (x[0] - p[X_MIN])
     y[1] = p[V0_B] + p[A_B] * (p[X_MAX] - x[0])
@@ -92,14 +92,14 @@ def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
+def output(t, x, u, p, f, w, y):
     """State outputs and the effort A_a p_a - A_b p_b (N, the joint's effort, + toward +x)."""
     state_output(t, x, p, f, y)
     y[6] = p[A_A] * u[0] - p[A_B] * u[1]
 
 
 @jit(inline=True)
-def project(x, p):  # noqa: ANN001, ANN201
+def project(x, p):
     """Inelastic end stops: position clamped to the stroke, velocity into the stop zeroed."""
     stops.impact(x, 0, 1, p[X_MIN], p[X_MAX])
 

@@ -27,7 +27,7 @@ AREA, MASS, STIFFNESS, DAMPING, X_MIN, X_MAX = 0, 1, 2, 3, 4, 5
 
 
 @jit(inline=True)
-def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
+def rhs(t, x, u, p, f, w, dx):
     force = p[AREA] * (u[0] - u[1]) - p[STIFFNESS] * x[0] - p[DAMPING] * x[1]
     if stops.held(x[0], x[1], force, p[X_MIN], p[X_MAX]):
         dx[0] = 0.0
@@ -38,7 +38,7 @@ def rhs(t, x, u, p, f, w, dx):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
+def state_output(t, x, p, f, y):
     y[0] = p[AREA] * x[1]
     y[1] = -p[AREA] * x[1]
     y[2] = x[0]
@@ -46,12 +46,12 @@ def state_output(t, x, p, f, y):  # noqa: ANN001, ANN201
 
 
 @jit(inline=True)
-def output(t, x, u, p, f, w, y):  # noqa: ANN001, ANN201
+def output(t, x, u, p, f, w, y):
     state_output(t, x, p, f, y)
 
 
 @jit(inline=True)
-def project(x, p):  # noqa: ANN001, ANN201
+def project(x, p):
     stops.impact(x, 0, 1, p[X_MIN], p[X_MAX])
 
 

@@ -9,14 +9,15 @@ could have), so they catch unit slips (mm for m, bar for Pa, L for m^3) rather t
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, TypeVar
+from typing import Any, TypeVar
 
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import check_value as params_check_value
 from pcv_sim.params import plausible_range
 
-__all__ = ["CylinderParams", "ranged", "section_from_mapping", "check_value"]
+__all__ = ["CylinderParams", "check_value", "ranged", "section_from_mapping"]
 
 T = TypeVar("T")
 

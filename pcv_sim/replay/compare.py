@@ -249,7 +249,7 @@ def detect_steps(
     d = timeline.duty
     changes = [k for k in range(1, len(t)) if d[k] != d[k - 1]]
     groups: list[list[int]] = []
-    hold_ns = int(round(min_hold * _NS))
+    hold_ns = round(min_hold * _NS)
     for k in changes:
         if groups:
             last = groups[-1]
@@ -294,7 +294,7 @@ def replay(
     if not (isinstance(resync, (int, float)) and math.isfinite(resync) and resync >= 0):
         msg = f"resync {resync!r} s: accepted is a finite number >= 0"
         raise ReplayError(msg)
-    skipped_ns = [(g.start_ns, g.end_ns + int(round(resync * _NS))) for g in recording.gaps]
+    skipped_ns = [(g.start_ns, g.end_ns + round(resync * _NS)) for g in recording.gaps]
     timeline, tl_notes = input_timeline(
         recording.inputs, 0.0, params.circuit.supply_pressure
     )

@@ -110,7 +110,7 @@ def find_gaps(measured: Mapping[str, Series], factor: float = GAP_FACTOR) -> tup
         if period <= 0:
             continue
         for k in np.nonzero(d > factor * period)[0].tolist():
-            found.append((int(s.t_ns[k]), int(s.t_ns[k + 1]), int(round(d[k] / period)) - 1, role))
+            found.append((int(s.t_ns[k]), int(s.t_ns[k + 1]), round(d[k] / period) - 1, role))
     found.sort()
     merged: list[Gap] = []
     for start, end, missing, role in found:
@@ -337,7 +337,7 @@ def load_recording(
         raise ReplayError(msg)
     for role, topic in topics.items():
         _check_type(role, topic, types)
-    for role in OUTPUT_ROLES + (LOAD_FLOW, SUPPLY_PRESSURE):
+    for role in (*OUTPUT_ROLES, LOAD_FLOW, SUPPLY_PRESSURE):
         if role not in topics:
             what = "not compared" if role in OUTPUT_ROLES else "the model uses the configured value"
             notes.append(f"{role}: no topic {bag_topic(role)} in the bag; {what}")
@@ -374,8 +374,8 @@ def load_recording(
     start = int(t_duty[0])
     inputs: dict[str, Series] = {}
     measured: dict[str, Series] = {}
-    for role, (t, v) in raw.items():
-        rel = t - start
+    for role, (t, values) in raw.items():
+        rel, v = t - start, values
         if role in INPUT_ROLES:
             if role != DUTY_CYCLE:
                 before = np.nonzero(rel <= 0)[0]

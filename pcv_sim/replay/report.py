@@ -216,10 +216,10 @@ def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[Threshol
 
 def plot_signals(r: ReplayResult) -> dict[str, bytes]:
     """PNG bytes per output role (measured vs model, and the error below) and for the duty."""
-    import matplotlib  # noqa: PLC0415 - only reports pay for matplotlib
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     out: dict[str, bytes] = {}
     for role, (t, meas, mod) in r.traces.items():
@@ -249,7 +249,7 @@ def plot_signals(r: ReplayResult) -> dict[str, bytes]:
     t_d, duty = r.duty
     t_end = max(r.duration_s, float(t_d[-1]))
     fig, ax = plt.subplots(figsize=(10, 2.5))
-    ax.step(list(t_d) + [t_end], list(duty) + [duty[-1]], where="post")
+    ax.step([*list(t_d), t_end], [*list(duty), duty[-1]], where="post")
     ax.set_ylabel("duty [-]")
     ax.set_xlabel("time since first duty command [s]")
     ax.grid(True, alpha=0.3)

@@ -31,8 +31,8 @@ import numpy as np
 import numpy.typing as npt
 
 from pcv_sim.errors import CommandError
-from pcv_sim.jit import backend
 from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE
+from pcv_sim.jit import backend
 from pcv_sim.model.statics import EquilibriumError
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
@@ -213,7 +213,7 @@ def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: n
     except EquilibriumError as exc:
         msg = f"no rest point for the first inputs (duty {tl.duty[0]:g}, load flow {tl.load_flow[0]:g} m^3/s): {exc}"
         raise ReplayError(msg) from exc
-    dt_ns = int(round(params.simulation.time_step * _NS))
+    dt_ns = round(params.simulation.time_step * _NS)
     if abs(dt_ns / _NS - params.simulation.time_step) > 1e-15:
         msg = f"simulation.time_step {params.simulation.time_step!r} s is not a whole number of ns"
         raise ReplayError(msg)

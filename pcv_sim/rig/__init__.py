@@ -7,6 +7,19 @@ from pcv_sim.rig.params import DEFAULT_RIG, RigParams, load_rig, rig_from_mappin
 from pcv_sim.rig.rig import Rig, RigError, RigStatus
 
 __all__ = [
-    "Rig", "RigError", "RigStatus", "RigParams", "load_rig", "rig_from_mapping", "DEFAULT_RIG", "run_lockstep", "RigRun",
-    "ControllerError", "Fault", "FaultError", "parse_fault", "VALVE_FAULTS", "SENSOR_FAULTS",
+    "DEFAULT_RIG",
+    "SENSOR_FAULTS",
+    "VALVE_FAULTS",
+    "ControllerError",
+    "Fault",
+    "FaultError",
+    "Rig",
+    "RigError",
+    "RigParams",
+    "RigRun",
+    "RigStatus",
+    "load_rig",
+    "parse_fault",
+    "rig_from_mapping",
+    "run_lockstep",
 ]

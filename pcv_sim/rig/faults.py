@@ -36,12 +36,13 @@ controller and the recording see; the physics is untouched):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 from pcv_sim.errors import PcvSimError
 
-__all__ = ["FaultError", "Fault", "VALVE_FAULTS", "CYLINDER_FAULTS", "CYLINDER", "SENSOR_FAULTS", "parse_fault"]
+__all__ = ["CYLINDER", "CYLINDER_FAULTS", "SENSOR_FAULTS", "VALVE_FAULTS", "Fault", "FaultError", "parse_fault"]
 
 
 class FaultError(PcvSimError, ValueError):

@@ -17,19 +17,20 @@ allows. The rig node in lockstep applies a controller's answers at the same step
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from collections.abc import Mapping
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.rig import Rig
 
-__all__ = ["Controller", "RigRun", "run_lockstep", "ControllerError"]
+__all__ = ["Controller", "ControllerError", "RigRun", "run_lockstep"]
 
 Controller = Callable[[float, Mapping[str, float]], Any]
 
@@ -84,7 +85,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     the duties come from the rig's schedule alone). Returns every control instant's samples."""
     T = rig.params.timing.control_period
     per = rig.params.steps_per_period
-    n = int(round(duration / T))
+    n = round(duration / T)
     k0 = rig.steps
     names = rig.signals
     valves = rig.valve_names
@@ -107,10 +108,10 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
         m = sensors.measure(t, y)
         meas[k] = m
         if answer and controller is not None:
-            if sensors.active:
-                measurement = {s: v for s, v in zip(names, m.tolist()) if v == v}   # NaN: dropped
-            else:
-                measurement = dict(zip(names, m.tolist()))
+            values = m.tolist()
+            # A dropped (NaN) measurement is absent from the controller's dict.
+            measurement = ({s: v for s, v in zip(names, values) if not math.isnan(v)} if sensors.active
+                           else dict(zip(names, values)))
             if setpoint is not None:
                 sp[k] = measurement["setpoint"] = setpoint(t)
             # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
@@ -150,7 +151,5 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
 
 
 def _set_duty(rig: Rig, valve: str, value: Any) -> None:
-    try:
+    with contextlib.suppress(CommandError):     # counted in rig.rejected; the last valid command stays
         rig.set_duty(valve, value)
-    except CommandError:
-        pass            # counted in rig.rejected; the last valid command stays

@@ -14,9 +14,10 @@ naming the key and what is accepted.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
@@ -24,7 +25,7 @@ from pcv_sim.errors import ParameterError
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.plant.params import CylinderParams, ranged, section_from_mapping
 
-__all__ = ["RigParams", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping", "DEFAULT_RIG"]
+__all__ = ["DEFAULT_RIG", "RigParams", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping"]
 
 DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "rig.yaml"
 CHAMBERS = ("a", "b")
@@ -58,7 +59,7 @@ class RigParams:
 
     @property
     def steps_per_period(self) -> int:
-        return int(round(self.timing.control_period / self.timing.time_step))
+        return round(self.timing.control_period / self.timing.time_step)
 
     def valve(self, name: str) -> ValveSlot:
         for v in self.valves:
@@ -143,10 +144,10 @@ def _installed_default() -> Path:
     if DEFAULT_RIG.is_file():
         return DEFAULT_RIG
     try:
-        from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+        from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("pcv_sim")) / "config" / "rig.yaml"
-    except Exception:  # noqa: BLE001 - not installed through ament: report the source path
+    except Exception:
         return DEFAULT_RIG
 
 

@@ -28,7 +28,7 @@ import numpy as np
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.rig.lockstep import RigRun
 
-__all__ = ["write_bag", "render_html", "plot_run", "JOINT_STATE", "STRING"]
+__all__ = ["JOINT_STATE", "STRING", "plot_run", "render_html", "write_bag"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
@@ -79,14 +79,14 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
                 "position": np.array(fields[0], dtype=np.float64), "velocity": np.array(fields[1], dtype=np.float64),
                 "effort": np.array(fields[2], dtype=np.float64)})
         for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
-            w.write("/rig/events", int(round(t * _NS)), {"data": text})
+            w.write("/rig/events", round(t * _NS), {"data": text})
     return Path(path)
 
 
 def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") -> bytes:
     """A PNG of the run: position vs setpoint, chamber pressures, duties, currents (bytes; also
     written to `path` when given)."""
-    from pcv_sim.commands.common import pyplot  # noqa: PLC0415 - matplotlib only when plotting
+    from pcv_sim.commands.common import pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(4, 1, figsize=(8, 9), sharex=True)

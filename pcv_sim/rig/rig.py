@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -40,8 +41,17 @@ from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["Rig", "RigError", "RigStatus", "VALVE_SIGNALS", "CYLINDER_SIGNALS", "MAX_EXTERNAL_FORCE",
-           "EXTERNAL_FORCE", "InputHook", "check_external_force"]
+__all__ = [
+    "CYLINDER_SIGNALS",
+    "EXTERNAL_FORCE",
+    "MAX_EXTERNAL_FORCE",
+    "VALVE_SIGNALS",
+    "InputHook",
+    "Rig",
+    "RigError",
+    "RigStatus",
+    "check_external_force",
+]
 
 VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
@@ -125,7 +135,7 @@ class Rig:
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
-        self._wd_steps = int(round(params.timing.watchdog_timeout / self.dt))
+        self._wd_steps = round(params.timing.watchdog_timeout / self.dt)
         self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
         #: Called whenever an input of the model (a duty in force, a supply pressure, the external
@@ -269,9 +279,8 @@ class Rig:
         elif fault.on_cylinder:
             if fault.target != CYLINDER:
                 raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is {CYLINDER}")
-        else:
-            if fault.target not in self.valve_names:
-                raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
+        elif fault.target not in self.valve_names:
+            raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
         self.faults[fault.key] = fault
         self._apply_physical_faults(fault)
         self.log.append((self.time, f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip()))

@@ -43,7 +43,6 @@ naming the key and what is accepted (the CLI exits 2).
 from __future__ import annotations
 
 import functools
-
 import importlib
 import importlib.util
 import inspect
@@ -51,9 +50,10 @@ import math
 import re
 import sys
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
@@ -64,8 +64,17 @@ from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.rig import Rig, RigError
 
-__all__ = ["Scenario", "ScenarioError", "Outcome", "ScenarioResult", "RosController", "load_scenario",
-           "run_scenario", "scenario_result", "ASSERTION_TYPES"]
+__all__ = [
+    "ASSERTION_TYPES",
+    "Outcome",
+    "RosController",
+    "Scenario",
+    "ScenarioError",
+    "ScenarioResult",
+    "load_scenario",
+    "run_scenario",
+    "scenario_result",
+]
 
 ASSERTION_TYPES = ("max_error", "never_above", "never_below", "flag_within")
 _TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions")
@@ -509,7 +518,7 @@ def run_scenario(scenario: Scenario, controller: Controller | None = None, *, ri
     controller (`scenario.ros`, no `controller` given) runs over DDS in ROS domain `domain`
     (None: $ROS_DOMAIN_ID), the rig hosted as the rig node (`pcv_sim.node.scenario_host`)."""
     if controller is None and scenario.ros is not None:
-        from pcv_sim.node.scenario_host import run_ros_scenario  # noqa: PLC0415 - ROS only when asked for
+        from pcv_sim.node.scenario_host import run_ros_scenario
 
         return run_ros_scenario(scenario, domain=domain)
     if controller is None and scenario.controller is not None:

@@ -5,4 +5,4 @@ the valve's stepper (`stepper`) and the real-time schedules (`clock`). See docs/
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import CompositionError, Kernel, Stop, System, compose
 
-__all__ = ["Simulator", "System", "Kernel", "Stop", "compose", "CompositionError"]
+__all__ = ["CompositionError", "Kernel", "Simulator", "Stop", "System", "compose"]

@@ -36,11 +36,20 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
-__all__ = ["ClockPlan", "EXTERNAL_MAX_JUMP", "ExternalClock", "NO_CLOCK_YET", "Plan", "RealTimeSchedule",
-           "SIM_TIME_CONFLICT", "SimulatedSchedule", "steps_per"]
+__all__ = [
+    "EXTERNAL_MAX_JUMP",
+    "NO_CLOCK_YET",
+    "SIM_TIME_CONFLICT",
+    "ClockPlan",
+    "ExternalClock",
+    "Plan",
+    "RealTimeSchedule",
+    "SimulatedSchedule",
+    "steps_per",
+]
 
 Clock = Callable[[], float]
 
@@ -159,10 +168,8 @@ class RealTimeSchedule:
     def note_wake_cpu(self, seconds: float) -> None:
         """Record the loop thread's CPU time for one wake (its own work, whatever the machine's
         load: what a stall inside the loop, e.g. a computation that belongs in a worker, shows)."""
-        if seconds > self.max_wake_cpu:
-            self.max_wake_cpu = seconds
-        if seconds > self.period_max_wake_cpu:
-            self.period_max_wake_cpu = seconds
+        self.max_wake_cpu = max(self.max_wake_cpu, seconds)
+        self.period_max_wake_cpu = max(self.period_max_wake_cpu, seconds)
 
     def take_period_wake_cpu(self) -> float:
         """The largest CPU time of one wake since the last call (diagnostics); starts a new period."""

@@ -39,7 +39,7 @@ import numpy as np
 from pcv_sim.jit import cache_root, enabled
 from pcv_sim.simulation.system import Composite
 
-__all__ = ["INTEGRATORS", "ORDERS", "compiled_module", "generate_source", "exponential_weights"]
+__all__ = ["INTEGRATORS", "ORDERS", "compiled_module", "exponential_weights", "generate_source"]
 
 INTEGRATORS = ("euler", "rk2", "rk4", "erk2")
 ORDERS = {"euler": 1, "rk2": 2, "rk4": 4, "erk2": 2}
@@ -234,7 +234,7 @@ def generate_source(plant: Composite) -> str:
     body += state_outputs + wiring
     body += [f"    rhs_{k}(t, {view('x', xs, k)}, {view('U', us, k)}, {view('P', ps, k)}, F[{k}], "
              f"{view('W', ws, k)}, {view('dx', xs, k)})" for k in range(len(plant.systems))]
-    body += ["", "", "@jit(nrt=False)", "def outputs(t, x, u, P, F, W, Y, U):"] + state_outputs + wiring
+    body += ["", "", "@jit(nrt=False)", "def outputs(t, x, u, P, F, W, Y, U):", *state_outputs, *wiring]
     body += [f"    out_{k}(t, {view('x', xs, k)}, {view('U', us, k)}, {view('P', ps, k)}, F[{k}], "
              f"{view('W', ws, k)}, {view('Y', ys, k)})" for k in range(len(plant.systems))]
     body += ["", "", "@jit(nrt=False)", "def project(x, P):"]
@@ -263,7 +263,7 @@ def compiled_module(plant: Composite) -> ModuleType:
             os.replace(tmp, path)          # atomic: concurrent processes never see half a file
     except OSError:
         # No writable cache: compile from a temporary file (works; compiled again next time).
-        import tempfile  # noqa: PLC0415
+        import tempfile
 
         directory = __import__("pathlib").Path(tempfile.mkdtemp(prefix="pcv_sim_kernel_"))
         path = directory / f"{name}.py"

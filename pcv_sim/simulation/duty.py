@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from pcv_sim.errors import CommandError
 
-__all__ = ["check_duty", "FallRateLimiter", "DutyProfile"]
+__all__ = ["DutyProfile", "FallRateLimiter", "check_duty"]
 
 
 def check_duty(value: float, duty_range: tuple[float, ...] = (0.0, 1.0)) -> float:
@@ -82,7 +82,7 @@ class DutyProfile:
         """(t_start, value_at_start, target, rate) per segment of the limited input."""
         segs = []
         y = self.values[0]
-        bounds = list(self.times[1:]) + [math.inf]
+        bounds = [*list(self.times[1:]), math.inf]
         for tk, vk, t_next in zip(self.times, self.values, bounds):
             if self.fall_rate_limit is None or vk >= y:
                 segs.append((tk, vk, vk, 0.0))

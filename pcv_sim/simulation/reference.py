@@ -14,7 +14,8 @@ ramps), constant load flow and supply pressure, samples on a regular grid.
 
 from __future__ import annotations
 
-from typing import Callable
+import itertools
+from collections.abc import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -28,7 +29,7 @@ from pcv_sim.simulation.system import Composite, System
 from pcv_sim.simulation.trajectory import Trajectory
 from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["simulate_reference", "integrate_reference", "ReferenceError", "VALVE_ATOL"]
+__all__ = ["VALVE_ATOL", "ReferenceError", "integrate_reference", "simulate_reference"]
 
 #: Absolute tolerances of the valve's states: flux ~0.1 Wb, x ~1e-4 m, v ~1e-2 m/s, p, p_c ~1e7 Pa.
 VALVE_ATOL = (1e-9, 1e-12, 1e-9, 1e-3, 1e-3)
@@ -80,7 +81,7 @@ def integrate_reference(
     def rhs(t: float, yy: np.ndarray, u: np.ndarray) -> np.ndarray:
         return sim.derivatives(t, yy, u)
 
-    for k, (t0, t1) in enumerate(zip(bps[:-1], bps[1:])):
+    for k, (t0, t1) in enumerate(itertools.pairwise(bps)):
         u = np.asarray(inputs(0.5 * (t0 + t1)), dtype=float)     # constant or linear within: the mid value
         kinked = not np.array_equal(u, np.asarray(inputs(t0), dtype=float))
         last = k == len(bps) - 2
@@ -115,7 +116,7 @@ def integrate_reference(
         sim.x[:] = out_x[:, j]
         sim.u[:] = inputs(float(ts))
         sim.steps = 0
-        sim._outputs(float(ts), sim.x, sim.u, sim.P, sim.F, sim.W, sim.Y, sim.U)  # noqa: SLF001
+        sim._outputs(float(ts), sim.x, sim.u, sim.P, sim.F, sim.W, sim.Y, sim.U)
         outputs[:, j] = sim.Y
     return out_x, outputs
 
@@ -144,7 +145,7 @@ def simulate_reference(
         x0, i0 = rest.state, rest.current
     else:
         x0, i0 = np.array(initial_state, float), model.steady_current(d0)
-    n = int(round(t_end / sample_time)) + 1
+    n = round(t_end / sample_time) + 1
     t_samples = np.arange(n) * sample_time
     bps = profile.breakpoints(t_end)
     max_step = np.inf

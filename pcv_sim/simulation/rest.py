@@ -20,7 +20,7 @@ from pcv_sim.params import ValveParams
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.valve import valve_system
 
-__all__ = ["Rest", "rest_state", "EquilibriumError"]
+__all__ = ["EquilibriumError", "Rest", "rest_state"]
 
 _FALLBACK_DUTIES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 _SETTLE_CHUNK = 100          # steps between convergence checks

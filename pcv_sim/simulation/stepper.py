@@ -185,7 +185,7 @@ class RealTimeStepper:
         Each command takes effect at the first step at or after its switching instant; a sample
         at time t shows the state at t and the inputs in force from t on (right-continuous).
         """
-        n = int(round(t_end / self.dt))
+        n = round(t_end / self.dt)
         times = np.array(profile.times)
         t0 = self.time
         switch = np.ceil(times / self.dt - 1e-9).astype(int)       # step at which each value takes effect

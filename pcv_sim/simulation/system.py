@@ -28,7 +28,7 @@ import numpy as np
 
 from pcv_sim.errors import PcvSimError
 
-__all__ = ["Kernel", "Stop", "System", "Composite", "CompositionError", "compose"]
+__all__ = ["Composite", "CompositionError", "Kernel", "Stop", "System", "compose"]
 
 
 class CompositionError(PcvSimError, ValueError):

@@ -15,7 +15,7 @@ from pcv_sim.model import kernel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.system import Kernel, Stop, System
 
-__all__ = ["valve_system", "KINDS"]
+__all__ = ["KINDS", "valve_system"]
 
 KINDS = ("simplified", "full")
 

@@ -173,7 +173,7 @@ def test_gain_margin_of_a_known_loop() -> None:
     """m = 1, B = 2, K_e = 1, V/beta = 1, K_c = 1, A = 1, K_q = 4: L(s) = (4 + s)/(s + 1)^3, closed
     loop s^3 + 3 s^2 + 4 s + 5 (Routh: 3*4 > 5, stable). The phase crossover solves
     atan(w/4) - 3 atan(w) = -180 deg; the gain margin is -20 log10 |L(j w_pc)|."""
-    from scipy.optimize import brentq  # noqa: PLC0415
+    from scipy.optimize import brentq
 
     lin = LinearModel(
         point=None, K_fi=0.0, K_fx=0.0, K_ff=0.0, K=0.0, K_e=1.0, K_q=4.0, K_c=1.0, K_cps=0.0,  # type: ignore[arg-type]
@@ -214,7 +214,7 @@ def test_stable_p2_keeps_its_upper_gain_margin(lins: dict[str, LinearModel]) -> 
     # crossover at DC with |L(0)| > 1 (a lower gain margin); the margin reported is the one
     # nearest to instability, the upper one at the high-frequency crossover.
     m = lins["P2"].margins
-    assert [w for w, _ in m.phase_crossovers][0] == 0.0
+    assert next(w for w, _ in m.phase_crossovers) == 0.0
     assert m.phase_crossovers[0][1] < 0.0
     assert m.gain_margin_db == min((gm for _, gm in m.phase_crossovers), key=abs)
     assert m.phase_crossover > m.gain_crossover

@@ -12,7 +12,7 @@ from pcv_sim.analysis.metrics import fit_metrics, step_metrics
 DT = 1e-5   # s, sampling of the synthetic responses; tolerances below are a few samples
 
 
-def first_order(tau: float, t_step: float, t_end: float, gain: float = 1.0, offset: float = 0.0):  # noqa: ANN201
+def first_order(tau: float, t_step: float, t_end: float, gain: float = 1.0, offset: float = 0.0):
     t = np.arange(0.0, t_end, DT)
     y = offset + gain * np.where(t >= t_step, 1.0 - np.exp(-(t - t_step) / tau), 0.0)
     return t, y

@@ -18,7 +18,6 @@ from pcv_sim.analysis.calibrate import (
     required_constants,
     write_calibration,
 )
-from pcv_sim.errors import ParameterError
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS
 from pcv_sim.analysis.static import (
     EquilibriumError,
@@ -28,7 +27,7 @@ from pcv_sim.analysis.static import (
     static_point,
     zero_flow_equilibrium,
 )
-from pcv_sim.errors import PcvSimError
+from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import default_params, replace_param
 
@@ -42,22 +41,22 @@ def model() -> ValveModel:
 
 
 @pytest.fixture(scope="module")
-def printed():  # noqa: ANN201
+def printed():
     return replace_param(default_params(), "calibration.net_area", None)
 
 
 @pytest.fixture(scope="module")
-def calibrated_points():  # noqa: ANN201
+def calibrated_points():
     return {r.name: r for r in compare_working_points(default_params())}
 
 
 @pytest.fixture(scope="module")
-def printed_points(printed):  # noqa: ANN001, ANN201
+def printed_points(printed):
     return {r.name: r for r in compare_working_points(printed)}
 
 
 @pytest.fixture(scope="module")
-def curve_70(model: ValveModel):  # noqa: ANN201
+def curve_70(model: ValveModel):
     return pressure_flow_curve(model, 0.7, 200)
 
 
@@ -73,7 +72,7 @@ def test_table_as_coded() -> None:
 
 
 @pytest.mark.parametrize("name", ["P1", "P2"])
-def test_calibrated_model_reproduces_the_working_points(calibrated_points, name: str) -> None:  # noqa: ANN001
+def test_calibrated_model_reproduces_the_working_points(calibrated_points, name: str) -> None:
     r = calibrated_points[name]
     # Tolerances: 1 bar ~ the table's 0.1 bar print precision plus what one constant cannot fit at
     # two points; 0.05 mm ~ 1/30 of the stroke; the model's current is D*V/R = 1.5 A exactly
@@ -88,7 +87,7 @@ def test_calibrated_model_reproduces_the_working_points(calibrated_points, name:
 
 
 @pytest.mark.parametrize("name", ["P1", "P2"])
-def test_as_printed_pressure_is_about_10_bar_low(printed_points, name: str) -> None:  # noqa: ANN001
+def test_as_printed_pressure_is_about_10_bar_low(printed_points, name: str) -> None:
     """docs/model.md, Calibration: with Table 1 as printed the balance is ~3 N short at both points; 3 N over the
     net area 3.1e-6 m^2 is ~10 bar. Assert 5..15 bar low."""
     r = printed_points[name]
@@ -96,7 +95,7 @@ def test_as_printed_pressure_is_about_10_bar_low(printed_points, name: str) -> N
     assert r.branch == {"P1": "falling", "P2": "rising"}[name]
 
 
-def test_required_constants_favour_the_net_area(printed) -> None:  # noqa: ANN001
+def test_required_constants_favour_the_net_area(printed) -> None:
     """R21: the net area each point asks for agrees far better than the force offset each asks for."""
     rows = {r["name"]: r for r in required_constants(printed)}
     a1, a2 = rows["P1"]["net_area_m2"], rows["P2"]["net_area_m2"]
@@ -114,7 +113,7 @@ def test_required_constants_favour_the_net_area(printed) -> None:  # noqa: ANN00
     assert min(a1, a2) * 0.99 < cal < max(a1, a2) * 1.01
 
 
-def test_shipped_calibration_is_what_the_fit_produces(printed) -> None:  # noqa: ANN001
+def test_shipped_calibration_is_what_the_fit_produces(printed) -> None:
     # The shipped constant was fitted with 1.500 A at both points (the config's resistance).
     area, results = fit_net_area(printed, coil="config")
     # fit_net_area rounds to 4 significant digits, as the config carries.
@@ -135,7 +134,7 @@ def test_table_currents_per_point() -> None:
 
 
 @pytest.mark.parametrize("kind", ["net_area", "force_offset", "both"])
-def test_calibration_kinds_fit_the_table(printed, kind: str) -> None:  # noqa: ANN001
+def test_calibration_kinds_fit_the_table(printed, kind: str) -> None:
     """Each calibration kind closes the ~10 bar gap at both points at the table's currents: one
     constant leaves errors of opposite sign below 0.5 bar (the fits' residual, 0.2-0.3 bar),
     two constants fit both pressures to the 4-digit rounding."""
@@ -156,7 +155,7 @@ def test_calibration_kinds_fit_the_table(printed, kind: str) -> None:  # noqa: A
         fit_calibration(printed, "offset")  # type: ignore[arg-type]
 
 
-def test_write_calibration_keeps_comments(tmp_path) -> None:  # noqa: ANN001
+def test_write_calibration_keeps_comments(tmp_path) -> None:
     from pcv_sim.params import DEFAULT_CONFIG, load_params
 
     path = tmp_path / "v.yaml"
@@ -181,7 +180,7 @@ def test_static_point_is_an_equilibrium(model: ValveModel) -> None:
     assert pt.current == pytest.approx(1.5, rel=1e-15)
 
 
-def test_reducing_curve_has_a_pressure_minimum_inside(curve_70) -> None:  # noqa: ANN001
+def test_reducing_curve_has_a_pressure_minimum_inside(curve_70) -> None:
     """Fig. 10a / Sec. 4.2: in reducing mode the 70 % pressure first falls with flow, then rises
     (the negative characteristic)."""
     q, p = curve_70.load_flow, curve_70.pressure
@@ -195,7 +194,7 @@ def test_reducing_curve_has_a_pressure_minimum_inside(curve_70) -> None:  # noqa
     assert 1 * LPM < qr[k] < 20 * LPM
 
 
-def test_relieving_pressure_rises_with_relief_flow(curve_70) -> None:  # noqa: ANN001
+def test_relieving_pressure_rises_with_relief_flow(curve_70) -> None:
     q, p = curve_70.load_flow, curve_70.pressure
     rel = q < 0.0
     assert rel.sum() > 10

@@ -23,7 +23,7 @@ OFFSET = {"pressure": 0.5e5, "current": 0.01, "spool_position": 0.005e-3}
 DUTIES = [0.3, 0.6, 0.9, 0.5]
 
 
-def _rig_bag(tmp: Path, truth, name: str = "rig", seed: int = 1, duties=DUTIES, hold_s: float = 0.3) -> Path:  # noqa: ANN001
+def _rig_bag(tmp: Path, truth, name: str = "rig", seed: int = 1, duties=DUTIES, hold_s: float = 0.3) -> Path:
     csv = write_rig_csv(tmp / f"{name}.csv", truth, duties, hold_s=hold_s, lag_s=LAG, noise=NOISE,
                         offset=OFFSET, seed=seed)
     res = import_csv(csv, tmp / name, skip_bad_rows=True)
@@ -39,12 +39,12 @@ def preload_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def preload_fit(preload_bag: Path):  # noqa: ANN201
+def preload_fit(preload_bag: Path):
     p0 = default_params()
     return calibrate([load_recording(preload_bag)], p0, [fit_parameter(p0, "spool.spring_preload")])
 
 
-def test_recovers_the_perturbation_within_its_interval(preload_fit) -> None:  # noqa: ANN001
+def test_recovers_the_perturbation_within_its_interval(preload_fit) -> None:
     (est,) = preload_fit.parameters
     assert est.name == "spool.spring_preload" and est.initial == 2.0
     assert abs(est.value - 2.6) <= est.half_width_95
@@ -56,7 +56,7 @@ def test_recovers_the_perturbation_within_its_interval(preload_fit) -> None:  # 
     assert [w for w in preload_fit.warnings if "pressure offset" not in w] == []
 
 
-def test_sensor_lag_and_offset_are_estimated(preload_fit) -> None:  # noqa: ANN001
+def test_sensor_lag_and_offset_are_estimated(preload_fit) -> None:
     lags = {e.name: e for e in preload_fit.lags}
     # The pressure lag is a sample-grid interpolation away from the truth at most (1 kHz: < 0.5 ms).
     assert lags["lag.pressure"].value == pytest.approx(LAG["pressure"], abs=5e-4)
@@ -68,7 +68,7 @@ def test_sensor_lag_and_offset_are_estimated(preload_fit) -> None:  # noqa: ANN0
         assert abs(e.value - OFFSET[role]) <= 1.5 * e.half_width_95, role
 
 
-def test_fit_improves_every_signal(preload_fit) -> None:  # noqa: ANN001
+def test_fit_improves_every_signal(preload_fit) -> None:
     for s in preload_fit.signals:
         assert s.fit_after_percent > s.fit_before_percent, s.role
         assert s.rmse_after < s.rmse_before, s.role

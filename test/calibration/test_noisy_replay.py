@@ -18,7 +18,7 @@ SIGMA = 0.4e5   # Pa, sensor noise
 
 
 @pytest.fixture(scope="module")
-def noisy(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+def noisy(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("noisy")
     csv = write_rig_csv(tmp / "rig.csv", default_params(), [0.3, 0.7, 0.5, 0.9], hold_s=0.4,
                         noise={"pressure": SIGMA, "current": 0.004, "spool_position": 0.002e-3}, seed=9)
@@ -26,7 +26,7 @@ def noisy(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
     return replay(load_recording(tmp / "bag"), default_params(), model="simplified")
 
 
-def test_settling_and_overshoot_errors_stay_small(noisy) -> None:  # noqa: ANN001
+def test_settling_and_overshoot_errors_stay_small(noisy) -> None:
     assert len(noisy.steps) == 3
     for sc in noisy.steps:
         m, s = sc.measured["pressure"], sc.model["pressure"]
@@ -40,7 +40,7 @@ def test_settling_and_overshoot_errors_stay_small(noisy) -> None:  # noqa: ANN00
         assert abs(e["steady_state_error"]) < 3 * SIGMA / math.sqrt(0.1 * 400)   # tail mean of ~40 samples
 
 
-def test_naive_reading_would_not_gate(noisy) -> None:  # noqa: ANN001
+def test_naive_reading_would_not_gate(noisy) -> None:
     t, y, _ = noisy.traces["pressure"]
     late = 0
     for sc in noisy.steps:

@@ -4,11 +4,15 @@ import re
 
 import pytest
 
-from pcv_sim.errors import ParameterError
-from pcv_sim.device.valve import ValveDevice, WatchdogState, rest_stepper
 from pcv_sim.device.settings import (
-    NodeSettings, check_node_value, model_parameters, params_with, settings_with,
+    NodeSettings,
+    check_node_value,
+    model_parameters,
+    params_with,
+    settings_with,
 )
+from pcv_sim.device.valve import ValveDevice, WatchdogState, rest_stepper
+from pcv_sim.errors import ParameterError
 from pcv_sim.params import load_params, params_to_mapping
 from pcv_sim.simulation.stepper import RealTimeStepper
 

@@ -3,10 +3,10 @@ import dataclasses
 
 import pytest
 
-from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.device.valve import ValveDevice
 from pcv_sim.device.diagnostics import CONCERNS, ERROR, OK, WARN, DiagnosticsBuilder
 from pcv_sim.device.settings import NodeSettings
+from pcv_sim.device.valve import ValveDevice
+from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.params import load_params
 from pcv_sim.simulation.clock import RealTimeSchedule
 

@@ -1,11 +1,16 @@
 """Parameter plumbing: command-line overrides rcl drops, unknown names, duplicate keys."""
 import pytest
 
-from pcv_sim.errors import ParameterError
 from pcv_sim.device.parameters import (
-    check_params_files, command_line_overrides, override_not_taken, parse_override_value, params_files,
+    check_params_files,
+    command_line_overrides,
+    override_not_taken,
+    params_files,
+    parse_override_value,
     unknown_parameters_message,
 )
+from pcv_sim.errors import ParameterError
+
 
 def test_command_line_overrides_are_read_as_rcl_types_them():
     argv = ['emulator', '--ros-args', '--params-file', 'a.yaml', '-p', 'watchdog_timeout:=abc',

@@ -112,7 +112,7 @@ def test_bad_distro_and_qos_are_refused(tmp_path: Path) -> None:
         BagWriter(tmp_path / "a", topics=TOPICS, ros_distro="Kilted 9")
     with pytest.raises(BagError, match=r"qos given for undeclared topic\(s\) \['/nope'\]"):
         BagWriter(tmp_path / "b", topics=TOPICS, qos={"/nope": COMMAND_QOS})
-    with pytest.raises(BagError, match="qos for '/other': expected a pcv_sim.io.bag.Qos"):
+    with pytest.raises(BagError, match=r"qos for '/other': expected a pcv_sim\.io\.bag\.Qos"):
         BagWriter(tmp_path / "c", topics=TOPICS, qos={"/other": "reliable"})  # type: ignore[dict-item]
     with pytest.raises(BagError, match="QoS reliability 'sometimes': accepted are"):
         Qos("sometimes", 5)  # type: ignore[arg-type]

@@ -35,7 +35,7 @@ def _export(path: Path, *, header: str | None, until_s: float = 1.5) -> Path:
     return path
 
 
-def test_round_trip_gives_the_same_metrics(tmp_path):  # noqa: ANN001
+def test_round_trip_gives_the_same_metrics(tmp_path):
     params = load_params()
     csv = _export(tmp_path / "rig.csv", header="time[ms],duty[%],pressure[bar],current[A],position[mm]")
     res = import_csv(csv, tmp_path / "from_csv")
@@ -82,7 +82,7 @@ BAD = """time[s],duty[1],pressure[Pa],current[A]
 """
 
 
-def test_bad_rows_are_refused_with_line_numbers(tmp_path, capsys):  # noqa: ANN001
+def test_bad_rows_are_refused_with_line_numbers(tmp_path, capsys):
     csv = tmp_path / "bad.csv"
     csv.write_text(BAD)
     with pytest.raises(CsvImportError, match=(
@@ -96,7 +96,7 @@ def test_bad_rows_are_refused_with_line_numbers(tmp_path, capsys):  # noqa: ANN0
     assert "--skip-bad-rows" in capsys.readouterr().err
 
 
-def test_skip_bad_rows_reports_them(tmp_path, capsys):  # noqa: ANN001
+def test_skip_bad_rows_reports_them(tmp_path, capsys):
     csv = tmp_path / "bad.csv"
     csv.write_text(BAD)
     res = import_csv(csv, tmp_path / "ok", skip_bad_rows=True)
@@ -122,14 +122,14 @@ def test_skip_bad_rows_reports_them(tmp_path, capsys):  # noqa: ANN001
     ("time,duty,duty,pressure\n0,0.5,0.5,1\n", {}, r"column\(s\) \['duty_cycle'\] appear more than once"),
     ("# only a comment\n", {}, r"holds no data rows"),
 ])
-def test_column_and_unit_errors(tmp_path, text, kwargs, match):  # noqa: ANN001
+def test_column_and_unit_errors(tmp_path, text, kwargs, match):
     csv = tmp_path / "c.csv"
     csv.write_text(text)
     with pytest.raises(CsvImportError, match=match):
         import_csv(csv, tmp_path / "b", **kwargs)
 
 
-def test_units_flags_and_conversion(tmp_path):  # noqa: ANN001
+def test_units_flags_and_conversion(tmp_path):
     assert parse_units(["pressure=bar,time=ms", "position=um"]) == {"pressure": "bar", "time": "ms",
                                                                     "spool_position": "um"}
     with pytest.raises(CsvImportError, match=r"unit 'furlong' for pressure: accepted are pa, kpa, bar"):
@@ -148,7 +148,7 @@ def test_units_flags_and_conversion(tmp_path):  # noqa: ANN001
     assert b.topic_types["/pressure"] == "sensor_msgs/msg/FluidPressure"
 
 
-def test_output_bag_must_be_new_and_file_must_exist(tmp_path):  # noqa: ANN001
+def test_output_bag_must_be_new_and_file_must_exist(tmp_path):
     csv = tmp_path / "u.csv"
     csv.write_text("time,duty,pressure\n0,0.5,1e6\n")
     (tmp_path / "exists").mkdir()
@@ -171,7 +171,7 @@ RIG = "0,50,70.1,1.02,0.01\n1,50,120.3,1.05,-0.02\n2,90,150.2,1.9,0.2\n"
     ("time[ms],duty[%],pressure[bar],current[mA],position[mm]",
      r"current reaches at most 0.0019 A \(read as ma\), .*looks like a: add --units current=a"),
 ])
-def test_a_unit_left_out_is_refused_with_a_hint(tmp_path, header, match):  # noqa: ANN001
+def test_a_unit_left_out_is_refused_with_a_hint(tmp_path, header, match):
     csv = tmp_path / "rig.csv"
     csv.write_text(header + "\n" + RIG)
     with pytest.raises(CsvImportError, match=match):
@@ -182,7 +182,7 @@ def test_a_unit_left_out_is_refused_with_a_hint(tmp_path, header, match):  # noq
     assert main(["import-csv", str(csv), str(tmp_path / "d"), "--no-range-check"]) == 0
 
 
-def test_in_range_units_import(tmp_path):  # noqa: ANN001
+def test_in_range_units_import(tmp_path):
     csv = tmp_path / "rig.csv"
     csv.write_text("time[ms],duty[%],pressure[bar],current[A],position[mm]\n" + RIG)
     res = import_csv(csv, tmp_path / "b")
@@ -193,7 +193,7 @@ def test_in_range_units_import(tmp_path):  # noqa: ANN001
     assert import_csv(low, tmp_path / "low_bag").rows == 2
 
 
-def test_unknown_header_names_are_listed(tmp_path, capsys):  # noqa: ANN001
+def test_unknown_header_names_are_listed(tmp_path, capsys):
     csv = tmp_path / "rig.csv"
     csv.write_text("Zeit,PWM,pressure[bar],I,x\n" + RIG)
     with pytest.raises(CsvImportError, match=(

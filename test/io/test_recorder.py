@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
 from pcv_sim.io.recorder import RECORDABLE, BagRecorder, bag_name, check_signals
-from pcv_sim.device.valve import ValveDevice
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 
@@ -146,7 +146,7 @@ def test_check_signals_orders_and_accepts_aliases() -> None:
 
 def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
     rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"], batch_period=0.1)
-    rec._max_items = 10                                    # noqa: SLF001 - force an overflow
+    rec._max_items = 10
     rec.start(T0, signals(0))                              # 2 items: duty, outputs
     for k in range(1, 21):                                 # the writer thread sleeps 0.1 s first
         rec(T0 + k * DT, signals(k))
@@ -162,11 +162,11 @@ def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, th
     rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], threaded=threaded)
     record(rec, 10, {})
     rec.close()                                             # drain what came before
-    rec._closed = False                                     # noqa: SLF001 - pretend the disk failed now
+    rec._closed = False
     rec._writer.close = lambda: None                        # type: ignore[method-assign]
-    rec._writer._closed = True                              # noqa: SLF001 - the BagWriter refuses writes
+    rec._writer._closed = True
     rec(T0 + 11 * DT, signals(11))
-    rec._drain()                                            # noqa: SLF001 - as the writer thread would
+    rec._drain()
     st = rec.status()
     assert st.state == "failed" and "is closed" in st.error and st.dropped == 1
     rec(T0 + 12 * DT, signals(12))
@@ -201,7 +201,7 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
 
 def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
     rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], batch_period=0.005, when_full="wait")
-    rec._max_items = 50                                    # noqa: SLF001 - a small queue, filled fast
+    rec._max_items = 50
     record(rec, 2000, {})
     st = rec.close()
     assert st.dropped == 0 and st.messages == 2001

@@ -152,7 +152,7 @@ def test_hole_coefficient_and_exponent_eqs_20_23() -> None:
 
 @pytest.mark.parametrize("fit", [(5.0, 0.3, 0.3), (10.0, 0.4, 0.3)])
 def test_transition_exponent_between_zero_and_span(fit: tuple[float, float, float]) -> None:
-    k, s0, span = fit
+    _k, s0, span = fit
     s = np.linspace(-50.0, 50.0, 2001)
     g = np.array([orf.transition_exponent(float(v), fit) for v in s])
     assert np.all((g > 0.0) & (g < span))

@@ -31,7 +31,7 @@ def default_mapping() -> dict:
     return yaml.safe_load(DEFAULT_CONFIG.read_text(encoding="utf-8"))
 
 
-def write_modified(tmp_path: Path, mapping: dict, edit) -> Path:  # noqa: ANN001 - a callable
+def write_modified(tmp_path: Path, mapping: dict, edit) -> Path:
     """The default mapping with `edit(data)` applied, dumped to a YAML file in tmp_path."""
     data = copy.deepcopy(mapping)
     edit(data)
@@ -40,7 +40,7 @@ def write_modified(tmp_path: Path, mapping: dict, edit) -> Path:  # noqa: ANN001
     return path
 
 
-def set_key(section: str, key: str, value):  # noqa: ANN001, ANN201
+def set_key(section: str, key: str, value):
     def edit(data: dict) -> None:
         data[section][key] = value
 
@@ -174,7 +174,7 @@ def test_replace_param_returns_a_validated_copy() -> None:
         (set_key("simulation", "integrator", "rk45"), r"simulation\.integrator: got 'rk45'; .*'euler', 'rk2', 'rk4'"),
     ],
 )
-def test_load_params_refuses_with_the_key_named(tmp_path: Path, default_mapping: dict, edit, match: str) -> None:  # noqa: ANN001
+def test_load_params_refuses_with_the_key_named(tmp_path: Path, default_mapping: dict, edit, match: str) -> None:
     path = write_modified(tmp_path, default_mapping, edit)
     with pytest.raises(ParameterError, match=match):
         load_params(path)
@@ -253,7 +253,7 @@ def test_top_level_must_be_a_mapping(tmp_path: Path, text: str) -> None:
         ("circuit.tank_pressure", 300e5, r"circuit\.tank_pressure: got 30000000\.0; accepted is a plausible value 0 \.\. 1e\+06"),
     ],
 )
-def test_replace_param_validates_like_the_file(dotted: str, value, match: str) -> None:  # noqa: ANN001
+def test_replace_param_validates_like_the_file(dotted: str, value, match: str) -> None:
     p = default_params()
     with pytest.raises(ParameterError, match=match):
         replace_param(p, dotted, value)

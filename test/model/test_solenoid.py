@@ -7,8 +7,8 @@ config), with each power spelled out rather than through Horner's scheme.
 from __future__ import annotations
 
 import math
-import numpy as np
 
+import numpy as np
 import pytest
 
 from pcv_sim.model import solenoid as sol

@@ -38,7 +38,7 @@ def test_state_names(model: ValveModel, full: ValveModel) -> None:
     assert model.state_names == STATE_NAMES["simplified"] and len(model.state_names) == 4
     assert full.state_names == STATE_NAMES["full"] and full.state_names[-1] == "chamber_pressure"
     assert len(model.initial_state(0.7, 0.0, 100e5)) == 4
-    lam, x, v, p, p_c = full.initial_state(0.7, -0.05e-3, 100e5)
+    _lam, x, v, p, p_c = full.initial_state(0.7, -0.05e-3, 100e5)
     assert (x, v, p, p_c) == (-0.05e-3, 0.0, 100e5, 100e5)
 
 
@@ -151,7 +151,7 @@ def test_full_model_with_equal_pressures_at_rest_matches_the_simplified(model: V
 def test_full_model_chamber_is_eqs_28_29(full: ValveModel) -> None:
     x, p, p_c, v = -0.08e-3, 120e5, 121e5, 0.01
     lam = full.flux_linkage_at_rest(1.5, x)
-    dlam, dx, dv, dp, dpc = rhs(full, (lam, x, v, p, p_c))
+    _dlam, _dx, _dv, dp, dpc = rhs(full, (lam, x, v, p, p_c))
     prm = default_params()
     a_cc = prm.chamber_area
     q_c = 1.24e-11 * (p - p_c)                                           # Eq. 28

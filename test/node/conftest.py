@@ -7,11 +7,11 @@ ros_wheels_bootstrapper mark is cleared from its environment (docs/ros_wheels.md
 """
 import itertools
 import os
-from pathlib import Path
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 

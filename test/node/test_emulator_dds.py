@@ -1,7 +1,7 @@
 """The emulator node as a separate process over real DDS, driven by a test client node."""
+import itertools
 import math
 import signal
-
 
 from pcv_sim.params import load_params
 from pcv_sim.simulation.stepper import RealTimeStepper
@@ -94,7 +94,7 @@ def test_bad_inputs_are_rejected_and_counted_while_publishing_continues(ros):
     assert 'rejected inputs' in ' '.join(c.diagnostic_messages)
     assert c.spin_until(lambda: len(c.samples) > n_before + 300, 10), 'publishing stopped'
     stamps = [s.stamp_ns for s in c.samples[n_before:]]
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert all(b > a for a, b in itertools.pairwise(stamps))
     log = emu.output()
     assert 'rejected duty_cycle: duty cycle 70 > 1: the command is a fraction 0..1, not percent' in log
     assert 'rejected load_flow' in log and 'rejected supply_pressure' in log
@@ -205,7 +205,7 @@ def test_simulated_time_publishes_clock(ros):
     clocks = []
     c.node.create_subscription(Clock, '/clock', lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec), 10)
     assert c.spin_until(lambda: len(clocks) > 300, START)
-    assert all(b > a for a, b in zip(clocks, clocks[1:]))
+    assert all(b > a for a, b in itertools.pairwise(clocks))
     assert c.samples and c.samples[-1].stamp_ns % 1_000_000 == 0
     assert c.samples[-1].stamp_ns < 3600 * 10**9                  # simulated epoch from 0, not wall time
     assert clocks[-1] < 3600 * 10**9
@@ -373,7 +373,7 @@ def test_use_sim_time_follows_an_external_clock(ros):
     assert stamps[-1] >= last_clock - 2_000_000         # caught up with the clock
     # On the 1 ms grid of the external clock, in order (a best-effort sample may be lost on the way,
     # so the count is checked against the node's own: samples_published).
-    assert all(b > a and (b - a) % 1_000_000 == 0 and (a - t0) % 1_000_000 == 0 for a, b in zip(stamps, stamps[1:]))
+    assert all(b > a and (b - a) % 1_000_000 == 0 and (a - t0) % 1_000_000 == 0 for a, b in itertools.pairwise(stamps))
     n = len(c.samples)
     c.spin_for(0.3)                                  # the clock stands still: so does the model
     assert len(c.samples) == n

@@ -1,11 +1,11 @@
 """The launch file (checked with stand-in launch modules: launch is not on PyPI), the CLI help,
 and the demo client against a running emulator."""
 import ast
-from pathlib import Path
 import re
 import subprocess
 import sys
 import types
+from pathlib import Path
 
 from pcv_sim.params import load_params
 from pcv_sim.simulation.stepper import RealTimeStepper

@@ -5,6 +5,7 @@ A lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every contro
 has its own ROS domain and namespace (test/node/conftest.py).
 """
 import dataclasses
+import itertools
 import math
 import signal
 import time
@@ -196,7 +197,7 @@ def test_use_sim_time_follows_an_external_clock_and_simulated_time_with_it_is_re
         recorded = sorted(m.log_time for _, channel, m in make_reader(f).iter_messages()
                           if channel.topic == f'{ros.ns("rig")}/cylinder/joint_states')
     assert set(stamps) <= set(recorded) and recorded[0] <= stamps[0] and recorded[-1] >= stamps[-1]
-    assert all(b - a == 1_000_000 for a, b in zip(recorded, recorded[1:]))      # none lost in the bag
+    assert all(b - a == 1_000_000 for a, b in itertools.pairwise(recorded))      # none lost in the bag
     assert refused.wait(START) == 2
     out = refused.output()
     assert ('use_sim_time: true follows another node\'s /clock, time_mode: simulated publishes /clock itself; '
@@ -255,5 +256,5 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     t = bag[f'{ns}/left/pressure'].t_ns
     t = t - t[0]
     # On the 1 ms grid, in order; how many depends on the load (a backlog beyond max_catchup is skipped)
-    assert len(t) > 20 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in zip(t, t[1:]))
+    assert len(t) > 20 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in itertools.pairwise(t))
     assert bag.topic_types[f'{ns}/cylinder/joint_states'] == 'sensor_msgs/msg/JointState'

@@ -3,6 +3,7 @@
 A small lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period
 for both valves. Each test has its own ROS domain and namespace (test/node/conftest.py).
 """
+import itertools
 import signal
 import subprocess
 import sys
@@ -271,7 +272,7 @@ def test_free_running_simulated_time_runs_without_a_controller_and_takes_command
 
     assert wait_until(collect, 60), rig.output()
     stamps = sorted(seen)
-    assert all(b - a == 10_000_000 for a, b in zip(stamps, stamps[1:]))   # every 10 ms period, none missing
+    assert all(b - a == 10_000_000 for a, b in itertools.pairwise(stamps))   # every 10 ms period, none missing
     from std_msgs.msg import Float64
 
     sent_after = max(seen)

@@ -21,7 +21,7 @@ REFERENCE_BAGS = ("pcv_step_levels", "pcv_step_amplitudes")
 
 
 @pytest.fixture(scope="session", autouse=True)
-def regeneration(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+def regeneration(tmp_path_factory: pytest.TempPathFactory):
     """`pcv-sim reference-bags --out TMP` running in a child process."""
     out = tmp_path_factory.mktemp("regenerated")
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
@@ -37,12 +37,12 @@ def regeneration(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
 
 
 @pytest.fixture(scope="session")
-def params():  # noqa: ANN201
+def params():
     return load_params()
 
 
 @pytest.fixture(scope="session")
-def full_results(params):  # noqa: ANN001, ANN201
+def full_results(params):
     """Full-model replays of every reference bag on the stiff reference solver (Radau), the way
     the bags were made (the slowest part: ~10 s together)."""
     return {name: replay(load_recording(BAGS / name), params, model="full", solver="radau")
@@ -50,11 +50,11 @@ def full_results(params):  # noqa: ANN001, ANN201
 
 
 @pytest.fixture(scope="session")
-def full_stepper_results(params):  # noqa: ANN001, ANN201
+def full_stepper_results(params):
     """Full-model replays on the emulator's engine (the default): exponential Heun at 0.1 ms."""
     return {name: replay(load_recording(BAGS / name), params, model="full") for name in REFERENCE_BAGS}
 
 
 @pytest.fixture(scope="session")
-def simplified_results(params):  # noqa: ANN001, ANN201
+def simplified_results(params):
     return {name: replay(load_recording(BAGS / name), params, model="simplified") for name in REFERENCE_BAGS}

@@ -11,11 +11,11 @@ import signal
 
 import pytest
 
+# test/ is on sys.path (pytest's rootdir-relative package import): reuse the node tests' fixtures.
+from node.conftest import RosTest
+
 from pcv_sim.params import load_params
 from pcv_sim.replay import check_thresholds, load_recording, replay
-
-# test/ is on sys.path (pytest's rootdir-relative package import): reuse the node tests' fixtures.
-from node.conftest import RosTest  # noqa: E402
 
 PARAMS = load_params()
 START = 30.0

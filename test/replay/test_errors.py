@@ -18,7 +18,7 @@ from .helpers import write_bag
 DEVICE = {"duty": "/duty_cycle", "pressure": "/pressure", "current": "/current", "position": "/spool_position"}
 
 
-def test_path_that_is_not_a_bag(tmp_path, capsys):  # noqa: ANN001
+def test_path_that_is_not_a_bag(tmp_path, capsys):
     with pytest.raises(BagError, match=r"does not exist; expected a rosbag2 directory"):
         load_recording(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
@@ -30,7 +30,7 @@ def test_path_that_is_not_a_bag(tmp_path, capsys):  # noqa: ANN001
     assert "is not an MCAP file" in capsys.readouterr().err
 
 
-def test_truncated_file_is_replayed_in_part_and_said_so(tmp_path, params, capsys):  # noqa: ANN001
+def test_truncated_file_is_replayed_in_part_and_said_so(tmp_path, params, capsys):
     bag = shutil.copytree(BAGS / "pcv_step_levels", tmp_path / "cut")
     (mcap,) = bag.glob("*.mcap")
     data = mcap.read_bytes()
@@ -53,7 +53,7 @@ def test_truncated_file_is_replayed_in_part_and_said_so(tmp_path, params, capsys
     assert doc["closed_cleanly"] is False and doc["warnings"]
 
 
-def test_bag_not_closed_properly(tmp_path, params):  # noqa: ANN001
+def test_bag_not_closed_properly(tmp_path, params):
     bag = write_bag(tmp_path / "open", DEVICE, until_s=0.4, close=False)
     rec = load_recording(bag)
     assert not rec.closed_cleanly
@@ -61,7 +61,7 @@ def test_bag_not_closed_properly(tmp_path, params):  # noqa: ANN001
     assert replay(rec, params, model="simplified").signals["pressure"].samples > 300
 
 
-def test_unknown_message_type(tmp_path, capsys):  # noqa: ANN001
+def test_unknown_message_type(tmp_path, capsys):
     bag = write_bag(tmp_path / "temp", {"duty": "/duty_cycle", "pressure": "/pressure"}, until_s=0.2,
                     types={"pressure": "sensor_msgs/msg/Temperature"})
     with pytest.raises(ReplayError, match=r"pressure: topic '/pressure' has message type "
@@ -72,8 +72,8 @@ def test_unknown_message_type(tmp_path, capsys):  # noqa: ANN001
     assert "cannot read" in capsys.readouterr().err
 
 
-def test_time_going_backwards_says_where(tmp_path):  # noqa: ANN001
-    def swap(sig, rows):  # noqa: ANN001, ANN202
+def test_time_going_backwards_says_where(tmp_path):
+    def swap(sig, rows):
         if sig == "pressure":
             rows[100], rows[101] = rows[101], rows[100]
         return rows
@@ -84,8 +84,8 @@ def test_time_going_backwards_says_where(tmp_path):  # noqa: ANN001
         load_recording(bag)
 
 
-def test_duty_in_percent_is_refused(tmp_path):  # noqa: ANN001
-    def percent(sig, rows):  # noqa: ANN001, ANN202
+def test_duty_in_percent_is_refused(tmp_path):
+    def percent(sig, rows):
         return [(t, v * 100 if sig == "duty" else v) for t, v in rows]
 
     bag = write_bag(tmp_path / "pct", DEVICE, until_s=0.3, mangle=percent)
@@ -93,8 +93,8 @@ def test_duty_in_percent_is_refused(tmp_path):  # noqa: ANN001
         load_recording(bag)
 
 
-def test_non_finite_values(tmp_path):  # noqa: ANN001
-    def nan(sig, rows):  # noqa: ANN001, ANN202
+def test_non_finite_values(tmp_path):
+    def nan(sig, rows):
         if sig == "current":
             rows[7] = (rows[7][0], float("nan"))
         return rows
@@ -104,20 +104,20 @@ def test_non_finite_values(tmp_path):  # noqa: ANN001
         load_recording(bag)
 
 
-def test_samples_before_the_first_command_are_reported(tmp_path, params):  # noqa: ANN001
-    def late_duty(sig, rows):  # noqa: ANN001, ANN202
-        return rows[:1] if sig != "duty" else [(rows[0][0] + 5_000_000, rows[0][1])] + rows[1:]
+def test_samples_before_the_first_command_are_reported(tmp_path, params):
+    def late_duty(sig, rows):
+        return rows[:1] if sig != "duty" else [(rows[0][0] + 5000000, rows[0][1]), *rows[1:]]
 
     bag = write_bag(tmp_path / "late", {"duty": "/duty_cycle", "pressure": "/pressure"}, until_s=0.3)
     rec = load_recording(bag)
     assert not any("before the first duty command" in n for n in rec.notes)
     bag2 = write_bag(tmp_path / "late2", {"duty": "/duty_cycle", "pressure": "/pressure"}, until_s=0.3,
-                     mangle=lambda s, r: r if s != "duty" else [(r[0][0] + 5_000_000, r[0][1])] + r[1:])
+                     mangle=lambda s, r: r if s != "duty" else [(r[0][0] + 5000000, r[0][1]), *r[1:]])
     rec2 = load_recording(bag2)
     assert any("5 sample(s) before the first duty command not compared" in n for n in rec2.notes)
 
 
-def test_thresholds_and_options(tmp_path, capsys):  # noqa: ANN001
+def test_thresholds_and_options(tmp_path, capsys):
     bag = str(BAGS / "pcv_step_levels")
     assert main(["replay", bag, "--model", "simplified", "--fail-above", "pressure_rmse_psi=1"]) == 2
     err = capsys.readouterr().err
@@ -132,7 +132,7 @@ def test_thresholds_and_options(tmp_path, capsys):  # noqa: ANN001
     assert "only the stepper applies it" in capsys.readouterr().err
 
 
-def test_html_report_and_plot_dir(tmp_path, capsys):  # noqa: ANN001
+def test_html_report_and_plot_dir(tmp_path, capsys):
     bag = write_bag(tmp_path / "short", DEVICE, until_s=0.8)
     report = tmp_path / "r.html"
     assert main(["replay", str(bag), "--model", "simplified", "--report", str(report),

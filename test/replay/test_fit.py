@@ -17,7 +17,7 @@ from .conftest import BAGS, REFERENCE_BAGS
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
-def test_full_model_reproduces_reference_bag(full_results, name):  # noqa: ANN001
+def test_full_model_reproduces_reference_bag(full_results, name):
     r = full_results[name]
     assert r.closed_cleanly and not r.warnings
     assert set(r.signals) == {PRESSURE, CURRENT, SPOOL_POSITION}
@@ -36,7 +36,7 @@ def test_full_model_reproduces_reference_bag(full_results, name):  # noqa: ANN00
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
-def test_full_model_at_the_fixed_step_stays_within_a_tenth_of_a_bar(full_stepper_results, name):  # noqa: ANN001
+def test_full_model_at_the_fixed_step_stays_within_a_tenth_of_a_bar(full_stepper_results, name):
     # The emulator's full model (exponential Heun on the chamber, 0.1 ms) against the bags made
     # with Radau: within 0.1 bar on every duty step (the core's accuracy goal). Measured:
     # max 0.0009 bar (levels), 0.0097 bar (amplitudes), the same as the simplified model.
@@ -50,7 +50,7 @@ def test_full_model_at_the_fixed_step_stays_within_a_tenth_of_a_bar(full_stepper
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
-def test_simplified_model_difference_is_the_documented_one(simplified_results, name):  # noqa: ANN001
+def test_simplified_model_difference_is_the_documented_one(simplified_results, name):
     # docs/model.md R20: with B_simplified = 'equivalent' the simplified model follows the full
     # one within ~0.01 bar on duty steps; the stepper's Heun at 0.1 ms adds ~0.01 bar.
     # Measured here (bags/README.md, BENCHMARKS.md): max 0.0009 bar (levels), 0.0095 bar (amplitudes).
@@ -63,7 +63,7 @@ def test_simplified_model_difference_is_the_documented_one(simplified_results, n
     assert m["spool_position_max_error_mm"] < 1e-4
 
 
-def test_simplified_with_papers_damping_differs_visibly(params):  # noqa: ANN001
+def test_simplified_with_papers_damping_differs_visibly(params):
     # R20: with the paper's B = 223.6 Ns/m the simplified model is several bar off on steps.
     p = replace_param(params, "spool.viscous_friction_simplified", 223.6)
     r = replay(load_recording(BAGS / "pcv_step_levels"), p, model="simplified")
@@ -72,7 +72,7 @@ def test_simplified_with_papers_damping_differs_visibly(params):  # noqa: ANN001
     assert check_thresholds(r, {"pressure_max_error_bar": 0.5})
 
 
-def test_fast_solver_is_close_to_the_stepper(simplified_results, params):  # noqa: ANN001
+def test_fast_solver_is_close_to_the_stepper(simplified_results, params):
     r = replay(load_recording(BAGS / "pcv_step_amplitudes"), params, model="simplified", solver="fast")
     m = r.scalar_metrics()
     assert m["pressure_rmse_bar"] < 0.03
@@ -90,7 +90,7 @@ def _config_with(tmp_path: Path, section: str, key: str, factor: float) -> Path:
 
 @pytest.mark.parametrize(("section", "key", "factor"), [("spool", "spring_preload", 2.0),
                                                          ("calibration", "net_area", 1.1)])
-def test_wrong_parameter_fails_thresholds(tmp_path, capsys, section, key, factor):  # noqa: ANN001
+def test_wrong_parameter_fails_thresholds(tmp_path, capsys, section, key, factor):
     bag = str(BAGS / "pcv_step_amplitudes")  # starts at 0.5: at 0.3 a doubled preload has no rest point
     limits = ["--fail-above", "pressure_rmse_bar=0.5,pressure_steady_state_error_bar=0.5",
               "--fail-below", "pressure_fit_percent=99"]
@@ -103,7 +103,7 @@ def test_wrong_parameter_fails_thresholds(tmp_path, capsys, section, key, factor
     assert "FAILED: pressure_steady_state_error_bar" in out
 
 
-def test_doubled_preload_shifts_the_pressure_by_the_static_balance(params):  # noqa: ANN001
+def test_doubled_preload_shifts_the_pressure_by_the_static_balance(params):
     p = replace_param(params, "spool.spring_preload", 2 * params.spool.spring_preload)
     r = replay(load_recording(BAGS / "pcv_step_amplitudes"), p, model="simplified")
     # 2 N more preload over the 2.859e-6 m^2 net area: 7.0 bar less at every rest point.

@@ -16,7 +16,7 @@ from .conftest import BAGS, REFERENCE_BAGS
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
-def test_rosbags_anyreader(name):  # noqa: ANN001
+def test_rosbags_anyreader(name):
     ours = read_bag(BAGS / name)
     assert ours.closed_cleanly and not ours.warnings
     with AnyReader([BAGS / name], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
@@ -35,7 +35,7 @@ def test_rosbags_anyreader(name):  # noqa: ANN001
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)
-def test_mcap_reader(name):  # noqa: ANN001
+def test_mcap_reader(name):
     ours = read_bag(BAGS / name)
     (path,) = (BAGS / name).glob("*.mcap")
     with open(path, "rb") as f:

@@ -17,7 +17,7 @@ from pcv_sim.replay.reference_bags import QUANTUM
 from .conftest import BAGS, REFERENCE_BAGS
 
 
-def test_reference_bags_regenerate_from_the_code(regeneration):  # noqa: ANN001
+def test_reference_bags_regenerate_from_the_code(regeneration):
     out, _ = regeneration.proc.communicate(timeout=240)
     assert regeneration.proc.returncode == 0, out
     hint = ("If the model, config/valve.yaml or a pinned package changed on purpose, run "

@@ -13,7 +13,7 @@ from .helpers import write_bag
 RIG = {"duty": "/rig/cmd", "pressure": "/rig/p", "current": "/rig/i", "position": "/rig/x"}
 
 
-def test_renamed_topics_replay_with_mapping(tmp_path, params, capsys):  # noqa: ANN001
+def test_renamed_topics_replay_with_mapping(tmp_path, params, capsys):
     renamed = write_bag(tmp_path / "rig", RIG, types={"pressure": FLOAT64})  # rig: pressure as Float64, Pa
     device = write_bag(tmp_path / "dev", {"duty": "/duty_cycle", "pressure": "/pressure",
                                           "current": "/current", "position": "/spool_position"})
@@ -30,7 +30,7 @@ def test_renamed_topics_replay_with_mapping(tmp_path, params, capsys):  # noqa: 
     assert "pressure" in capsys.readouterr().out
 
 
-def test_renamed_topics_without_mapping_say_what_exists(tmp_path, capsys):  # noqa: ANN001
+def test_renamed_topics_without_mapping_say_what_exists(tmp_path, capsys):
     renamed = write_bag(tmp_path / "rig", RIG, until_s=0.3)
     with pytest.raises(ReplayError, match=r"no duty command .*topics in the bag: /rig/cmd \(std_msgs/msg/Float64\).*"
                                           r"--topic duty_cycle="):
@@ -44,7 +44,7 @@ def test_renamed_topics_without_mapping_say_what_exists(tmp_path, capsys):  # no
         load_recording(renamed, parse_topic_map(["duty=/rig/cmd", "pressure=/rig/pressure"]))
 
 
-def test_namespaced_emulator_topics_are_found(tmp_path, params):  # noqa: ANN001
+def test_namespaced_emulator_topics_are_found(tmp_path, params):
     bag = write_bag(tmp_path / "left", {"duty": "/left/duty_cycle", "pressure": "/left/pressure"}, until_s=0.5)
     rec = load_recording(bag)
     assert rec.topics == {"duty_cycle": "/left/duty_cycle", "pressure": "/left/pressure"}
@@ -54,7 +54,7 @@ def test_namespaced_emulator_topics_are_found(tmp_path, params):  # noqa: ANN001
     assert set(r.signals) == {"pressure"}
 
 
-def test_two_namespaces_are_ambiguous(tmp_path):  # noqa: ANN001
+def test_two_namespaces_are_ambiguous(tmp_path):
     bag = write_bag(tmp_path / "two", {"duty": "/left/duty_cycle", "pressure": "/left/pressure",
                                        "current": "/right/pressure"}, until_s=0.2,
                     types={"current": "sensor_msgs/msg/FluidPressure"})
@@ -69,6 +69,6 @@ def test_two_namespaces_are_ambiguous(tmp_path):  # noqa: ANN001
     ("flux=/x", r"unknown role 'flux'; roles: duty_cycle, load_flow"),
     ("pressure=", r"expected ROLE=/topic"),
 ])
-def test_bad_topic_option(item, match):  # noqa: ANN001
+def test_bad_topic_option(item, match):
     with pytest.raises(ReplayError, match=match):
         parse_topic_map([item])

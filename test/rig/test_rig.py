@@ -32,7 +32,7 @@ def test_rig_agrees_with_radau_on_a_duty_step(rig):
     u = rig.sim.u.copy()
     run = run_lockstep(rig, None, 0.2)
     atol = np.array(list(VALVE_ATOL[:4]) * 2 + [1e-9, 1e-9])
-    xs, ys = integrate_reference(rig.plant, x0, lambda t: u, [], run.times, atol=atol, workspace=w0)
+    _xs, ys = integrate_reference(rig.plant, x0, lambda t: u, [], run.times, atol=atol, workspace=w0)
     for name in ("left.pressure", "right.pressure"):
         ref = ys[rig.plant.index("output", name)]
         # 0.05 bar: the core's composition test's bound for Heun at 0.1 ms against Radau.
@@ -190,7 +190,7 @@ def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
     bit for bit, with inputs scheduled on, between and just after sample instants, and the
     watchdog firing on one (those fall back to the plain path)."""
     per = rig.params.steps_per_period
-    wd = int(round(rig.params.timing.watchdog_timeout / rig.dt))
+    wd = round(rig.params.timing.watchdog_timeout / rig.dt)
 
     def schedule_inputs() -> None:
         rig.schedule(3 * per * rig.dt, lambda: rig.set_duty("left", 0.8))        # on a sample instant

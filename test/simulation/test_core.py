@@ -80,7 +80,7 @@ def test_two_valves_and_a_piston_at_the_fixed_step_agree_with_radau():
     out = sim.run(np.array([0]), u_step[None, :], np.arange(0, n + 1, 10))
     times = np.arange(0, n + 1, 10) * 1e-4
     atol = np.array(list(VALVE_ATOL[:4]) * 2 + [1e-12, 1e-9])
-    xs, ys = integrate_reference(plant, x0, lambda t: u_step, [], times, atol=atol, workspace=w0)
+    _xs, ys = integrate_reference(plant, x0, lambda t: u_step, [], times, atol=atol, workspace=w0)
     left, right = plant.index("output", "left.pressure"), plant.index("output", "right.pressure")
     position = plant.index("output", "piston.position")
     # It did something: the left pressure rose by ~50 bar and pushed the piston toward b.
@@ -105,7 +105,7 @@ def test_generated_integrators_have_their_order(name):
     def error(h: float) -> float:
         s = Simulator(sim.plant, h, name)
         s.u[:] = (dp, 0.0)
-        s.advance(int(round(t_end / h)))
+        s.advance(round(t_end / h))
         return abs(s.x[0] - exact)
 
     h = 1e-3 if ORDERS[name] < 4 else 1e-2

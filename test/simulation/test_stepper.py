@@ -26,12 +26,12 @@ T_STEP, T_END = 0.01, 0.15
 
 
 @pytest.fixture(scope="module")
-def params():  # noqa: ANN201
+def params():
     return default_params()
 
 
 @pytest.fixture(scope="module")
-def references(params):  # noqa: ANN001, ANN201
+def references(params):
     """Radau references of the simplified model for the duty steps, computed once."""
     model = ValveModel(params, "simplified")
     return {
@@ -44,14 +44,14 @@ def references(params):  # noqa: ANN001, ANN201
 
 
 @pytest.mark.parametrize(("start", "end"), [(0.5, 0.7), (0.8, 0.4), (0.3, 1.0)])
-def test_duty_step_matches_the_reference(params, references, start: float, end: float) -> None:  # noqa: ANN001
+def test_duty_step_matches_the_reference(params, references, start: float, end: float) -> None:
     ref = references[(start, end)]
     traj = RealTimeStepper(params, duty=start).run(DutyProfile.step(start, end, T_STEP), T_END)
     assert traj.t == pytest.approx(ref.t, abs=1e-12)
     assert np.max(np.abs(traj.pressure - ref.pressure)) < 0.1 * BAR
     # The current jumps at the step by ~p_d3 * dV_s (R27). Both show the new duty at the step
     # instant (right-continuous samples), so they agree there too.
-    k = int(round(T_STEP / 1e-4))
+    k = round(T_STEP / 1e-4)
     assert traj.duty[k - 1] == start and traj.duty[k] == end and ref.duty[k] == end
     assert abs(traj.current[k] - traj.current[k - 1]) > 0.02 * abs(end - start) / 0.2
     assert np.max(np.abs(traj.current - ref.current)) < 1e-3          # A; ~0.1 % of 1 A
@@ -67,7 +67,7 @@ def test_duty_step_matches_the_reference(params, references, start: float, end: 
 
 
 @pytest.mark.parametrize("q_lpm", [5.0, -5.0])
-def test_load_flow_step_matches_the_reference(params, q_lpm: float) -> None:  # noqa: ANN001
+def test_load_flow_step_matches_the_reference(params, q_lpm: float) -> None:
     st = RealTimeStepper(params, duty=0.7)
     start = st.state
     st.set_load_flow(q_lpm * LPM)
@@ -84,7 +84,7 @@ def test_load_flow_step_matches_the_reference(params, q_lpm: float) -> None:  # 
     assert np.max(np.abs(euler.pressure - ref.pressure)) > 0.1 * BAR
 
 
-def test_full_model_acts_as_the_equivalent_damper(params, references) -> None:  # noqa: ANN001
+def test_full_model_acts_as_the_equivalent_damper(params, references) -> None:
     """R20: the restrictor/chamber pole is ~-2.6e8 1/s, so the chamber is a pure damper
     B + A_cc^2/K_d; with that B the simplified model follows the full one to < 0.05 bar."""
     profile = DutyProfile.step(0.5, 0.7, T_STEP)
@@ -103,7 +103,7 @@ def test_full_model_acts_as_the_equivalent_damper(params, references) -> None:  
 # --- the fall-rate limiter ------------------------------------------------------------------
 
 
-def test_fall_rate_limiter_ramps_falls_and_passes_rises(params) -> None:  # noqa: ANN001
+def test_fall_rate_limiter_ramps_falls_and_passes_rises(params) -> None:
     st = RealTimeStepper(replace_param(params, "command.duty_fall_rate_limit", 2.0), duty=0.8)
     st.set_duty(0.4)
     duties = []
@@ -120,14 +120,14 @@ def test_fall_rate_limiter_ramps_falls_and_passes_rises(params) -> None:  # noqa
     assert st.duty == 0.9          # a rise passes at once
 
 
-def test_rate_limited_profile_matches_between_stepper_and_reference(params) -> None:  # noqa: ANN001
+def test_rate_limited_profile_matches_between_stepper_and_reference(params) -> None:
     limited = replace_param(params, "command.duty_fall_rate_limit", 4.0)
     profile = DutyProfile.step(0.8, 0.4, T_STEP, fall_rate_limit=4.0)
     traj = RealTimeStepper(limited, duty=0.8).run(profile, T_END)
     ref = simulate_reference(ValveModel(limited), profile, T_END)
     assert np.max(np.abs(traj.pressure - ref.pressure)) < 0.1 * BAR
     # The reference sees DutyProfile.effective: a ramp of 4 /s over 0.1 s.
-    assert ref.duty[int(round(0.06 / 1e-4))] == pytest.approx(0.8 - 4.0 * 0.05, abs=1e-12)
+    assert ref.duty[round(0.06 / 1e-4)] == pytest.approx(0.8 - 4.0 * 0.05, abs=1e-12)
 
 
 def test_duty_profile_effective_and_breakpoints() -> None:
@@ -165,7 +165,7 @@ def test_fall_rate_limiter_off() -> None:
         ((0.0,), (-0.2,), r"out of range: accepted is a fraction 0\.\.1"),
     ],
 )
-def test_duty_profile_validation(times, values, match: str) -> None:  # noqa: ANN001
+def test_duty_profile_validation(times, values, match: str) -> None:
     with pytest.raises(CommandError, match=match):
         DutyProfile(times, values)
 
@@ -173,8 +173,8 @@ def test_duty_profile_validation(times, values, match: str) -> None:  # noqa: AN
 # --- determinism and time ---------------------------------------------------------------------
 
 
-def test_two_runs_are_identical(params) -> None:  # noqa: ANN001
-    def run():  # noqa: ANN202
+def test_two_runs_are_identical(params) -> None:
+    def run():
         st = RealTimeStepper(params, duty=0.5)
         a = st.run(DutyProfile.step(0.5, 0.9, 0.005), 0.03)
         st.set_load_flow(3 * LPM)
@@ -187,7 +187,7 @@ def test_two_runs_are_identical(params) -> None:  # noqa: ANN001
             assert np.array_equal(getattr(x, name), getattr(y, name)), name
 
 
-def test_model_time_is_a_step_count(params) -> None:  # noqa: ANN001
+def test_model_time_is_a_step_count(params) -> None:
     st = RealTimeStepper(params, duty=0.5)
     eq = zero_flow_equilibrium(ValveModel(params), 0.5)
     for _ in range(100):
@@ -222,7 +222,7 @@ def test_model_time_is_a_step_count(params) -> None:  # noqa: ANN001
         ("set_supply_pressure", math.inf, r"supply pressure inf: accepted is a finite number in Pa"),
     ],
 )
-def test_bad_inputs_are_refused_and_the_last_command_stays(params, method: str, value, match: str) -> None:  # noqa: ANN001
+def test_bad_inputs_are_refused_and_the_last_command_stays(params, method: str, value, match: str) -> None:
     st = RealTimeStepper(params, duty=0.6)
     st.set_load_flow(1 * LPM)
     st.set_supply_pressure(190e5)
@@ -235,14 +235,14 @@ def test_bad_inputs_are_refused_and_the_last_command_stays(params, method: str, 
     assert st.duty == 0.6 and st.finite()
 
 
-def test_supply_pressure_in_bar_is_refused(params) -> None:  # noqa: ANN001
+def test_supply_pressure_in_bar_is_refused(params) -> None:
     st = RealTimeStepper(params, duty=0.6)
     with pytest.raises(CommandError, match=r"supply pressure 200 Pa: .*the unit is Pa, not bar: 200 bar is 2e\+07 Pa"):
         st.set_supply_pressure(200)
     assert st.supply_pressure == 200e5
 
 
-def test_duty_range_from_the_config(params) -> None:  # noqa: ANN001
+def test_duty_range_from_the_config(params) -> None:
     narrow = replace_param(params, "command.duty_range", [0.3, 0.9])
     st = RealTimeStepper(narrow, duty=0.5)
     with pytest.raises(CommandError, match=r"duty cycle 0\.2 is out of range: accepted is a fraction 0\.3\.\.0\.9"):
@@ -261,7 +261,7 @@ def test_check_functions_return_floats() -> None:
         check_load_flow(True)
 
 
-def test_supply_pressure_change_moves_the_pressure_little(params) -> None:  # noqa: ANN001
+def test_supply_pressure_change_moves_the_pressure_little(params) -> None:
     # A pressure control valve holds its pressure against supply changes (Sec. 1): 200 -> 180 bar
     # supply at 70 % moves the load pressure by far less than the 20 bar change.
     st = RealTimeStepper(params, duty=0.7)
@@ -276,7 +276,7 @@ def test_supply_pressure_change_moves_the_pressure_little(params) -> None:  # no
 
 
 @pytest.mark.parametrize(("duty", "q_lpm", "stop"), [(0.3, -30.0, "x_min"), (1.0, 30.0, "x_max")])
-def test_end_stops_hold(params, duty: float, q_lpm: float, stop: str) -> None:  # noqa: ANN001
+def test_end_stops_hold(params, duty: float, q_lpm: float, stop: str) -> None:
     """-30 L/min into the load at 30 % is more than the open tank side relieves below supply,
     +30 L/min drawn at 100 % more than the pump side gives above the balance: the spool goes to
     the stop and stays there, never beyond."""
@@ -307,7 +307,7 @@ def dominant_frequency(signal: np.ndarray, dt: float) -> float:
     return float(np.fft.rfftfreq(len(signal), dt)[int(np.argmax(spec))])
 
 
-def test_switched_pwm_averages_to_the_averaged_model(params) -> None:  # noqa: ANN001
+def test_switched_pwm_averages_to_the_averaged_model(params) -> None:
     """R15: the averaged model stands for the 200 Hz PWM. Run the switched coil with a 10 us RK4
     step (a 2 us run gives the same mean pressure within ~0.05 bar) and compare the steady state:
     the mean pressure within 1 bar of the averaged model's equilibrium (measured: 0.5 bar below,
@@ -332,7 +332,7 @@ def test_switched_pwm_averages_to_the_averaged_model(params) -> None:  # noqa: A
 
 
 @pytest.mark.parametrize("duty", [0.7, 0.71, 0.5])
-def test_switched_pwm_on_time_is_the_same_every_period(params, duty: float) -> None:  # noqa: ANN001
+def test_switched_pwm_on_time_is_the_same_every_period(params, duty: float) -> None:
     m = ValveModel(replace_param(params, "solenoid.pwm", "switched"))
     dt, per_period = 1e-4, 50      # 200 Hz at 0.1 ms
     counts = {sum(m.coil_voltage(duty, (k * per_period + j) * dt) > 0.0 for j in range(per_period))
@@ -340,7 +340,7 @@ def test_switched_pwm_on_time_is_the_same_every_period(params, duty: float) -> N
     assert len(counts) == 1
 
 
-def test_switched_pwm_at_the_real_time_step(params) -> None:  # noqa: ANN001
+def test_switched_pwm_at_the_real_time_step(params) -> None:
     st = RealTimeStepper(replace_param(params, "solenoid.pwm", "switched"), duty=0.7)
     st.advance(5000)
     pres = []
@@ -357,7 +357,7 @@ def test_switched_pwm_at_the_real_time_step(params) -> None:  # noqa: ANN001
 
 
 @pytest.mark.parametrize("duty", [0.0, 0.28])
-def test_stepper_starts_at_low_duty(params, duty: float) -> None:  # noqa: ANN001
+def test_stepper_starts_at_low_duty(params, duty: float) -> None:
     st = RealTimeStepper(params, duty=duty)
     assert st.finite()
     assert st.model.x_min <= st.spool_position < 0.0
@@ -370,13 +370,13 @@ def test_stepper_starts_at_low_duty(params, duty: float) -> None:  # noqa: ANN00
     assert st.pressure == pytest.approx(start[1], abs=1e-3 * BAR)
 
 
-def test_default_stepper_starts_at_zero_duty(params) -> None:  # noqa: ANN001
+def test_default_stepper_starts_at_zero_duty(params) -> None:
     st = RealTimeStepper(params)
     assert st.command == st.duty == 0.0
     assert st.spool_position == st.model.x_min
 
 
-def test_cold_start_to_full_duty(params) -> None:  # noqa: ANN001
+def test_cold_start_to_full_duty(params) -> None:
     st = RealTimeStepper(params, duty=0.3)
     st.set_duty(0.0)
     st.advance(5000)                        # 0.5 s at 0 %: the flux decays to ~0
@@ -394,7 +394,7 @@ def test_cold_start_to_full_duty(params) -> None:  # noqa: ANN001
     assert st.pressure == pytest.approx(eq.pressure, abs=0.5 * BAR)
 
 
-def test_step_from_zero_to_ninety_percent_recovers(params) -> None:  # noqa: ANN001
+def test_step_from_zero_to_ninety_percent_recovers(params) -> None:
     # The same start-up to 90 % (V_L <= 10.8 V, where Eq. 2 keeps a root) works.
     st = RealTimeStepper(params, duty=0.3)
     st.set_duty(0.0)

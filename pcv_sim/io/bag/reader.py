@@ -274,7 +274,7 @@ class _McapFile:
         """Read the file; return True if it was closed properly and nothing was damaged."""
         path = self.path
         try:
-            f = open(path, "rb")  # noqa: SIM115
+            f = open(path, "rb")
         except OSError as exc:
             msg = f"cannot open {str(path)!r}: {exc.strerror}"
             raise BagError(msg) from exc

@@ -367,10 +367,8 @@ class BagWriter:
             self._count += 1
             fs = self._files[-1]
             fs.count += 1
-            if t < fs.t_min:
-                fs.t_min = t
-            if t > fs.t_max:
-                fs.t_max = t
+            fs.t_min = min(fs.t_min, t)
+            fs.t_max = max(fs.t_max, t)
             self._pending_bytes += len(data) + MESSAGE_OVERHEAD
             now = self._clock()
             if self._pending_since is None:
@@ -437,7 +435,7 @@ class BagWriter:
     def _open_file(self) -> None:
         name = f"{self.path.name}_{len(self._files)}.mcap"
         try:
-            f = open(self.path / name, "xb")  # noqa: SIM115 - closed in _flush_locked/close
+            f = open(self.path / name, "xb")
         except OSError as exc:
             msg = f"cannot create bag file {str(self.path / name)!r}: {exc.strerror}"
             raise BagError(msg) from exc
