@@ -86,6 +86,8 @@ class Store:
                     except json.JSONDecodeError:
                         continue             # a line cut short by the interrupt
                     self.rows[int(row["index"])] = row
+                # rewritten whole: a line an interrupt cut short must not run into the next one
+                jsonl.write_text("".join(json.dumps(r) + "\n" for r in self.ordered()), encoding="utf-8")
         elif not resume and jsonl.exists():
             raise UsageError(f"--out {out}: holds a campaign's results; accepted is --resume (run what is missing) "
                              "or a new directory")
