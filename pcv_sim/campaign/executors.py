@@ -86,7 +86,7 @@ def run_local(campaign: Campaign, indices: Sequence[int], workers: int, on_row: 
 
 
 def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: OnRow, *,
-             timeout: float = 30.0) -> None:
+             timeout: float = 10.0) -> None:
     """On the Dask cluster whose scheduler is at `address` (tcp://HOST:PORT)."""
     try:
         from distributed import Client, as_completed

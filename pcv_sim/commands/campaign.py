@@ -105,10 +105,8 @@ def _one(args: argparse.Namespace, campaign: Any) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pcv_sim.campaign.executors import run_dask, run_local
-    from pcv_sim.campaign.report import write_report
-    from pcv_sim.campaign.results import Store, columns, summary, summary_text
-    from pcv_sim.campaign.runner import assertion_names
+    from pcv_sim.campaign.results import summary_text
+    from pcv_sim.campaign.run import run_campaign
     from pcv_sim.campaign.spec import load_campaign
     from pcv_sim.campaign.variants import Variants
 
@@ -120,47 +118,27 @@ def run(args: argparse.Namespace) -> int:
     if args.variant is None and (args.report is not None or args.bag is not None):
         raise UsageError("--report/--bag: with --variant K (the campaign's own report is DIR/report.html)")
     campaign = load_campaign(args.path)
-    variants = Variants(campaign, validate=True)          # every value checked before any variant runs
     if args.variant is not None:
-        if not 0 <= args.variant < len(variants):
-            raise UsageError(f"--variant {args.variant}: accepted is 0 .. {len(variants) - 1}")
+        n = len(Variants(campaign, validate=True))
+        if not 0 <= args.variant < n:
+            raise UsageError(f"--variant {args.variant}: accepted is 0 .. {n - 1}")
         return _one(args, campaign)
     out = args.out if args.out is not None else Path(f"{campaign.name}_campaign")
-    names = assertion_names(campaign.base.scenario)
-    store = Store(out, campaign, columns(campaign, variants.columns, names), resume=args.resume)
-    todo = store.missing()
-    progress = Progress(len(todo), _interactive(args))
-
-    def on_row(row: dict[str, Any]) -> None:
-        store.add(row)
-        progress.update(row)
-
-    interrupted = False
-    wall0 = time.perf_counter()
+    progress = Progress(campaign.size, _interactive(args))
     try:
-        if args.scheduler is not None:
-            run_dask(campaign, todo, args.scheduler, on_row)
-        else:
-            run_local(campaign, todo, args.workers or os.cpu_count() or 1, on_row)
-    except KeyboardInterrupt:
-        interrupted = True
+        result = run_campaign(campaign, out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
+                              on_row=progress.update)
     finally:
         progress.close()
-        store.close()
-    wall = time.perf_counter() - wall0
-    s = summary(campaign, store.ordered(), variants.columns, names, worst=campaign.worst)
-    s["wall_time_s"] = wall
-    s["results"] = str(out / "results.csv")
-    if not interrupted:
-        s["report"] = str(write_report(campaign, s, store.ordered(), variants.columns, names, out))
+    s = result.summary
     if args.json:
         emit_json(s)
     else:
         print(summary_text(s))
-        print(f"{len(todo)} variants in {wall:.1f} s; results: {s['results']}"
+        print(f"{s['ran']} variants in {s['wall_time_s']:.1f} s; results: {s['results']}"
               + (f"; report: {s['report']}" if "report" in s else ""))
-    if interrupted:
+    if result.interrupted:
         print(f"pcv-sim campaign: interrupted; {s['done']} of {s['variants']} variants kept in {out} (--resume runs "
               "the rest)", file=sys.stderr)
         return 130
-    return 0 if s["gate"]["holds"] else 1
+    return 0 if result.passed else 1

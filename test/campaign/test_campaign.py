@@ -7,9 +7,10 @@ import math
 
 import pytest
 import yaml
-from .conftest import REPO, SCENARIO
 
 from pcv_sim.cli import main
+
+from .conftest import REPO, SCENARIO
 
 SWEEP = {"sweep": {"parameters": {"left.spool.spring_preload": [1.8, 2.2],
                                   "scenario.timeline[0].force": {"from": -300.0, "to": 300.0, "steps": 2}}},
@@ -212,3 +213,17 @@ def test_fault_matrix_with_onset_following_assertion(write_campaign, tmp_path, c
     assert all(r["flagged.passed"] == "true" for r in coil), coil
     assert all(0.0 <= float(r["flagged.value"]) <= 0.06 for r in coil)
     assert s["done"] == 8 and not math.isnan(s["pass_rate"])
+
+
+pytest_plugins = ["pcv_sim.testing"]
+
+
+def test_testing_helper_asserts_on_pass_rate_and_margins(rig_campaign, tmp_path, monkeypatch):
+    (tmp_path / "short.yaml").write_text(yaml.safe_dump(SCENARIO))
+    monkeypatch.chdir(tmp_path)
+    result = rig_campaign({"scenario": "short.yaml", "sweep": {"parameters": {"cylinder.mass": [40.0, 60.0]}}})
+    assert result.passed and result.pass_rate == 1.0, result.text()
+    assert 0 < result.worst_margin("tracks") < 2.5e-3
+    assert result.worst_margin("tracks") == min(float(r["tracks.margin"]) for r in result.rows)
+    with pytest.raises(KeyError, match="tracks"):
+        result.worst_margin("nonesuch")
