@@ -227,3 +227,17 @@ def test_testing_helper_asserts_on_pass_rate_and_margins(rig_campaign, tmp_path,
     assert result.worst_margin("tracks") == min(float(r["tracks.margin"]) for r in result.rows)
     with pytest.raises(KeyError, match="tracks"):
         result.worst_margin("nonesuch")
+
+
+def test_example_campaigns_load():
+    from pcv_sim.campaign.spec import load_campaign
+    from pcv_sim.campaign.variants import Variants
+
+    tol = load_campaign(REPO / "examples" / "campaigns" / "tolerances.yaml")
+    v = Variants(tol, validate=True)
+    assert len(v) == 500
+    assert set(v[0].values) == {f"{s}.{k}" for s in ("left", "right") for k in (
+        "spool.spring_preload", "solenoid.coil_resistance", "fluid.bulk_modulus")}
+    faults = Variants(load_campaign(REPO / "examples" / "campaigns" / "valve_faults.yaml"), validate=True)
+    assert len(faults) == 8 * 2 * 3
+    assert faults[5].at == {("assertions", 0, "after"): 0.9}
