@@ -131,13 +131,13 @@ class Base:
         if valve_values or rig_values:
             params: dict[str, ValveParams] = {}
             for name, changes in valve_values.items():
-                data = copy.deepcopy(dict(self.valve_data[name]))
+                data = dict(self.valve_data[name])        # only the sections written to are copied
                 for (section, key), v in changes.items():
-                    data[section][key] = v
+                    data[section] = {**data[section], key: v}
                 params[name] = params_from_mapping(data, origin=f"valve {name}", prefix=f"{name}.")
-            rig_data = copy.deepcopy(dict(self.rig_data))
+            rig_data = dict(self.rig_data)
             for (section, key), v in rig_values.items():
-                rig_data[section][key] = v
+                rig_data[section] = {**rig_data[section], key: v}
             rig = rig_from_mapping(rig_data, origin=str(self.rig_file), base=self.rig_file.parent, valve_params=params)
         if not scenario_values and not timeline and not at:
             return dataclasses.replace(self.scenario, rig=rig) if rig is not self.scenario.rig else self.scenario
