@@ -241,3 +241,39 @@ def test_example_campaigns_load():
     faults = Variants(load_campaign(REPO / "examples" / "campaigns" / "valve_faults.yaml"), validate=True)
     assert len(faults) == 8 * 2 * 3
     assert faults[5].at == {("assertions", 0, "after"): 0.9}
+
+
+def test_ctrl_c_keeps_finished_variants_and_resume_completes(write_campaign, tmp_path, capsys):
+    """SIGINT to a running `pcv-sim campaign run` (2 workers): exit 130, every finished variant
+    kept; --resume runs the rest and the table is that of an uninterrupted run."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from .conftest import child_env
+
+    mc = {"monte_carlo": {**MONTE_CARLO["monte_carlo"], "samples": 40}, "worst": 0}
+    path = write_campaign(mc)
+    out = tmp_path / "cut"
+    p = subprocess.Popen([sys.executable, "-m", "pcv_sim", "campaign", "run", str(path), "--out", str(out),
+                          "--workers", "2", "--json"], env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        log = out / "variants.jsonl"
+        deadline = time.monotonic() + 240
+        while not (log.is_file() and len(log.read_text().splitlines()) >= 3):
+            assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+            time.sleep(0.05)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 130, err
+    kept = read_rows(out / "results.csv")
+    assert 3 <= len(kept) < 40
+    assert run_campaign(path, out, "--resume", "--workers", "1") == 0
+    assert run_campaign(path, tmp_path / "whole", "--workers", "1") == 0
+    capsys.readouterr()
+    assert (out / "results.csv").read_bytes() == (tmp_path / "whole" / "results.csv").read_bytes()
