@@ -253,7 +253,7 @@ def test_ctrl_c_keeps_finished_variants_and_resume_completes(write_campaign, tmp
 
     from .conftest import child_env
 
-    mc = {"monte_carlo": {**MONTE_CARLO["monte_carlo"], "samples": 40}, "worst": 0}
+    mc = {"monte_carlo": {**MONTE_CARLO["monte_carlo"], "samples": 40}, "worst": 0, "gate": {"pass_rate": 0.0}}
     path = write_campaign(mc)
     out = tmp_path / "cut"
     p = subprocess.Popen([sys.executable, "-m", "pcv_sim", "campaign", "run", str(path), "--out", str(out),
