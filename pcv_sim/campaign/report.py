@@ -128,6 +128,21 @@ def write_report(campaign: Campaign, summary: Mapping[str, Any], rows: Sequence[
         parts.append("<h2>Rank correlation (Spearman) of each varied value with each margin</h2>"
                      "<table border='1' cellpadding='4'><tr><th></th>"
                      + "".join(f"<th>{esc(n)}</th>" for n in names) + f"</tr>{corr_rows}</table>")
+    sens = summary.get("sensitivity")
+    if sens is not None:
+        key = "ST" if sens["method"] == "sobol" else "mu_star"
+        idx = sens["indices"]
+        if isinstance(idx.get("error"), str):
+            parts.append(f"<h2>Sensitivity ({esc(sens['method'])})</h2><p>{esc(idx['error'])}</p>")
+        else:
+            dims = [d.name for d in campaign.sensitivity.dimensions] if campaign.sensitivity else []
+            body = "".join(
+                f"<tr><td>{esc(n)}</td>" + ("".join(f"<td>{by[d][key]:.3g}</td>" for d in dims) if "error" not in by
+                                             else f"<td colspan='{len(dims)}'>{esc(by['error'])}</td>") + "</tr>"
+                for n, by in idx.items())
+            parts.append(f"<h2>Sensitivity ({esc(sens['method'])}: {key} of each margin)</h2>"
+                         "<table border='1' cellpadding='4'><tr><th></th>"
+                         + "".join(f"<th>{esc(d)}</th>" for d in dims) + f"</tr>{body}</table>")
     parts += _plots(campaign, rows, varied, names)
     parts.append("</body></html>")
     path = out / "report.html"

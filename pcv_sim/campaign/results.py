@@ -26,6 +26,7 @@ import numpy as np
 from scipy import stats
 
 from pcv_sim.campaign.runner import ERROR, PASSED
+from pcv_sim.campaign.sensitivity import analyze
 from pcv_sim.campaign.spec import Campaign
 from pcv_sim.errors import UsageError
 
@@ -178,10 +179,13 @@ def summary(campaign: Campaign, rows: Iterable[Mapping[str, Any]], varied: list[
             corr[c][name] = rho
     rate = passed / n if n else math.nan
     lo, hi = wilson(passed, n)
+    sens = analyze(campaign.sensitivity, rows, names) if campaign.sensitivity is not None else None
     return {"name": campaign.name, "variants": campaign.size, "done": n, "passed": passed,
             "failed": n - passed - errors, "errors": errors, "pass_rate": rate, "pass_rate_ci95": [lo, hi],
             "gate": {"pass_rate": campaign.pass_rate, "holds": n == campaign.size and rate >= campaign.pass_rate},
-            "assertions": per, "worst": worst_rows, "rank_correlation": corr}
+            "assertions": per, "worst": worst_rows, "rank_correlation": corr,
+            **({"sensitivity": {"method": campaign.sensitivity.method, "indices": sens}}
+               if campaign.sensitivity is not None else {})}
 
 
 def summary_text(s: Mapping[str, Any]) -> str:
@@ -197,6 +201,19 @@ def summary_text(s: Mapping[str, Any]) -> str:
         lines.append("worst variants: " + ", ".join(
             f"{w['index']} ({w['status']}{', ' + str(w['error'])[:80] if w.get('error') else ''})"
             for w in s["worst"]))
+    if "sensitivity" in s:
+        method = s["sensitivity"]["method"]
+        key = "ST" if method == "sobol" else "mu_star"
+        indices = s["sensitivity"]["indices"]
+        if isinstance(indices.get("error"), str):
+            lines.append(f"  sensitivity: {indices['error']}")
+            indices = {}
+        for name, by in indices.items():
+            if "error" in by:
+                lines.append(f"  sensitivity of {name}: {by['error']}")
+                continue
+            ranked = sorted(by.items(), key=lambda kv: -kv[1].get(key, 0.0))
+            lines.append(f"  {method} {key} of {name}: " + ", ".join(f"{p} {v.get(key, 0.0):.3g}" for p, v in ranked))
     for c, by in s["rank_correlation"].items():
         figures = ", ".join(f"{n} {r:+.2f}" for n, r in by.items() if math.isfinite(r))
         if figures:

@@ -22,6 +22,7 @@
       values: {supply_drop: {pressure: 8.0e+6}}   # the values a kind takes (SI)
       clear_after: 0.3               # optional: the fault is cleared this long after its onset (s)
       at_onset: [scenario.assertions[0].at]       # scenario values that follow the onset
+    sensitivity: {...}               # alone: SALib's Sobol or Morris design (pcv_sim.campaign.sensitivity)
     gate: {pass_rate: 0.99}          # exit 0 when at least this fraction of variants passes (default 1.0)
     worst: 5                         # the worst variants whose own scenario reports the report links
 
@@ -45,13 +46,15 @@ from typing import Any
 
 import yaml
 
+from pcv_sim.campaign.sensitivity import METHODS, Dimension, Sensitivity
+from pcv_sim.campaign.sensitivity import size as sensitivity_size
 from pcv_sim.campaign.targets import Base, CampaignError, Target, load_base, parse_target, scenario_path
 from pcv_sim.errors import PcvSimError
 from pcv_sim.rig.faults import CYLINDER, CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS
 
 __all__ = ["Campaign", "Distribution", "FaultMatrix", "MonteCarlo", "Sweep", "campaign_from_mapping", "load_campaign"]
 
-_TOP = ("name", "scenario", "sweep", "monte_carlo", "faults", "gate", "worst")
+_TOP = ("name", "scenario", "sweep", "monte_carlo", "faults", "sensitivity", "gate", "worst")
 _MAX_VARIANTS = 1_000_000
 DISTRIBUTIONS = ("normal", "uniform")
 SAMPLINGS = ("random", "latin_hypercube")
@@ -100,6 +103,7 @@ class Campaign:
     pass_rate: float                       # the gate
     worst: int
     digest: str                            # of everything a variant depends on (for --resume)
+    sensitivity: Sensitivity | None = None  # alone: no sweep, monte_carlo or faults beside it
 
     @property
     def size(self) -> int:
@@ -119,6 +123,9 @@ class Campaign:
 
     @property
     def monte_carlo_size(self) -> int:
+        """The variants of the innermost design: Monte Carlo samples, or the sensitivity's."""
+        if self.sensitivity is not None:
+            return sensitivity_size(self.sensitivity)
         return self.monte_carlo.samples if self.monte_carlo else 1
 
 
@@ -352,6 +359,54 @@ def fault_applies(kind: str, target: str, valves: tuple[str, ...]) -> bool:
     return isinstance(target, str) and "." in target
 
 
+def _sensitivity(raw: Any, base: Base) -> Sensitivity:
+    spec = _keys("sensitivity", raw, ("method", "samples", "seed", "levels", "parameters"), ("method", "samples",
+                                                                                            "parameters"))
+    method = spec["method"]
+    if method not in METHODS:
+        raise CampaignError(f"sensitivity.method: got {method!r}; accepted is {' or '.join(METHODS)} (SALib)")
+    samples = _int("sensitivity.samples", spec["samples"], 2, 1 << 16)
+    if method == "sobol" and samples & (samples - 1):
+        raise CampaignError(f"sensitivity.samples: got {samples}; accepted for sobol is a power of 2 (Sobol' "
+                            "sequences keep their balance only then), e.g. 64")
+    seed = _int("sensitivity.seed", spec.get("seed", 0), 0, 2**32 - 1)
+    levels = _int("sensitivity.levels", spec.get("levels", 4), 2, 100)
+    params = spec["parameters"]
+    if not isinstance(params, Mapping) or not params:
+        raise CampaignError("sensitivity.parameters: accepted is a mapping key -> {low, high} or {tolerance}")
+    dims: list[Dimension] = []
+    for key, raw_p in params.items():
+        where = f"sensitivity.parameters.{key}"
+        target = parse_target(key, base, "sensitivity.parameters")
+        p = _keys(where, raw_p, ("low", "high", "tolerance", "tied"))
+        tied = p.get("tied", False)
+        if not isinstance(tied, bool) or (tied and target.kind != "valve"):
+            raise CampaignError(f"{where}.tied: accepted is true or false, true only for a key of every valve")
+        bounds = []
+        for col, nominal in zip(target.columns, target.nominals):
+            if isinstance(nominal, bool) or not isinstance(nominal, (int, float)):
+                raise CampaignError(f"{where}: the nominal value of {col} is {nominal!r}; accepted is a numeric key")
+            if "tolerance" in p:
+                if "low" in p or "high" in p:
+                    raise CampaignError(f"{where}: accepted is tolerance or low and high, not both")
+                half = _relative(f"{where}.tolerance", p["tolerance"], float(nominal))
+                lo, hi = float(nominal) - half, float(nominal) + half
+            else:
+                if "low" not in p or "high" not in p:
+                    raise CampaignError(f"{where}: accepted is {{low, high}} (SI) or {{tolerance}} (SI or N%)")
+                lo, hi = _num(f"{where}.low", p["low"]), _num(f"{where}.high", p["high"])
+            if not lo < hi:
+                raise CampaignError(f"{where}: bounds {lo:g} .. {hi:g}; accepted is low < high")
+            for v in (lo, hi):
+                _check_value(base, col, v, where)
+            bounds.append((lo, hi))
+        if tied:
+            dims.append(Dimension(key, target.columns, *bounds[0]))
+        else:
+            dims += [Dimension(col, (col,), lo, hi) for col, (lo, hi) in zip(target.columns, bounds)]
+    return Sensitivity(method, samples, seed, levels, tuple(dims))
+
+
 def campaign_from_mapping(data: Any, path: Path) -> Campaign:
     """A validated Campaign from the file's mapping (`path`: the file, for relative paths)."""
     try:
@@ -360,6 +415,10 @@ def campaign_from_mapping(data: Any, path: Path) -> Campaign:
         sweep = _sweep(data["sweep"], base) if data.get("sweep") is not None else None
         mc = _monte_carlo(data["monte_carlo"], base) if data.get("monte_carlo") is not None else None
         faults = _faults(data["faults"], base) if data.get("faults") is not None else None
+        sens = _sensitivity(data["sensitivity"], base) if data.get("sensitivity") is not None else None
+        if sens is not None and (sweep or mc or faults):
+            raise CampaignError("sensitivity: accepted alone (its design is SALib's: no sweep, monte_carlo or faults "
+                                "beside it)")
         columns = [c for s in (sweep, mc) if s for t, _ in s.parameters for c in t.columns]
         twice = sorted({c for c in columns if columns.count(c) > 1})
         if twice:
@@ -377,7 +436,7 @@ def campaign_from_mapping(data: Any, path: Path) -> Campaign:
         raise CampaignError(f"{path}: {err}") from None
     digest = hashlib.sha256(pickle.dumps((json.dumps(data, sort_keys=True, default=str), base.scenario_data,
                                           base.rig_data, base.valve_data))).hexdigest()[:16]
-    c = Campaign(name, path, base, sweep, mc, faults, pass_rate, worst, digest)
+    c = Campaign(name, path, base, sweep, mc, faults, pass_rate, worst, digest, sens)
     if c.size > _MAX_VARIANTS:
         raise CampaignError(f"{path}: {c.size} variants; accepted is at most {_MAX_VARIANTS}")
     return c

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import stats
 from scipy.stats import qmc
 
+from pcv_sim.campaign.sensitivity import design
 from pcv_sim.campaign.spec import Campaign, Distribution, _check_value, fault_entries
 from pcv_sim.campaign.targets import FAULT_COLUMNS, CampaignError
 
@@ -64,6 +65,12 @@ class Variants:
         if c.sweep is not None:
             self.columns += [col for t, _ in c.sweep.parameters for col in t.columns]
         self.samples: dict[str, np.ndarray] = {}
+        if c.sensitivity is not None:
+            x = design(c.sensitivity)
+            for j, sd in enumerate(c.sensitivity.dimensions):
+                for col in sd.columns:
+                    self.samples[col] = x[:, j]
+                    self.columns.append(col)
         mc = c.monte_carlo
         if mc is not None:
             dims: list[list[tuple[str, Distribution]]] = []

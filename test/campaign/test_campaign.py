@@ -277,3 +277,27 @@ def test_ctrl_c_keeps_finished_variants_and_resume_completes(write_campaign, tmp
     assert run_campaign(path, tmp_path / "whole", "--workers", "1") == 0
     capsys.readouterr()
     assert (out / "results.csv").read_bytes() == (tmp_path / "whole" / "results.csv").read_bytes()
+
+
+@pytest.mark.parametrize("method", ["sobol", "morris"])
+def test_sensitivity_ranks_the_coil_above_the_mass_for_the_pressure(method, write_campaign, tmp_path, capsys):
+    """SALib's indices of each margin: the coil resistance sets the current and so the pressure;
+    the moving mass barely changes the peak chamber pressure of a 10 mm step."""
+    path = write_campaign({"sensitivity": {"method": method, "samples": 4, "seed": 1, "parameters": {
+        "valves.solenoid.coil_resistance": {"tolerance": "3%", "tied": True},
+        "cylinder.mass": {"low": 40.0, "high": 60.0}}}, "gate": {"pass_rate": 0.0}, "worst": 0})
+    assert run_campaign(path, tmp_path / "out", "--workers", "1") == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["variants"] == 4 * (2 + 2 if method == "sobol" else 2 + 1)
+    idx = s["sensitivity"]["indices"]["chamber a"]
+    key = "ST" if method == "sobol" else "mu_star"
+    assert idx["valves.solenoid.coil_resistance"][key] > 10 * idx["cylinder.mass"][key], idx
+    rows = read_rows(tmp_path / "out" / "results.csv")
+    assert all(r["left.solenoid.coil_resistance"] == r["right.solenoid.coil_resistance"] for r in rows)   # tied
+
+
+def test_sensitivity_sobol_needs_a_power_of_two(write_campaign, tmp_path, capsys):
+    path = write_campaign({"sensitivity": {"method": "sobol", "samples": 6, "parameters": {
+        "cylinder.mass": {"low": 40.0, "high": 60.0}}}})
+    assert run_campaign(path, tmp_path / "out") == 2
+    assert "sensitivity.samples" in capsys.readouterr().err
