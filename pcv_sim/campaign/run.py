@@ -54,16 +54,21 @@ class CampaignResult:
 
 def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, workers: int = 0, scheduler: str | None = None,
                  resume: bool = False, report: bool = True,
-                 on_row: Callable[[dict[str, Any]], None] | None = None) -> CampaignResult:
+                 on_row: Callable[[dict[str, Any]], None] | None = None,
+                 on_start: Callable[[int], None] | None = None) -> CampaignResult:
     """Run `campaign` (a file or a loaded Campaign) into the directory `out`: on `workers`
     local processes (0: every core; 1: this process) or on the Dask cluster at `scheduler`.
-    A KeyboardInterrupt keeps every finished variant (the result says `interrupted`)."""
+    `on_start(n)` is told how many variants will run (with `resume`, the missing ones), `on_row`
+    each finished row. A KeyboardInterrupt keeps every finished variant (the result says
+    `interrupted`)."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     variants = Variants(c, validate=True)      # every value checked before any variant runs
     out = Path(out)
     names = assertion_names(c.base.scenario)
     store = Store(out, c, columns(c, variants.columns, names), resume=resume)
     todo = store.missing()
+    if on_start is not None:
+        on_start(len(todo))
 
     def add(row: dict[str, Any]) -> None:
         store.add(row)

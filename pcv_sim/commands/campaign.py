@@ -55,6 +55,13 @@ class Progress:
         self.t0 = time.perf_counter()
         self._last = 0.0
 
+    def start(self, total: int) -> None:
+        """`total` variants to run (with --resume, the missing ones)."""
+        self.total = total
+        self.done = self.failed = 0
+        self.t0 = time.perf_counter()
+        self._last = 0.0
+
     def update(self, row: dict[str, Any]) -> None:
         self.done += 1
         self.failed += row["status"] != "passed"
@@ -127,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(campaign.size, _interactive(args))
     try:
         result = run_campaign(campaign, out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                              on_row=progress.update)
+                              on_row=progress.update, on_start=progress.start)
     finally:
         progress.close()
     s = result.summary

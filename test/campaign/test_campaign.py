@@ -301,3 +301,23 @@ def test_sensitivity_sobol_needs_a_power_of_two(write_campaign, tmp_path, capsys
         "cylinder.mass": {"low": 40.0, "high": 60.0}}}})
     assert run_campaign(path, tmp_path / "out") == 2
     assert "sensitivity.samples" in capsys.readouterr().err
+
+
+def test_progress_on_a_terminal_only(capsys, monkeypatch):
+    import argparse
+
+    from pcv_sim.commands.campaign import Progress, _interactive
+
+    p = Progress(0, True)
+    p.start(2)
+    p.update({"status": "passed"})
+    p.update({"status": "error"})
+    p.close()
+    err = capsys.readouterr().err
+    assert "2/2 done, 1 failed" in err and "ETA 0 s" in err
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.setattr("sys.stderr.isatty", lambda: True)
+    assert _interactive(argparse.Namespace(json=False))
+    assert not _interactive(argparse.Namespace(json=True))
+    monkeypatch.setenv("CI", "true")
+    assert not _interactive(argparse.Namespace(json=False))
