@@ -94,10 +94,18 @@ def test_one_and_two_workers_give_the_same_table(write_campaign, tmp_path, capsy
     rows = read_rows(tmp_path / "one" / "results.csv")
     assert [int(r["index"]) for r in rows] == list(range(6))
     # --variant K alone (a fresh rig) gives the campaign's assertion values
-    assert main(["campaign", "run", str(path), "--variant", "4", "--json"]) == 0
+    assert main(["campaign", "run", str(path), "--variant", "4", "--json", "--report", str(tmp_path / "v4.html"),
+                 "--bag", str(tmp_path / "v4")]) == 0
     alone = json.loads(capsys.readouterr().out)
     for name in ("tracks", "chamber a"):
         assert alone[f"{name}.value"] == float(rows[4][f"{name}.value"])
+    assert "tracks" in (tmp_path / "v4.html").read_text()
+    from mcap.reader import make_reader
+
+    (bag,) = (tmp_path / "v4").glob("*.mcap")
+    with bag.open("rb") as f:
+        topics = {ch.topic for _, ch, _ in make_reader(f).iter_messages()}
+    assert {"/left/pressure", "/setpoint"} <= topics
 
 
 def test_monte_carlo_draws_follow_the_file(write_campaign, tmp_path, capsys):
