@@ -147,6 +147,7 @@ def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: b
         raise _err(f"{where}.{key}: got {sig!r}{no_sp}{f' (did you mean {near!r}?)' if near else ''}; accepted are "
                    f"{', '.join(known)}{extra}")
 
+    sk = "number"
     if kind != "baseline":
         default = "cylinder.position" if kind == "step_response" else None
         if "signal" not in raw and default is None:
@@ -167,7 +168,7 @@ def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: b
         if key not in raw:
             raise _err(f"{where}: {kind} needs {key}")
     for key in ("max", "min", "tolerance", "steady_state_error"):
-        if key in raw:
+        if key in raw and kind != "baseline":
             out[key] = quantity(raw[key], sk, f"{where}.{key}")
     for key in ("rise_time", "settling_time"):
         if key in raw:
