@@ -18,7 +18,7 @@ from typing import Any
 
 from pcv_sim.errors import ParameterError
 
-__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "lpm", "quantity", "to_fit_mm"]
+__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "to_fit_mm"]
 
 MM_PER_M = 1.0e3        # the paper's fits (Eqs. 5-13, 21-25, 27, 31-32) take the position in mm
 PA_PER_BAR = 1.0e5
@@ -72,7 +72,7 @@ KINDS: dict[str, Kind] = {
     "flow": Kind("m^3/s", {"m^3/s": 1.0, "m3/s": 1.0, "L/min": M3S_PER_LPM, "l/min": M3S_PER_LPM},
                  "L/min", (0.0, 0.01), ("L/min",)),
     "current": Kind("A", {"A": 1.0, "mA": 1e-3}, "A", (0.0, 100.0), ("mA",)),
-    "fraction": Kind("-", {"-": 1.0, "%": 0.01}, "-", (0.0, 1.0), ("%",)),
+    "fraction": Kind("-", {"-": 1.0, "%": 0.01}, "%", (0.0, 1.0), ("%",)),
     "conductance": Kind("m^3/(s Pa)", {"m^3/(s Pa)": 1.0}, "m^3/(s Pa)"),
     "number": Kind("-", {"-": 1.0}, "-"),
 }
@@ -132,6 +132,17 @@ def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str =
         raise UnitError(f"{where}: unit {unit!r} in {raw!r}{also}; accepted for a {kind}{' rate' if rate else ''} "
                         f"are {accepted}")
     return number * f
+
+
+def fmt(value: float | None, kind: str, *, digits: int = 4) -> str:
+    """`value` (SI) in the kind's engineering unit: '125.3 bar', '0.48 mm', '35 ms', '12 %'."""
+    if value is None or math.isnan(value):
+        return "n/a"
+    if math.isinf(value):
+        return ("+" if value > 0 else "-") + "inf"
+    unit, f = display(kind)
+    v = value * f
+    return f"{v:.{digits}g} {unit}" if unit != "-" else f"{v:.{digits}g}"
 
 
 def display(kind: str) -> tuple[str, float]:

@@ -1,4 +1,4 @@
-"""A lockstep run as a bag and as an HTML report. Rendering only: every number is the run's.
+"""A lockstep run as a bag and as CSV (the HTML report: `pcv_sim.rig.report`). Every number is the run's.
 
 Bag topics (what the devices publish: the measured values, sensor faults included; a dropped
 sample has no message), one namespace per valve, SI units:
@@ -21,9 +21,6 @@ reads a bag or such a CSV back (a baseline run for `pcv_sim.rig.assertions`).
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -33,7 +30,7 @@ import numpy as np
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.rig.lockstep import RigRun
 
-__all__ = ["JOINT_STATE", "STRING", "plot_run", "read_signals", "render_html", "signal_unit", "write_bag", "write_csv"]
+__all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", "write_csv"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
@@ -187,66 +184,3 @@ def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             elif len(parts) == 2:
                 add(f"{parts[0]}.{'duty' if parts[1] == 'duty_cycle' else parts[1]}", t, value)
     return {k: (np.array(ts), np.array(vs)) for k, (ts, vs) in series.items()}
-
-
-def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") -> bytes:
-    """A PNG of the run: position vs setpoint, chamber pressures, duties, currents (bytes; also
-    written to `path` when given)."""
-    from pcv_sim.commands.common import pyplot
-
-    plt = pyplot()
-    fig, ax = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
-    t = run.times
-    ax[0].plot(t, run.signal("cylinder.position") * 1e3, label="position")
-    if np.any(np.isfinite(run.setpoint)):
-        ax[0].plot(t, run.setpoint * 1e3, "--", label="setpoint")
-    ax[0].set_ylabel("piston [mm]")
-    for v in run.valves:
-        ax[1].plot(t, run.signal(f"{v}.pressure") / 1e5, label=v)
-        ax[2].plot(t, run.signal(f"{v}.duty"), label=v)
-        ax[3].plot(t, run.signal(f"{v}.current"), label=v)
-    ax[1].set_ylabel("pressure [bar]")
-    ax[2].set_ylabel("duty [-]")
-    ax[3].set_ylabel("current [A]")
-    ax[3].set_xlabel("time [s]")
-    for a in ax:
-        a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
-    for t_ev, _text in run.log:
-        for a in ax:
-            a.axvline(t_ev, color="0.6", lw=0.8, ls=":")
-    if title:
-        ax[0].set_title(title)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    data = buf.getvalue()
-    if path is not None:
-        Path(path).write_bytes(data)
-    return data
-
-
-def render_html(result: Any) -> str:
-    """An HTML report of a `ScenarioResult`: verdict, assertions, events, plots."""
-    esc = html.escape
-    rows = "".join(
-        f"<tr><td>{esc(o.name)}</td><td style='color:{'green' if o.passed else 'red'}'>"
-        f"{'pass' if o.passed else 'FAIL'}</td><td>{esc(o.detail)}</td></tr>" for o in result.outcomes)
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(result.name)}</title></head><body>",
-             f"<h1>Scenario {esc(result.name)}: {'passed' if result.passed else 'FAILED'}</h1>",
-             f"<p>{esc(result.path)}; real-time factor {result.real_time_factor:.1f}x "
-             f"({result.wall_time:.3f} s wall)</p>"]
-    if result.error:
-        parts.append(f"<p style='color:red'>{esc(result.error)}</p>")
-    parts.append("<table border='1' cellpadding='4'><tr><th>assertion</th><th>result</th><th>found</th></tr>"
-                 f"{rows}</table>")
-    run = result.run
-    if run is not None:
-        events = "".join(f"<li>{t:.4f} s: {esc(text)}</li>" for t, text in run.log)
-        rejected = len(run.rejected)
-        parts.append(f"<h2>Events</h2><ul>{events or '<li>none</li>'}</ul><p>rejected commands: {rejected}</p>")
-        png = base64.b64encode(plot_run(run, title=result.name)).decode()
-        parts.append(f"<h2>Run</h2><img alt='run' src='data:image/png;base64,{png}'>")
-    parts.append("</body></html>")
-    return "\n".join(parts)

@@ -73,6 +73,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from pcv_sim.errors import CommandError, PcvSimError
@@ -83,7 +84,7 @@ from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
 from pcv_sim.rig.rig import MAX_EXTERNAL_FORCE, Rig, RigError
-from pcv_sim.units import KINDS, UnitError, quantity
+from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -154,6 +155,14 @@ class Scenario:
         """The start of the first setpoint segment after t (the duration when none)."""
         return next((s.t for s in self.setpoint if s.t > t + 1e-12), self.duration + 1.0)
 
+    def inputs(self, times: np.ndarray) -> dict[str, np.ndarray]:
+        """The external force (N) the timeline applies, at `times` (none without force entries)."""
+        segs = [e["force"] for e in self.timeline if "force" in e]
+        if not segs:
+            return {}
+        profile = Profile(sorted(segs, key=lambda s: s.t), initial=0.0)
+        return {"external force": np.array([profile(float(t)) for t in times])}
+
     def events(self) -> list[tuple[float, str]]:
         """The timeline in words, in time order (SI values shown in engineering units)."""
         out = []
@@ -166,8 +175,11 @@ class Scenario:
             elif "force" in e:
                 out.append((t, f"external force: {e['force'].describe('N')}"))
             elif "fault" in e:
-                vals = {k: v for k, v in e.items() if k not in ("t", "fault", "target")}
-                out.append((t, f"fault {e['fault']} on {e['target']}" + (f" {vals}" if vals else "")))
+                kind = signal_kind(str(e["target"])) if e["fault"] in SENSOR_FAULTS else ""
+                vals = [f"{k} {fmt(v, kind or _FAULT_UNITS.get(_fault_unit(e['fault'], k), 'number'))}"
+                        + ("/s" if k == "rate" else "") if k != "delay" else f"{k} {fmt(v, 'time')}"
+                        for k, v in e.items() if k not in ("t", "fault", "target")]
+                out.append((t, f"fault {e['fault']} on {e['target']}" + (f": {', '.join(vals)}" if vals else "")))
             else:
                 out.append((t, f"clear {e['clear']} on {e['target']}"))
         for k, seg in enumerate(self.setpoint):
@@ -189,6 +201,7 @@ class ScenarioResult:
     events: list[tuple[float, str]] = field(default_factory=list)     # the timeline, in words
     notes: list[str] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)                # version, seed, config hash, date
+    inputs: dict[str, np.ndarray] = field(default_factory=dict, repr=False)   # inputs not among the signals (SI)
 
     def summary(self) -> str:
         """One line per assertion, for a test's failure message."""
@@ -276,6 +289,11 @@ def _check_setpoint(raw: Any, base: Path | None) -> tuple[Segment, ...]:
     return tuple(out)
 
 
+def _fault_unit(kind: str, key: str) -> str:
+    spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
+    return spec[key][2] if key in spec else ""
+
+
 def _fault_values(where: str, e: Mapping[str, Any], kind: Any, target: Any) -> dict[str, Any]:
     """The fault's values in SI (their unit from the fault's table, a sensor fault's from its signal)."""
     spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
@@ -343,8 +361,11 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
         else:
             values = _fault_values(where, e, e[a], e.get("target"))
             try:
-                parse_fault(e[a], e.get("target"), values if a == "fault" else None, valves=valves, signals=signals,
-                            where=f"{where}.{a}")
+                # a clear names the fault by kind and target: its values are the fault's own
+                check = values if a == "fault" else {
+                    k: (lo + 1.0 if math.isfinite(lo) else 0.0) if hi > lo + 1.0 else (lo + hi) / 2.0
+                    for k, (lo, hi, _u, _o) in (VALVE_FAULTS | CYLINDER_FAULTS | SENSOR_FAULTS).get(e[a], {}).items()}
+                parse_fault(e[a], e.get("target"), check, valves=valves, signals=signals, where=f"{where}.{a}")
             except FaultError as err:
                 kinds = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
                 near = closest(e[a], kinds) if e[a] not in kinds else None
@@ -619,7 +640,7 @@ def scenario_result(scenario: Scenario, run: RigRun) -> ScenarioResult:
     outcomes = check_assertions(run, scenario.assertions, next_change=scenario.next_setpoint_change)
     return ScenarioResult(scenario.name, str(scenario.path) if scenario.path else "", all(o.passed for o in outcomes),
                           outcomes, run.real_time_factor, run.wall_time, None, run, scenario.events(),
-                          list(scenario.notes), run_metadata(scenario))
+                          list(scenario.notes), run_metadata(scenario), scenario.inputs(run.times))
 
 
 def run_metadata(scenario: Scenario) -> dict[str, Any]:

@@ -188,3 +188,34 @@ def test_every_example_scenario_loads():
     ros = load_scenario(EXAMPLES / "ros" / "step.yaml").ros
     assert ros.namespace == "/steering" and ros.argv("py")[:3] == ["py", "-m", "pcv_sim.node.steering_controller"]
     assert "__ns:=/steering" in ros.argv("py")
+
+
+def test_the_readme_example_works_for_a_controller_without_flags(rig_scenario):
+    """The README's pytest example, run as written with a controller that reports no flags."""
+    import re as _re
+
+    readme = (REPO / "README.md").read_text()
+    block = next(b for b in _re.findall(r"```python\n(.*?)```", readme, _re.S) if "def test_my_controller" in b)
+
+    class MyController:                 # the example's PI, without its flags
+        def __init__(self):
+            self.inner = PositionController()
+
+        def __call__(self, t, m):
+            out = dict(self.inner(t, m))
+            out.pop("flags", None)
+            return out
+
+    space = {"MyController": MyController}
+    exec(block.replace("examples/", str(EXAMPLES) + "/"), space)
+    space["test_my_controller"](rig_scenario)
+    result = rig_scenario(EXAMPLES / "step.yaml", controller=MyController(), duration=1.0)
+    assert not result.run.flags
+    assert [o.name for o in result.outcomes if not o.passed] == ["no false fault alarm"]
+
+
+def test_a_shorter_duration_drops_later_events_with_a_note(rig_scenario):
+    result = rig_scenario(EXAMPLES / "coil_open.yaml", controller=PositionController(), duration=0.8)
+    assert result.notes == ["timeline[1] (clear at 1 s) is after the run's end (0.8 s): dropped"]
+    assert "note: timeline[1]" in result.summary()
+    assert [text for _, text in result.events] == ["fault coil_open on left"]
