@@ -131,6 +131,9 @@ def test_command_json_bag_and_report(tmp_path, capsys):
     # 0.4 s at 1 kHz: 401 samples; the right current dropped out from 0.2 s on (no messages).
     assert len(bag["/left/pressure"]) == 401
     assert len(bag["/right/current"]) == 200
+    # the controller's flag, one message per answered period (the last instant has no answer)
+    assert bag.topic_types["/controller/fault_detected"] == "std_msgs/msg/Float64"
+    assert len(bag["/controller/fault_detected"]) == 400
     html = (tmp_path / "r.html").read_text()
     assert "FAILED" in html and "data:image/png;base64," in html
 
