@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from pcv_sim.errors import ParameterError
+from pcv_sim.units import quantity, si_kind
 
 __all__ = [
     "DEFAULT_CONFIG",
@@ -379,6 +380,9 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     in_unit = f" in {unit}" if unit not in ("", "-") else ""
     if meta.get("convert") is not None:
         return meta["convert"](path, value)
+    if isinstance(value, str) and value != "equivalent" and kind.startswith("float") and si_kind(unit) is not None \
+            and any((c.isalpha() and c not in "eE") or c in "%/" for c in value):
+        value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
     if kind == "float":
         out: Any = _number(path, value, f"a number{in_unit}")
     elif kind == "int":

@@ -18,7 +18,7 @@ from typing import Any
 
 from pcv_sim.errors import ParameterError
 
-__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "to_fit_mm"]
+__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "si_kind", "to_fit_mm"]
 
 MM_PER_M = 1.0e3        # the paper's fits (Eqs. 5-13, 21-25, 27, 31-32) take the position in mm
 PA_PER_BAR = 1.0e5
@@ -143,6 +143,13 @@ def fmt(value: float | None, kind: str, *, digits: int = 4) -> str:
     unit, f = display(kind)
     v = value * f
     return f"{v:.{digits}g} {unit}" if unit != "-" else f"{v:.{digits}g}"
+
+
+def si_kind(unit: str) -> str | None:
+    """The kind whose SI unit is `unit` (a declared parameter's), None for none (or '-')."""
+    if unit in ("", "-"):
+        return None
+    return next((name for name, k in KINDS.items() if k.si == unit), None)
 
 
 def display(kind: str) -> tuple[str, float]:
