@@ -183,7 +183,7 @@ class Scenario:
             else:
                 out.append((t, f"clear {e['clear']} on {e['target']}"))
         for k, seg in enumerate(self.setpoint):
-            if k and seg.t <= self.duration:
+            if (k or seg.t > 0.0) and seg.t <= self.duration:
                 out.append((seg.t, f"setpoint: {seg.describe('mm', 1e3)}"))
         return sorted(out, key=lambda x: x[0])
 
@@ -574,7 +574,7 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
     initial = {v.name: v for v in scenario.rig.valves}
     for (a, valve), segs in channels.items():
         if a == "duty":
-            apply: Callable[[float], None] = functools.partial(_quiet_duty, rig, valve)
+            apply: Callable[[float], None] = functools.partial(_duty, rig, valve)
             x0 = initial[valve].initial_duty
         elif a == "force":
             apply, x0 = rig.set_external_force, 0.0
@@ -587,7 +587,7 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
             _profile_updates(rig, seg.t, seg, profile(seg.t - 1e-9) if k else x0, nxt, apply)
 
 
-def _quiet_duty(rig: Rig, valve: str, duty: float) -> None:
+def _duty(rig: Rig, valve: str, duty: float) -> None:
     rig.set_duty(valve, duty)
 
 
