@@ -46,5 +46,5 @@ def missing_message(where: str, given: Mapping[Any, Any], wanted: Iterable[str],
         near = closest(k, wanted)
         if near is not None and k not in wanted:
             hints.append(f"{k!r} (did you mean {near!r}?)")
-    got = ", ".join(hints or [repr(k) for k in there]) or "no such key"
+    got = ", ".join(hints or [repr(k) for k in there]) or "none"
     return f"{where}: accepted is {'exactly one of' if one_of else 'each of'} {', '.join(wanted)}; got {got}"

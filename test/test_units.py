@@ -56,4 +56,23 @@ def test_misspelt_keys_name_the_closest_accepted_one():
     assert unknown_message("x", {"to": 1}, ("to",)) is None
     assert missing_message("timeline[0]", {"t": 0.1, "forces": 1}, ("duty", "force")) == (
         "timeline[0]: accepted is exactly one of duty, force; got 'forces' (did you mean 'force'?)")
-    assert missing_message("timeline[0]", {"t": 0.1}, ("duty", "force")).endswith("got no such key")
+    assert missing_message("timeline[0]", {"t": 0.1}, ("duty", "force")).endswith("got none")
+
+
+def test_the_rig_yaml_takes_values_with_units(tmp_path):
+    from pathlib import Path
+
+    from pcv_sim.errors import PcvSimError
+    from pcv_sim.rig.params import load_rig
+
+    config = Path(__file__).resolve().parents[1] / "config"
+    text = (config / "rig.yaml").read_text().replace("config: valve.yaml", f"config: {config / 'valve.yaml'}")
+    assert "control_period: 1.0e-3 " in text and "coulomb_friction: 150.0 " in text
+    path = tmp_path / "rig.yaml"
+    path.write_text(text.replace("control_period: 1.0e-3 ", "control_period: 1 ms ")
+                    .replace("coulomb_friction: 150.0 ", "coulomb_friction: 0.15 kN "))
+    rig = load_rig(path)
+    assert rig.timing.control_period == pytest.approx(1e-3) and rig.cylinder.coulomb_friction == pytest.approx(150.0)
+    path.write_text(text.replace("coulomb_friction: 150.0 ", "coulomb_friction: 150 bar "))
+    with pytest.raises(PcvSimError, match=r"coulomb_friction: unit 'bar' in '150 bar' \(bar is a unit of pressure\)"):
+        load_rig(path)
