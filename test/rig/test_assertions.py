@@ -54,6 +54,8 @@ def test_never_above_and_below_report_value_limit_margin_and_worst_time():
     low, = check(run, {"type": "never_below", "signal": "left.pressure", "min": "85 bar"})
     assert not low.passed and low.value == pytest.approx(80e5) and low.time == pytest.approx(0.75)
     assert low.margin == pytest.approx(-5e5)
+    high, = check(run, {"type": "never_below", "signal": "left.pressure", "min": "75 bar"})
+    assert high.passed and high.margin == pytest.approx(5e5) and high.time == pytest.approx(0.75)
 
 
 def test_step_response_against_the_second_order_formulas():
@@ -98,6 +100,10 @@ def test_within_band_after_an_event_and_max_error():
     err, = check(run, {"type": "max_error", "signal": "cylinder.position", "reference": "20 mm", "max": "1 mm",
                        "after": 1.5})
     assert err.passed and err.margin > 0.9e-3
+    miss, = check(run, {"type": "max_error", "signal": "cylinder.position", "reference": "setpoint", "max": "1 mm",
+                        "after": 0.5})
+    assert not miss.passed and miss.value == pytest.approx(0.02) and miss.time == pytest.approx(0.5)
+    assert miss.margin == pytest.approx(-0.019)
     with pytest.raises(AssertionSpecError, match=r"a\[0\]\.after\.event: 'supply' is not on the timeline"):
         check(run, {**spec, "after": {"event": "supply"}})
     with pytest.raises(AssertionSpecError, match=r"unknown key 'delai' \(did you mean 'delay'\?\)"):
