@@ -92,7 +92,7 @@ def _plots(campaign: Campaign, rows: Sequence[Mapping[str, Any]], varied: Sequen
 def write_report(campaign: Campaign, summary: Mapping[str, Any], rows: Sequence[Mapping[str, Any]],
                  varied: Sequence[str], names: Sequence[str], out: Path) -> Path:
     """DIR/report.html and the worst variants' scenario reports beside it; the report's path."""
-    from pcv_sim.rig.record import render_html
+    from pcv_sim.rig.report import render_html
 
     esc = html.escape
     links = []

@@ -30,7 +30,7 @@ from pcv_sim.campaign.sensitivity import analyze
 from pcv_sim.campaign.spec import Campaign
 from pcv_sim.errors import UsageError
 
-__all__ = ["Store", "columns", "summary", "summary_text", "wilson"]
+__all__ = ["Store", "assertion_names", "columns", "summary", "summary_text", "wilson"]
 
 _Z95 = 1.959963984540054
 
@@ -46,11 +46,21 @@ def wilson(passed: int, n: int, z: float = _Z95) -> tuple[float, float]:
     return (max(0.0, centre - half), min(1.0, centre + half))
 
 
+def assertion_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The outcomes' names in the rows, in the order they first appear (rows in index order)."""
+    out: list[str] = []
+    for r in rows:
+        for k in r:
+            if k.endswith(".passed") and k[:-7] not in out:
+                out.append(k[:-7])
+    return out
+
+
 def columns(campaign: Campaign, varied: list[str], names: list[str]) -> list[str]:
     valves = [v.name for v in campaign.base.scenario.rig.valves]
     out = ["index", "status", *varied]
     for n in names:
-        out += [f"{n}.passed", f"{n}.value", f"{n}.margin"]
+        out += [f"{n}.passed", f"{n}.value", f"{n}.limit", f"{n}.margin"]
     out += ["metric.position_rms_error", "metric.position_peak", *(f"metric.{v}.peak_pressure" for v in valves),
             "metric.rejected_commands", "error"]
     return out
@@ -69,9 +79,9 @@ def _cell(v: Any) -> str:
 class Store:
     """The output directory of a campaign (see the module docstring)."""
 
-    def __init__(self, out: Path, campaign: Campaign, cols: list[str], *, resume: bool) -> None:
-        self.out, self.campaign, self.columns = out, campaign, cols
-        meta = {"name": campaign.name, "digest": campaign.digest, "variants": campaign.size, "columns": cols}
+    def __init__(self, out: Path, campaign: Campaign, varied: list[str], *, resume: bool) -> None:
+        self.out, self.campaign, self.varied = out, campaign, varied
+        meta = {"name": campaign.name, "digest": campaign.digest, "variants": campaign.size, "varied": varied}
         self.rows: dict[int, dict[str, Any]] = {}
         jsonl = out / "variants.jsonl"
         if resume and (out / "campaign.json").is_file():
@@ -111,13 +121,18 @@ class Store:
     def ordered(self) -> list[dict[str, Any]]:
         return [self.rows[k] for k in sorted(self.rows)]
 
+    @property
+    def columns(self) -> list[str]:
+        return columns(self.campaign, self.varied, assertion_names(self.ordered()))
+
     def write_tables(self) -> None:
         rows = self.ordered()
+        cols = self.columns
         with (self.out / "results.csv").open("w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
-            w.writerow(self.columns)
+            w.writerow(cols)
             for r in rows:
-                w.writerow([_cell(r.get(c)) for c in self.columns])
+                w.writerow([_cell(r.get(c)) for c in cols])
         with (self.out / "timings.csv").open("w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
             w.writerow(["index", "setup_s", "run_s"])
@@ -146,9 +161,9 @@ def summary(campaign: Campaign, rows: Iterable[Mapping[str, Any]], varied: list[
     n = len(rows)
     passed = sum(r["status"] == PASSED for r in rows)
     errors = sum(r["status"] == ERROR for r in rows)
-    limits = {}
-    for name, a in zip(names, campaign.base.scenario.assertions):
-        lim = next((a[k] for k in ("max", "min", "within") if k in a), math.nan)
+    limits: dict[str, float] = {}
+    for name in names:
+        lim = next((r[f"{name}.limit"] for r in rows if f"{name}.limit" in r), math.nan)
         limits[name] = float(lim)
     per: dict[str, Any] = {}
     for name in names:

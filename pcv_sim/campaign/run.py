@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from pcv_sim.campaign.executors import run_dask, run_local
-from pcv_sim.campaign.results import Store, columns, summary
-from pcv_sim.campaign.runner import ERROR, assertion_names
+from pcv_sim.campaign.results import Store, assertion_names, summary
+from pcv_sim.campaign.runner import ERROR
 from pcv_sim.campaign.spec import Campaign, load_campaign
 from pcv_sim.campaign.variants import Variants
 
@@ -64,8 +64,7 @@ def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, workers: i
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     variants = Variants(c, validate=True)      # every value checked before any variant runs
     out = Path(out)
-    names = assertion_names(c.base.scenario)
-    store = Store(out, c, columns(c, variants.columns, names), resume=resume)
+    store = Store(out, c, variants.columns, resume=resume)
     todo = store.missing()
     if on_start is not None:
         on_start(len(todo))
@@ -87,6 +86,7 @@ def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, workers: i
     finally:
         store.close()
     rows = store.ordered()
+    names = assertion_names(rows)
     s = summary(c, rows, variants.columns, names, worst=c.worst)
     s["ran"] = len(todo) if not interrupted else sum(1 for r in rows if r["index"] in set(todo))
     s["wall_time_s"] = time.perf_counter() - wall0

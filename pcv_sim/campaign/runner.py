@@ -24,26 +24,16 @@ from pcv_sim.errors import PcvSimError
 from pcv_sim.rig.rig import Rig
 from pcv_sim.rig.scenario import Outcome, Scenario, ScenarioResult, resolve_controller, run_scenario
 
-__all__ = ["ERROR", "FAILED", "PASSED", "Worker", "assertion_names", "margin", "run_chunk", "worker_for"]
+__all__ = ["ERROR", "FAILED", "PASSED", "Worker", "margin", "run_chunk", "worker_for"]
 
 PASSED, FAILED, ERROR = "passed", "failed", "error"
 
 
-def assertion_names(scenario: Scenario) -> list[str]:
-    """Each assertion's name as its outcome carries it (a repeated name gets ' #2', ...)."""
-    out: list[str] = []
-    for a in scenario.assertions:
-        name = str(a.get("name") or f"{a['type']} {a['signal']}")
-        n, k = name, 2
-        while n in out:
-            n, k = f"{name} #{k}", k + 1
-        out.append(n)
-    return out
-
-
 def margin(o: Outcome) -> float:
     """How far the found value is inside its limit (> 0, passed) or beyond it (< 0), in the
-    assertion's unit: |limit - value| signed by the outcome, for every assertion kind alike."""
+    assertion's unit: the outcome's own margin, or |limit - value| signed by the outcome."""
+    if not math.isnan(o.margin):
+        return float(o.margin)
     if math.isnan(o.value) or math.isnan(o.limit):
         return math.nan
     gap = abs(o.limit - o.value)
@@ -73,7 +63,6 @@ class Worker:
     def __init__(self, campaign: Campaign) -> None:
         self.campaign = campaign
         self.variants = Variants(campaign)
-        self.names = assertion_names(campaign.base.scenario)
         self._rig: Rig | None = None
         self._rig_key: Any = None
 
@@ -124,8 +113,14 @@ class Worker:
             row["error"] = result.error
         else:
             row["status"] = PASSED if result.passed else FAILED
-            for name, o in zip(self.names, result.outcomes):
+            seen: list[str] = []
+            for o in result.outcomes:           # an assertion may check several limits: one outcome each
+                name, j = o.name, 2
+                while name in seen:
+                    name, j = f"{o.name} #{j}", j + 1
+                seen.append(name)
                 row[f"{name}.passed"] = o.passed
+                row[f"{name}.limit"] = o.limit
                 row[f"{name}.value"] = o.value
                 row[f"{name}.margin"] = margin(o)
             row.update(metrics(result, tuple(s.name for s in scenario.rig.valves)))

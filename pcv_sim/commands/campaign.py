@@ -89,7 +89,8 @@ def _interactive(args: argparse.Namespace) -> bool:
 def _one(args: argparse.Namespace, campaign: Any) -> int:
     """--variant K: that variant alone, fresh, with its report and bag."""
     from pcv_sim.campaign.runner import Worker
-    from pcv_sim.rig.record import render_html, write_bag
+    from pcv_sim.rig.record import write_bag
+    from pcv_sim.rig.report import render_html
 
     if args.bag is not None and args.bag.exists():
         raise UsageError(f"--bag {args.bag}: exists; accepted is a path that does not exist yet")

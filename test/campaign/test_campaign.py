@@ -41,7 +41,7 @@ def scenario_files(tmp, row):
         valves[name] = yaml.safe_load((REPO / "config" / "valve.yaml").read_text())
     for column, text in row.items():
         if "." not in column or column.startswith(("metric.", "fault.")) or column.endswith(
-                (".passed", ".value", ".margin")):
+                (".passed", ".value", ".limit", ".margin")):
             continue
         head, _, rest = column.partition(".")
         value = float(text)
