@@ -322,8 +322,7 @@ class ValveDevice:
             stop = self._next_event(end)
             if self.fault is None:
                 try:
-                    self.stepper.advance(stop - self.steps)
-                    problem = self._state_problem()
+                    problem = self._state_problem(self.stepper.advance_finite(stop - self.steps))
                 except MODEL_FAILURES as err:
                     problem = f"model step failed ({type(err).__name__}: {err})"
                 if problem is not None:
@@ -357,9 +356,9 @@ class ValveDevice:
                     self.recorder(self.stamp_ns(stop), signals)
         return out
 
-    def _state_problem(self) -> str | None:
+    def _state_problem(self, finite: bool) -> str | None:
         """A cheap check after every stretch of steps (state only; the current is checked on output)."""
-        if not self.stepper.finite():
+        if not finite:
             return "model state went non-finite"
         p = self.stepper.pressure
         lim = self.limits
