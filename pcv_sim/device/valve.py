@@ -155,6 +155,10 @@ class ValveDevice:
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
+        # Every kernel the stepping uses is loaded (or compiled) now: compiled on first use in a
+        # loop's first wake it would hold the loop (and its stop check) for seconds, a minute
+        # on a busy machine with an empty kernel cache.
+        self.stepper.warm_up()
         self.last_good = self.sample()
 
     # --- configuration -----------------------------------------------------------------------

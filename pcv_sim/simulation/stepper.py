@@ -8,6 +8,7 @@ controller); the duty passes the fall-rate limiter first.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -201,6 +202,15 @@ class RealTimeStepper:
         self.limiter.value = self.duty
         self._current_step = self.sim.steps
         return math.isfinite(norm)
+
+    def warm_up(self) -> None:
+        """Load (or compile) every kernel `advance`, `advance_finite`, `current` and `finite` use,
+        on a copy: this stepper's state is untouched."""
+        trial = copy.deepcopy(self)
+        trial.advance(1)
+        trial.advance_finite(1)
+        _ = trial.current
+        trial.finite()
 
     def run(self, profile: DutyProfile, t_end: float, *, sample_every: int = 1) -> Trajectory:
         """Drive the stepper with a duty profile from its present state; returns the samples.
