@@ -37,8 +37,8 @@ work runs is the ``writer`` argument:
   output samples as whole numpy arrays (``BagWriter.write_samples``, ~0.2 µs per message). Python
   threads share one interpreter lock: the loop waits whenever it wakes while the writer holds it,
   and on a busy machine the writer can be preempted *holding* it, which stalls the loop for a
-  scheduler slice although the loop has a core. With two CPU burners beside it that made
-  recording skip steps (BENCHMARKS.md, "Recording").
+  scheduler slice although the loop has a core (BENCHMARKS.md, "Recording", has what this
+  costs next to the device's own per-step work).
 - ``inline``: everything inside the call (every ~5-8 ms chunk flush landing on a model step).
 
 Durability: a SIGKILL of the node or a power cut (chunks are fsync'ed) loses at most what was
