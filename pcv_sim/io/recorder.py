@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import math
 import os
 import pickle
@@ -126,6 +127,7 @@ _SOURCE: Final = {
 }
 _IN: Final = 0     # queue item (_IN, role index, t_ns, value)
 _OUT: Final = 1    # queue item (_OUT, t_ns, pressure, current, spool_position)
+_BLOCK: Final = 4  # queue item (_BLOCK, t0_ns, dt_ns, rows of pressure, current, spool_position)
 _SLICE: Final = 1024   # output samples per write_samples call (~130 kB with all three outputs)
 _SHIP_ITEMS: Final = 4096   # items per batch to the writer process at most (besides batch_period)
 _NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
@@ -534,9 +536,33 @@ class BagRecorder(_QueuedBag):
         if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
             self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 
+    def record_block(self, t0_ns: int, dt_ns: int, rows: np.ndarray) -> None:
+        """Steps t0_ns, t0_ns + dt_ns, ... with their outputs (rows: pressure, current,
+        spool_position) and the inputs of the last call unchanged: the device's stretch of steps
+        in one call (`ValveDevice` uses it when the recorder is called at every step); the
+        outputs on the grid are written as `__call__` would."""
+        if not self._outputs or not len(rows):
+            return
+        if self._origin is None:                  # no start(): the grid starts here
+            self._origin = t0_ns
+        every = self._every_ns // dt_ns if self._every_ns % dt_ns == 0 else 0
+        if every == 1:
+            self._put((_BLOCK, t0_ns, dt_ns, rows))
+        elif every > 1:                           # the rows on the output grid: every `every`-th
+            j = -((t0_ns - self._origin) // dt_ns) % every
+            if j < len(rows):
+                self._put((_BLOCK, t0_ns + j * dt_ns, every * dt_ns, rows[j::every]))
+        else:                                     # a grid that is not a whole number of steps
+            t = t0_ns + dt_ns * np.arange(len(rows), dtype=np.int64)
+            on = (t - self._origin) % self._every_ns == 0
+            for k in np.flatnonzero(on):
+                self._put((_OUT, int(t[k]), float(rows[k, 0]), float(rows[k, 1]), float(rows[k, 2])))
+
     # --- the writer's side ------------------------------------------------------------------
 
-    def _count(self, item: tuple[float, ...]) -> int:
+    def _count(self, item: tuple[Any, ...]) -> int:
+        if item[0] == _BLOCK:
+            return len(item[3]) * self._per_output
         return 1 if item[0] == _IN else self._per_output
 
     def _write(self, item: tuple[float, ...]) -> None:
@@ -566,6 +592,9 @@ class BagRecorder(_QueuedBag):
         for item in items:
             if item[0] == _OUT:
                 outputs.append(item)
+            elif item[0] == _BLOCK:
+                _, t0, dt, rows = item
+                outputs.extend(zip(itertools.repeat(_OUT), range(t0, t0 + dt * len(rows), dt), *rows.T.tolist()))
             elif self._error:
                 self._dropped += 1
             else:

@@ -58,6 +58,9 @@ def check_supply_pressure(value: float) -> float:
     return float(value)
 
 
+_NO_STEPS = np.empty(0, dtype=np.int64)
+
+
 class RealTimeStepper:
     """One valve at the fixed step on the compiled core: the emulator's and replay's engine.
 
@@ -203,12 +206,27 @@ class RealTimeStepper:
         self._current_step = self.sim.steps
         return math.isfinite(norm)
 
+    @property
+    def ramping(self) -> bool:
+        """The fall-rate limiter is moving the duty (stepping then goes one step at a time)."""
+        return self.limiter.rate is not None and self.duty != self.command
+
+    def advance_traced(self, n: int) -> np.ndarray:
+        """`advance(n)` with the limiter idle (see `ramping`), in one compiled call, returning the
+        outputs (pressure Pa, current A, spool position m: rows) at each of the n steps reached."""
+        k = self.sim.steps
+        rows = self.sim.run(_NO_STEPS, np.empty((0, len(self.sim.u))), np.arange(k + 1, k + n + 1, dtype=np.int64))
+        self.limiter.value = self.duty
+        self._current_step = -1
+        return rows
+
     def warm_up(self) -> None:
         """Load (or compile) every kernel `advance`, `advance_finite`, `current` and `finite` use,
         on a copy: this stepper's state is untouched."""
         trial = copy.deepcopy(self)
         trial.advance(1)
         trial.advance_finite(1)
+        trial.advance_traced(2)
         _ = trial.current
         trial.finite()
 

@@ -210,3 +210,29 @@ def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
 def test_when_full_is_checked(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
         BagRecorder(tmp_path, name="b", when_full="block")  # type: ignore[arg-type]
+
+
+def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path) -> None:
+    """ValveDevice hands a recorder of every step its stretches between events as one block
+    (`record_block`); a recorder without that method gets every step alone. Same bag, to the bit."""
+    from mcap.reader import make_reader
+
+    def run(rec, hook) -> None:
+        dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, sample_every=10)
+        dev.recorder, dev.record_every = hook, 1
+        rec.start(dev.stamp_ns(), dev.signals())
+        for at, duty in [(0.013, 0.8), (0.0551, 0.3), (0.08, 0.6)]:
+            dev.submit("duty_cycle", duty, at_step=round(at / dev.dt))
+        for _ in range(120):
+            dev.run(10)
+        assert rec.close().dropped == 0
+
+    blocks = BagRecorder(tmp_path, name="blocks", every=2, frame_id="load_port")
+    single = BagRecorder(tmp_path, name="single", every=2, frame_id="load_port")
+    run(blocks, blocks)
+    run(single, lambda t_ns, s: single(t_ns, s))
+    got = {}
+    for name in ("blocks", "single"):
+        with open(next((tmp_path / name).glob("*.mcap")), "rb") as f:
+            got[name] = sorted((c.topic, m.log_time, bytes(m.data)) for _s, c, m in make_reader(f).iter_messages())
+    assert len(got["blocks"]) > 3 * 600 and got["blocks"] == got["single"]
