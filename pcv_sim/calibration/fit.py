@@ -138,6 +138,11 @@ def fit_parameter(params: ValveParams, spec: str) -> FitParameter:
         if not sep or not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
             msg = f"--fit {spec!r}: bounds are KEY=LOW:HIGH with finite LOW < HIGH, e.g. {key}={x0 / 2:g}:{x0 * 2:g}"
             raise CalibrationError(msg)
+        for name_, bound in (("LOW", lo), ("HIGH", hi)):   # a bound is a value the fit may try
+            problem = f.metadata["check"](bound)
+            if problem is not None:
+                msg = f"--fit {spec!r}: {name_} = {bound:g} {f.metadata['unit']} is not a value of {key}; accepted is {problem}"
+                raise CalibrationError(msg)
         if not lo <= x0 <= hi:
             msg = f"--fit {spec!r}: the start value {x0:g} (from the config) lies outside {lo:g}..{hi:g}"
             raise CalibrationError(msg)
@@ -327,6 +332,14 @@ def calibrate(
     if len(set(keys)) != len(keys):
         raise CalibrationError(f"--fit names a parameter twice: {keys}")
     wanted = tuple(roles) if roles else OUTPUT_ROLES
+    for rec in recordings if roles else ():   # a signal asked for by name is never dropped in silence
+        missing = [r for r in wanted if r not in rec.measured or len(rec.measured[r]) < 3]
+        if missing:
+            has = [r for r in OUTPUT_ROLES if r in rec.measured and len(rec.measured[r]) >= 3]
+            msg = (f"--signals {','.join(missing)}: {rec.path} does not record {', '.join(missing)} (it has "
+                   f"{', '.join(has) or 'no output'}); accepted are the signals every bag records"
+                   f"{' (' + ','.join(has) + ')' if has else ''}, or --topic ROLE=/TOPIC where it is under another name")
+            raise CalibrationError(msg)
     data: list[_Data] = []
     for b, rec in enumerate(recordings):
         for role in wanted:
