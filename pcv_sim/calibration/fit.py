@@ -386,7 +386,7 @@ def calibrate(
     hi = np.concatenate([[p.upper / p.scale for p in fit], np.full(n_lag, lb[1] * 1e3),
                          np.full(n_tc, tb[1] * 1e3), np.full(n_off, np.inf)])
     z0 = np.clip(z0, lo, hi)
-    counts = {"evaluations": 0, "simulations": 0}
+    counts: dict[str, Any] = {"evaluations": 0, "simulations": 0}
     start = time.perf_counter()
 
     def valve(z: npt.NDArray[np.float64]) -> ValveParams:
@@ -413,6 +413,7 @@ def calibrate(
                       f"{', '.join(f'{_get(p, k):g}' for k in keys)}: {exc}"
                 raise CalibrationError(msg) from exc
             outs.append(dict(run.outputs))
+            counts["solver"] = run.solver   # what ran (auto is the stepper for either model)
         return outs
 
     grids = [ns.astype(np.float64) / _NS for ns in sample_ns]
@@ -552,7 +553,7 @@ def calibrate(
         params=fitted, initial_params=params, parameters=estimates, lags=lag_est, time_constants=tc_est,
         offsets=off_est,
         correlation=corr, signals=tuple(signals), model=model,
-        solver=solver if solver != "auto" else ("radau" if model == "full" else "stepper"),
+        solver=str(counts.get("solver", solver)),
         evaluations=counts["evaluations"], simulations=counts["simulations"],
         elapsed_s=time.perf_counter() - start, cost_before=cost_before, cost_after=0.5 * float(r @ r),
         autocorrelation=rho, status=sol.message, status_code=int(sol.status), warnings=tuple(warnings), traces=traces,

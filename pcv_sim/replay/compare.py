@@ -174,6 +174,7 @@ class ReplayResult:
     def scalar_metrics(self) -> dict[str, float]:
         """Flat metrics in display units, the keys ``--fail-above``/``--fail-below`` accept."""
         out: dict[str, float] = {
+            "closed_cleanly": 1.0 if self.closed_cleanly else 0.0,
             "gaps": float(len(self.gaps)),
             "gap_max_ms": max((g.duration for g in self.gaps), default=0.0) * 1e3,
         }

@@ -147,3 +147,13 @@ def test_calibrate_refuses_a_named_signal_the_bag_lacks(rig_bag: Path, tmp_path:
     assert main(["calibrate", str(rig_bag), str(tmp_path / "bag"), "--fit", "none", "-o", str(out),
                  "--signals", "current"]) == 2
     assert f"{tmp_path / 'bag'} does not record current" in capsys.readouterr().err
+
+
+def test_calibrate_names_the_solver_that_ran(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--model full runs the emulator's fixed-step engine unless --solver radau: the result says so."""
+    base = ["calibrate", str(rig_bag), "--fit", "none", "--model", "full", "--signals", "pressure",
+            "--max-evaluations", "2", "-o", str(tmp_path / "f.yaml"), "--json"]
+    main(base)
+    assert json.loads(capsys.readouterr().out)["solver"] == "stepper"
+    main([*base, "--solver", "fast"])
+    assert json.loads(capsys.readouterr().out)["solver"] == "stepper"
