@@ -74,7 +74,9 @@ def test_step_json(capsys: pytest.CaptureFixture[str], model: ValveModel) -> Non
     assert set(m) == {"pressure", "current", "spool_position"}
     for sig in m.values():
         assert set(sig) == {"initial", "final", "rise_time", "overshoot_percent", "settling_time", "peak", "band",
-                            "noise"}
+                            "noise", "settling_early", "settling_late"}
+        # A model's trace has no noise: nothing is left open about its settling time.
+        assert sig["settling_early"] == sig["settling_late"] == sig["settling_time"]
     p = m["pressure"]
     # From the 50 % to the 70 % zero-flow equilibrium: ~72.7 -> ~122.5 bar (static analysis).
     assert p["initial"] == pytest.approx(zero_flow_equilibrium(model, 0.5).pressure, abs=0.01 * BAR)
