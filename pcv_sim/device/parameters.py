@@ -32,6 +32,7 @@ __all__ = [
     "check_params_files",
     "command_line_overrides",
     "is_ros_own",
+    "numeric_text",
     "override_not_taken",
     "params_files",
     "parse_override_value",
@@ -151,6 +152,19 @@ def ros_arguments_message(err: Exception) -> str:
     text = " ".join(str(err).split())
     text = re.sub(r"\s*,? at /\S+:\d+", "", text).strip()
     return text.removeprefix("Failed to parse ROS arguments: ")
+
+
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def numeric_text(value: Any) -> Any:
+    """A decimal number given as text ('2e-5') as the float it writes, anything else unchanged.
+
+    `ros2 param set NODE NAME 2e-5` sends a string: YAML 1.1 reads an exponent without a dot as text.
+    Only for parameters that take a float: a text parameter keeps its text."""
+    if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+        return float(value)
+    return value
 
 
 def _same(a: Any, b: Any) -> bool:

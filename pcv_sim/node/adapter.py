@@ -79,6 +79,7 @@ from pcv_sim.device.parameters import (
     check_params_files,
     command_line_overrides,
     is_ros_own,
+    numeric_text,
     override_not_taken,
     refuse_unknown,
     unknown_parameters_message,
@@ -264,6 +265,8 @@ class EmulatorNode(Node):
                 changes[mp.name] = value
         overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(cli)
         self._declared = {spec.name for spec in NODE_PARAMETERS} | {mp.name for mp in model_parameters(params)}
+        self._float_names = {spec.name for spec in NODE_PARAMETERS if spec.meta["kind"] == "float"} | {
+            mp.name for mp in model_parameters(params) if mp.kind.startswith("float")}
         unknown = sorted(n for n in overrides if n not in self._declared and not is_ros_own(n))
         if unknown and not settings.allow_unknown_parameters:
             refuse_unknown(unknown, self._declared, hint=_UNKNOWN_HINT)
@@ -282,6 +285,8 @@ class EmulatorNode(Node):
         return override.value
 
     def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
+        parameters = [Parameter(p.name, value=numeric_text(p.value)) if p.name in self._float_names else p
+                      for p in parameters]
         unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
         if unknown:
             return SetParametersResult(successful=False, reason=unknown_parameters_message(
