@@ -566,7 +566,7 @@ class RigNode(Node):
                 if plan.skipped:
                     # The process was stopped or starved beyond max_catchup: the model is held over
                     # the backlog (its state unchanged, model time jumps to wall time), as the emulator.
-                    rig.sim.steps += plan.skipped
+                    rig.skip(plan.skipped)
                     self.get_logger().warning(f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup "
                                               f"{s.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
                                               "state was held over them", throttle_duration_sec=1.0)
@@ -706,7 +706,7 @@ class RigNode(Node):
                 self.origin_ns = ext.origin_ns
                 self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
             elif plan.skip:
-                rig.sim.steps += plan.skip
+                rig.skip(plan.skip)
                 self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
             elif plan.run:
                 self._advance(rig.steps + plan.run)

@@ -244,7 +244,7 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
 
         def acted_at(valve, received_ns):
             node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
-            steps.append(max(rig._events, key=lambda e: e.seq).step)   # the one just given
+            steps.append(node._last_input[valve])          # the step the one just given acts at
 
         acted_at('left', node.origin_ns + 2_345_000)    # received at 2.345 ms: step 24 (2.4 ms), not 23
         acted_at('left', node.origin_ns + 2_345_000)    # the same instant again: the step after
