@@ -192,7 +192,7 @@ def unknown_parameters_message(names: Iterable[str], accepted: Iterable[str], *,
     for name in sorted(names):
         close = difflib.get_close_matches(name, accepted, n=1, cutoff=0.75)
         parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
-    return (f"unknown parameter(s) {', '.join(parts)}; accepted are the node's parameters (emulator --help)"
+    return (f"unknown parameter(s) {', '.join(parts)}; accepted are the node's parameters (--help)"
             f"{hint}")
 
 

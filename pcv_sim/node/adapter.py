@@ -211,7 +211,7 @@ class EmulatorNode(DeviceNode):
         values = {}
         for spec in NODE_PARAMETERS:
             value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
-                                 read_only=spec.read_only, is_float=spec.meta["kind"] == "float")
+                                 read_only=spec.read_only, is_float=spec.is_float)
             values[spec.name] = check_node_value(spec.name, value)
         settings = NodeSettings.from_parameters(values)
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")

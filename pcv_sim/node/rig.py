@@ -23,7 +23,7 @@ def _parameter_help() -> str:
 
     lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file FILE):"]
     for spec in RIG_PARAMETERS:
-        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]")
+        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]{' (read-only)' if spec.read_only else ''}")
         lines.append(f"      {spec.description}")
     lines.append("  the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
     return "\n".join(lines)

@@ -107,7 +107,14 @@ from pcv_sim.node.base import (
 )
 from pcv_sim.node.polling import drain
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
-from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value, parse_fault_command, settings_from
+from pcv_sim.node.rig_settings import (
+    RIG_PARAMETERS,
+    RigNodeSettings,
+    check_rig_value,
+    parse_fault_command,
+    rig_settings_with,
+    settings_from,
+)
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
@@ -154,6 +161,8 @@ class RigNode(DeviceNode):
         self.failure: str | None = None
         self._schedule: RealTimeSchedule | None = None
         self._next_service_poll = 0.0                      # monotonic s of the next service poll
+        self._sim: SimulatedSchedule | None = None
+        self._staged: RigNodeSettings | None = None        # parameters checked, about to be applied
         self._shown = 0                                     # last step whose sample was published
         self._last_input: dict[str, int] = {}               # per input: the step its last value acts at
         self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
@@ -214,7 +223,7 @@ class RigNode(DeviceNode):
         values = {}
         for spec in RIG_PARAMETERS:
             value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
-                                 read_only=spec.read_only, is_float=spec.meta["kind"] == "float")
+                                 read_only=spec.read_only, is_float=spec.is_float)
             values[spec.name] = check_rig_value(spec.name, value)
         settings = settings_from(values)
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
@@ -450,7 +459,7 @@ class RigNode(DeviceNode):
     def _run_simulated(self, stop: StopFlag) -> None:
         s, rig = self.settings, self.rig
         lock = s.lockstep
-        sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
+        sim = self._sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
         tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
         freeze_heap()
         mono = time.monotonic
@@ -469,7 +478,7 @@ class RigNode(DeviceNode):
             now = mono()
             if now >= next_diag:
                 self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
             if self.failure is not None:
                 time.sleep(1e-2)
                 continue
@@ -529,14 +538,14 @@ class RigNode(DeviceNode):
                     # the backlog (its state unchanged, model time jumps to wall time), as the emulator.
                     rig.skip(plan.skipped)
                     self.get_logger().warning(f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup "
-                                              f"{s.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
+                                              f"{self.settings.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
                                               "state was held over them", throttle_duration_sec=1.0)
                 if plan.steps:
                     self._advance(rig.steps + plan.steps)
                 sched.finish()
             if now >= next_diag:
                 self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
             delay = sched.next_wake() - mono()
             if delay > 0.0:
                 time.sleep(delay)
@@ -553,7 +562,8 @@ class RigNode(DeviceNode):
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
                                    "received, the model computes up to each new one")
         self.create_service(Trigger, RESET, self._on_reset)
-        self.add_on_set_parameters_callback(self._refuse_clock_change)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
         self._rec_logged = 0                                # rig.log entries written to the bag
         self.recorder = self._make_recorder()
 
@@ -570,9 +580,32 @@ class RigNode(DeviceNode):
         self.counts.force_accepted += 1
         self._when(EXTERNAL_FORCE, info, partial(self.rig.set_external_force, force))
 
-    def _refuse_clock_change(self, parameters: list[Any]) -> SetParametersResult:
-        """The parameter services are answered now: use_sim_time (not read-only, ROS's own) cannot change."""
-        return self.sim_time_change_refused(parameters) or SetParametersResult(successful=True)
+    def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
+        """on-set callback (the loop answers the parameter services): the changed settings checked with
+        the same rules as at start, staged for `_apply_parameters`; use_sim_time cannot change.
+        rclpy refuses the read-only ones (what the rig and its schedule are built on) before this."""
+        refused = self.sim_time_change_refused(parameters)
+        if refused is not None:
+            return refused
+        changes = {p.name: p.value for p in parameters if p.name in self._declared}
+        try:
+            self._staged = rig_settings_with(self.settings, changes).check(self.rig.params) if changes else None
+        except ParameterError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Any]) -> None:
+        """post-set callback (on the loop, between steps): the staged settings in force from now on."""
+        settings, self._staged = self._staged, None
+        if settings is None:
+            return
+        self.settings = settings
+        if self._schedule is not None:
+            self._schedule.late_threshold = settings.late_threshold
+            self._schedule.max_catchup_steps = int(settings.max_catchup / self.rig.dt)
+        if self._sim is not None and self._sim.factor != settings.real_time_factor:
+            self._sim.set_factor(settings.real_time_factor)
+        self.get_logger().info(f"parameters changed: {', '.join(f'{p.name} = {p.value!r}' for p in parameters)}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The rig back to rest: valves at their initial duty, piston at its initial position and at
@@ -625,7 +658,7 @@ class RigNode(DeviceNode):
             now = mono()
             if now >= next_diag:
                 self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
             if ext.latest_ns is None:
                 if loops == 2000:                   # ~2 s: say why nothing is published
                     self.get_logger().warning(NO_CLOCK_YET)

@@ -258,3 +258,29 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     # On the 1 ms grid, in order; how many depends on the load (a backlog beyond max_catchup is skipped)
     assert len(t) > 20 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in itertools.pairwise(t))
     assert bag.topic_types[f'{ns}/cylinder/joint_states'] == 'sensor_msgs/msg/JointState'
+
+
+def test_the_rig_takes_run_time_parameter_changes_with_the_emulators_refusals(ros):
+    """The parameters the rig is not built on change while it runs; the rest is refused with the
+    emulator's reasons (one node base): read-only, a bad value, an unknown name (named, with the close
+    one), use_sim_time; a numeric text for a float (`ros2 param set` sends 2e-1 so) is the number."""
+    from pcv_sim.node.client import EmulatorClient
+
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01})
+    c = EmulatorClient(ros.ns('rig'), context=ros.context, node_name='rig_params', emulator_node='rig', outputs=())
+    ros.clients.append(c)
+    cases = {
+        'diagnostics_period': ('2e-1', None),
+        'real_time_factor': (4.0, None),
+        'reject_log_period': (-1.0, 'reject_log_period: got -1.0; accepted is a finite number >= 0'),
+        'max_catchup': (1e-4, 'max_catchup: got 0.0001; accepted is a number >= wake_period'),
+        'seed': (3, 'read-only'),
+        'diagnostics_perod': (1.0, 'unknown parameter(s) diagnostics_perod (did you mean diagnostics_period?)'),
+        'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),
+    }
+    results = c.set_parameters({k: v for k, (v, _) in cases.items()}, timeout=START)
+    for (name, (_, reason)), result in zip(cases.items(), results):
+        assert result.successful == (reason is None), (name, result.reason)
+        assert reason is None or reason in result.reason, (name, result.reason)
+    assert wait_until(lambda: "parameters changed: diagnostics_period = 0.2" in rig.output(), 10), rig.output()
+    assert "parameters changed: real_time_factor = 4.0" in rig.output()
