@@ -206,6 +206,19 @@ class DeviceNode(Node):
         tail = f" ({more} more rejected since the last message)" if more else ""
         self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
 
+    def publisher_of(self, topic: str, info: Any) -> str:
+        """The node that published a message, from the publisher's GID in its MessageInfo (where DDS
+        gives it) against the topic's publishers."""
+        gid = info.get("publisher_gid") if isinstance(info, dict) else None
+        data = list(gid.get("data", ())) if isinstance(gid, dict) else []
+        if any(data):
+            for endpoint in self.get_publishers_info_by_topic(topic):
+                known = list(endpoint.endpoint_gid)
+                n = min(len(known), len(data))
+                if n and known[:n] == data[:n]:
+                    return f"node {endpoint.node_namespace.rstrip('/')}/{endpoint.node_name}"
+        return "a publisher DDS did not name"
+
     # --- services and QoS events ---------------------------------------------------------------
 
     def _poll_services(self) -> None:

@@ -189,7 +189,8 @@ class RigNode(DeviceNode):
                                      publisher(Float64, valve_topic(name, CURRENT)),
                                      publisher(Float64, valve_topic(name, SPOOL_POSITION))))
             subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
-        subscription(String, FAULTS, self._on_fault)
+        if s.faults_enabled:                                # any node on the domain could break the bench
+            subscription(String, FAULTS, self._on_fault)
         self._pub_joint = publisher(JointState, f"{CYLINDER}/{JOINT_STATES}")
         #: (publisher, index of the valve's pressure in the samples, its message) per chamber
         self._chamber_pubs = [(publisher(FluidPressure, chamber_topic(v.chamber)),
@@ -212,7 +213,8 @@ class RigNode(DeviceNode):
             f"rig: valves {', '.join(f'{v.name} (chamber {v.chamber})' for v in rig_params.valves)} + cylinder, "
             f"step {rig.dt * 1e3:g} ms, {mode}, samples and commands every "
             f"{rig_params.timing.control_period * 1e3:g} ms, watchdog {rig_params.timing.watchdog_timeout:g} s, "
-            f"rig config {s.rig_config or 'shipped default'}")
+            f"rig config {s.rig_config or 'shipped default'}, fault topic "
+            f"{'on (faults.enabled)' if s.faults_enabled else 'off (faults.enabled: false)'}")
         self._setup_more_interface()
         self.collect_event_handlers()
 
@@ -269,6 +271,7 @@ class RigNode(DeviceNode):
 
     def _on_fault(self, msg: String, info: Any = None) -> None:
         rig = self.rig
+        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
         try:
             cmd = parse_fault_command(msg.data, valves=rig.valve_names, signals=rig.signals)
         except FaultError as err:

@@ -85,6 +85,10 @@ class RigNodeSettings:
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo) stops the node at start (exit 2); true: "
         "warn and ignore it", any_value, "bool", read_only=True)
+    faults_enabled: bool = setting(
+        False, "-", "take fault commands on the `faults` topic; off unless asked, since any node on the ROS "
+        "domain could then break the bench; each command is logged with its publisher's node name", any_value,
+        "bool", name="faults.enabled", read_only=True)
     record_enabled: bool = setting(
         False, "-", "record every valve (under its namespace, as the emulator records one), the cylinder, the "
         "fault commands and the rig's events to a rosbag2/MCAP bag from the start (the rig at rest) until "

@@ -39,7 +39,8 @@ def test_a_lockstep_run_is_recorded_per_valve_namespace_and_one_valve_replays(ro
     from pcv_sim.rig import load_rig
 
     bags = ros.tmp_path / 'bags'
-    rig = start_rig(ros, params={'record.enabled': True, 'record.directory': str(bags), 'record.name': 'run'})
+    rig = start_rig(ros, params={'record.enabled': True, 'record.directory': str(bags), 'record.name': 'run',
+                                 'faults.enabled': True})
     client = rig_client(ros)
     assert client.wait_for_rig(START), rig.output()
     periods = client.run(steps, 200, timeout=120)
@@ -102,7 +103,7 @@ def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(r
     """cylinder/external_force (N, + extending; refused ones counted and logged, the last valid one
     stays) pushes the piston; `reset` puts valves, piston, inputs and faults back to the start with
     time going on: the periods after it are a fresh run's, bit for bit, 1 reset later."""
-    rig = start_rig(ros, params={'diagnostics_period': 0.2})
+    rig = start_rig(ros, params={'diagnostics_period': 0.2, 'faults.enabled': True})
     client = rig_client(ros)
     assert client.wait_for_rig(START), rig.output()
     fresh = client.run(hold, 30, timeout=120)
