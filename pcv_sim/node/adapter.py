@@ -105,7 +105,6 @@ from pcv_sim.node.base import (
 from pcv_sim.node.polling import drain
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET,
     ExternalClock,
     RealTimeSchedule,
     SimulatedSchedule,
@@ -631,49 +630,28 @@ class EmulatorNode(DeviceNode):
             published = mono()
 
 
-    def _run_external_clock(self, stop: StopFlag) -> None:
-        """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
+    # --- the device under the node base's loops ----------------------------------------------
 
-        Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
-        the steps up to it run and the samples that fell due are published. An input acts from the
-        step after the last one run when it was taken. The clock going back (a simulation reset)
-        re-anchors model time at the new clock, keeping the model's state."""
-        s, dev = self.settings, self.device
-        freeze_heap()
-        mono = time.monotonic
-        ext = self._external
-        self._diag.restart(mono(), dev.steps)
-        next_diag = mono() + s.diagnostics_period
-        loops = 0
-        while not stop.requested:
-            loops += 1
-            self._drain()
-            now = mono()
-            if loops % SERVICE_POLL_EVERY == 0:
-                self._poll_services()
-            elif self._job is not None:
-                self._pump()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if ext.latest_ns is None:
-                if loops == 2000:           # ~2 s: say why nothing is published
-                    self.get_logger().warning(NO_CLOCK_YET)
-                time.sleep(1e-3)
-                continue
-            if not ext.started:
-                dev.origin_ns = ext.start(dev.steps)
-                self._start_recording()
-                self._publish([dev.sample()])
-                continue
-            plan = ext.plan(dev.steps)
-            if plan.reanchored:
-                dev.origin_ns = ext.origin_ns
-                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
-            elif plan.skip:
-                dev.skip(plan.skip)
-                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
-            elif plan.run:
-                self._publish(self._run_steps(plan.run))
-            else:
-                time.sleep(2e-4)           # wait for the clock to advance
+    @property
+    def model_steps(self) -> int:
+        return self.device.steps
+
+    def _begin(self, origin_ns: int) -> None:
+        self.device.origin_ns = origin_ns
+        self._start_recording()
+        self._publish([self.device.sample()])
+
+    def _set_origin(self, origin_ns: int) -> None:
+        self.device.origin_ns = origin_ns
+
+    def _skip(self, n: int) -> None:
+        self.device.skip(n)
+
+    def _compute(self, n: int) -> None:
+        self._publish(self._run_steps(n))
+
+    def _tick_services(self, loops: int) -> None:
+        if loops % SERVICE_POLL_EVERY == 0:
+            self._poll_services()
+        elif self._job is not None:
+            self._pump()

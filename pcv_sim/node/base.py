@@ -15,6 +15,8 @@
 - One /clock: a simulated-time node refuses to start beside another /clock publisher.
 - Refused inputs are counted by the device and logged at most once per reject_log_period per input.
 - Recording: the recorder closed at the end, with what it wrote.
+- The external-clock loop (use_sim_time), over the device hooks `model_steps`, `_begin`,
+  `_set_origin`, `_skip`, `_compute`, `_halted`, `_tick_services`.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from pcv_sim.device.parameters import (
 from pcv_sim.errors import ParameterError
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.polling import linger_for_rosout
-from pcv_sim.simulation.clock import SIM_TIME_CONFLICT
+from pcv_sim.simulation.clock import NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock
 
 __all__ = [
     "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_RESEND",
@@ -78,6 +80,9 @@ class DeviceNode(Node):
 
     #: What the unknown-name message adds (where the other parameters are set).
     unknown_hint = ""
+    settings: Any
+    _diag: Any
+    _external: ExternalClock
 
     def __init__(self, node_name: str, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -282,6 +287,86 @@ class DeviceNode(Node):
                 continue
             if info is not None and getattr(info, "total_count_change", 0) > 0:
                 handler.callback(info)
+
+    # --- the external-clock loop -----------------------------------------------------------------
+
+    def _run_external_clock(self, stop: Any) -> None:
+        """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
+
+        Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
+        the steps up to it run and the samples that fell due are published. An input acts from the
+        step after the last one run when it was taken. The clock going back (a simulation reset)
+        re-anchors model time at the new clock, keeping the model's state; a jump far ahead is held
+        (`ExternalClock`)."""
+        freeze_heap()
+        mono = time.monotonic
+        ext = self._external
+        self._diag.restart(mono(), self.model_steps)
+        next_diag = mono() + self.settings.diagnostics_period
+        loops = 0
+        while not stop.requested:
+            loops += 1
+            self._drain()
+            now = mono()
+            self._tick_services(loops)
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
+            if ext.latest_ns is None:
+                if loops == 2000:           # ~2 s: say why nothing is published
+                    self.get_logger().warning(NO_CLOCK_YET)
+                time.sleep(1e-3)
+                continue
+            if not ext.started:
+                self._begin(ext.start(self.model_steps))
+                continue
+            if self._halted():
+                time.sleep(1e-2)
+                continue
+            plan = ext.plan(self.model_steps)
+            if plan.reanchored:
+                self._set_origin(ext.origin_ns)
+                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
+            elif plan.skip:
+                self._skip(plan.skip)
+                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
+            elif plan.run:
+                self._compute(plan.run)
+            else:
+                time.sleep(2e-4)           # wait for the clock to advance
+
+    @property
+    def model_steps(self) -> int:
+        """The device's model steps computed (or skipped) so far."""
+        raise NotImplementedError
+
+    def _drain(self) -> int:
+        raise NotImplementedError
+
+    def _publish_diagnostics(self, now: float) -> None:
+        raise NotImplementedError
+
+    def _begin(self, origin_ns: int) -> None:
+        """Model time 0 is stamped origin_ns: the first sample (and the recording) start."""
+        raise NotImplementedError
+
+    def _set_origin(self, origin_ns: int) -> None:
+        raise NotImplementedError
+
+    def _skip(self, n: int) -> None:
+        """n steps of model time pass uncomputed (the state held)."""
+        raise NotImplementedError
+
+    def _compute(self, n: int) -> None:
+        """n model steps computed, their samples published."""
+        raise NotImplementedError
+
+    def _halted(self) -> bool:
+        """True while the model stands still (it ran away) until a reset."""
+        return False
+
+    def _tick_services(self, loops: int) -> None:
+        """Called at every pass of a loop (a node that polls its services in `_drain` does nothing)."""
 
     # --- recording and scheduling ----------------------------------------------------------------
 

@@ -118,7 +118,6 @@ from pcv_sim.node.rig_settings import (
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET,
     ExternalClock,
     RealTimeSchedule,
     SimulatedSchedule,
@@ -641,50 +640,27 @@ class RigNode(DeviceNode):
     def _on_clock(self, msg: Clock, _info: Any = None) -> None:
         self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
-    def _run_external_clock(self, stop: StopFlag) -> None:
-        """use_sim_time (time_mode real): model time follows an external /clock, as the emulator
-        (`pcv_sim.simulation.clock.ExternalClock`): model time 0 is the first /clock (stamps are that
-        clock); whenever it advances, the steps up to it are computed and the samples of the control
-        periods passed published. An input acts at the present step (the one after the last computed).
-        The clock going back re-anchors model time there (state kept); a jump of more than 10 s ahead
-        is held but for the last 10 s."""
-        s, rig = self.settings, self.rig
-        freeze_heap()
-        mono = time.monotonic
-        ext = self._external
-        self._diag.restart(mono(), rig.steps)
-        next_diag = mono() + s.diagnostics_period
-        loops = 0
-        while not stop.requested:
-            loops += 1
-            self._drain()
-            now = mono()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if ext.latest_ns is None:
-                if loops == 2000:                   # ~2 s: say why nothing is published
-                    self.get_logger().warning(NO_CLOCK_YET)
-                time.sleep(1e-3)
-                continue
-            if not ext.started:
-                self.origin_ns = ext.start(rig.steps)
-                self._publish_samples()
-                continue
-            if self.failure is not None:
-                time.sleep(1e-2)
-                continue
-            plan = ext.plan(rig.steps)
-            if plan.reanchored:
-                self.origin_ns = ext.origin_ns
-                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
-            elif plan.skip:
-                rig.skip(plan.skip)
-                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
-            elif plan.run:
-                self._advance(rig.steps + plan.run)
-            else:
-                time.sleep(2e-4)                     # wait for the clock to advance
+    # --- the rig under the node base's loops ---------------------------------------------------
+
+    @property
+    def model_steps(self) -> int:
+        return self.rig.steps
+
+    def _begin(self, origin_ns: int) -> None:
+        self.origin_ns = origin_ns
+        self._publish_samples()
+
+    def _set_origin(self, origin_ns: int) -> None:
+        self.origin_ns = origin_ns
+
+    def _skip(self, n: int) -> None:
+        self.rig.skip(n)
+
+    def _compute(self, n: int) -> None:
+        self._advance(self.rig.steps + n)
+
+    def _halted(self) -> bool:
+        return self.failure is not None
 
     def _make_recorder(self) -> RigRecorder | None:
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
