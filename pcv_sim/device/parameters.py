@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,10 +32,12 @@ __all__ = [
     "check_params_files",
     "command_line_overrides",
     "is_ros_own",
+    "numeric_text",
     "override_not_taken",
     "params_files",
     "parse_override_value",
     "refuse_unknown",
+    "ros_arguments_message",
     "unknown_parameters_message",
 ]
 
@@ -122,13 +125,46 @@ def params_files(argv: Sequence[str]) -> list[str]:
 
 
 def check_params_files(argv: Sequence[str]) -> None:
-    """Refuse a params file with a key given twice (ParameterError naming file, key and line)."""
+    """Refuse a params file that cannot be read, is not YAML, or gives a key twice (ParameterError
+    naming the file and the reason, with the line where YAML gives one)."""
     for name in params_files(argv):
         try:
             text = Path(name).read_text(encoding="utf-8")
-        except OSError:
-            continue                                       # rcl has refused it already
+        except (OSError, UnicodeDecodeError) as err:
+            reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+            raise ParameterError(f"--params-file {name}: cannot read it: {reason}") from None
+        try:
+            yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ParameterError(f"--params-file {name}: not valid YAML: {_yaml_problem(err)}") from None
         yaml_load_unique(text, f"--params-file {name}")
+
+
+def _yaml_problem(err: yaml.YAMLError) -> str:
+    """One line: what YAML found wrong and where."""
+    mark = getattr(err, "problem_mark", None)
+    what = " ".join(str(x) for x in (getattr(err, "context", None), getattr(err, "problem", None)) if x) or str(err)
+    return f"{what} at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else " ".join(what.split())
+
+
+def ros_arguments_message(err: Exception) -> str:
+    """rcl's refusal of the command line (RCLInvalidROSArgsError) without its C source locations."""
+    text = " ".join(str(err).split())
+    text = re.sub(r"\s*,? at /\S+:\d+", "", text).strip()
+    return text.removeprefix("Failed to parse ROS arguments: ")
+
+
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def numeric_text(value: Any) -> Any:
+    """A decimal number given as text ('2e-5') as the float it writes, anything else unchanged.
+
+    `ros2 param set NODE NAME 2e-5` sends a string: YAML 1.1 reads an exponent without a dot as text.
+    Only for parameters that take a float: a text parameter keeps its text."""
+    if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+        return float(value)
+    return value
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -156,7 +192,7 @@ def unknown_parameters_message(names: Iterable[str], accepted: Iterable[str], *,
     for name in sorted(names):
         close = difflib.get_close_matches(name, accepted, n=1, cutoff=0.75)
         parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
-    return (f"unknown parameter(s) {', '.join(parts)}; accepted are the node's parameters (emulator --help)"
+    return (f"unknown parameter(s) {', '.join(parts)}; accepted are the node's parameters (--help)"
             f"{hint}")
 
 

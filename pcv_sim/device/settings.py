@@ -32,10 +32,16 @@ __all__ = [
     "ModelParameter",
     "NodeParameter",
     "NodeSettings",
+    "any_value",
     "check_node_value",
     "model_parameters",
     "model_value_from_ros",
+    "non_negative",
+    "one_of",
+    "parameters_of",
     "params_with",
+    "positive",
+    "real_time_factor",
     "settings_with",
 ]
 
@@ -47,14 +53,15 @@ RUNTIME_FIXED_MODEL = ("simulation.time_step",)
 
 
 # --- node settings ---------------------------------------------------------------------------
-# Checks in the pcv_sim.params style: value -> None when fine, else the text "what is accepted".
+# Checks in the pcv_sim.params style: value -> None when fine, else the text "what is accepted";
+# the rig node's settings (pcv_sim.node.rig_settings) use them too.
 
 
-def _positive(v: float) -> str | None:
+def positive(v: float) -> str | None:
     return None if v > 0.0 else "a finite number > 0"
 
 
-def _non_negative(v: float) -> str | None:
+def non_negative(v: float) -> str | None:
     return None if v >= 0.0 else "a finite number >= 0"
 
 
@@ -66,7 +73,7 @@ def _fraction(v: float) -> str | None:
     return None if 0.0 <= v <= 1.0 else "a fraction 0..1"
 
 
-def _one_of(*choices: str) -> Callable[[Any], str | None]:
+def one_of(*choices: str) -> Callable[[Any], str | None]:
     def check(v: Any) -> str | None:
         return None if v in choices else f"one of {', '.join(map(repr, choices))}"
     return check
@@ -76,7 +83,7 @@ def _priority(v: int) -> str | None:
     return None if 0 <= v <= 99 else "an integer 0..99 (0 = normal scheduling)"
 
 
-def _any(_v: Any) -> str | None:
+def any_value(_v: Any) -> str | None:
     return None
 
 
@@ -87,7 +94,7 @@ def bag_name_check(v: str) -> str | None:
     return None
 
 
-def _factor(name: str, v: Any) -> float:
+def real_time_factor(name: str, v: Any) -> float:
     """real_time_factor: a number >= 0, where 0 and inf both mean as fast as possible."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
         raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
@@ -113,40 +120,40 @@ class NodeSettings:
     time_mode: str = setting(
         "real", "-", "real: model time follows the wall clock (hardware in the loop), or an external /clock "
         "with use_sim_time; simulated: model time decoupled, /clock published (controller CI)",
-        _one_of("real", "simulated"), "str", read_only=True)
+        one_of("real", "simulated"), "str", read_only=True)
     publish_rate: float = setting(
         1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
-        "whole multiple of the model step", _positive)
+        "whole multiple of the model step", positive)
     wake_period: float = setting(
         1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock and computes the steps "
-        "due", _positive, read_only=True)
+        "due", positive, read_only=True)
     late_threshold: float = setting(
         1e-3, "s", "real time: a step is late when the wake that computes it comes more than this after its "
-        "scheduled wake", _non_negative)
+        "scheduled wake", non_negative)
     overrun: str = setting(
         "catch_up", "-", "real time, when the loop falls behind wall time: catch_up computes the backlog at "
         "once (continuous model, samples late by up to max_catchup); skip holds the model over any backlog "
-        "beyond one wake period (samples on time, model state jumps)", _one_of("catch_up", "skip"), "str")
+        "beyond one wake period (samples on time, model state jumps)", one_of("catch_up", "skip"), "str")
     max_catchup: float = setting(
         0.05, "s", "real time, overrun catch_up: a backlog longer than this is skipped (model held), not "
-        "computed", _positive)
+        "computed", positive)
     realtime_priority: int = setting(
         0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this priority (needs root or an "
         "rtprio limit); 0 = normal scheduling", _priority, "int", read_only=True)
     watchdog_timeout: float = setting(
         2.0, "s", "no valid duty command for this long (model time) -> safe_duty; 0 = off. Above the 1 s "
-        "period of `ros2 topic pub`'s default rate", _non_negative)
+        "period of `ros2 topic pub`'s default rate", non_negative)
     safe_duty: float = setting(
         0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
     real_time_factor: float = setting(
         0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast as possible",
-        convert=_factor)
+        convert=real_time_factor)
     lockstep: bool = setting(
         True, "-", "simulated time: after each published sample wait for one duty_cycle message before "
-        "advancing (deterministic controller-in-the-loop)", _any, "bool", read_only=True)
+        "advancing (deterministic controller-in-the-loop)", any_value, "bool", read_only=True)
     valve_config: str = setting(
-        "", "-", "valve model YAML; '' = the shipped config/valve.yaml", _any, "str", read_only=True)
-    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", _positive)
+        "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
+    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
     diagnostics_late_fraction: float = setting(
         0.05, "-", "timing status WARN when more than this fraction of the steps of a diagnostics period were "
         "late. A loop sharing its machine with other jobs has 0.2-3 % of its steps late with nothing wrong "
@@ -155,19 +162,19 @@ class NodeSettings:
         "for a sustained part of the period", _fraction, name="diagnostics.late_fraction")
     diagnostics_max_lag: float = setting(
         0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
-        "period (a sample then leaves that late)", _positive, name="diagnostics.max_lag")
-    frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", _any, "str")
+        "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
+    frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", any_value, "str")
     reject_log_period: float = setting(
         1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
-        _non_negative)
+        non_negative)
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
-        "file) stops the node at start (exit 2); true: warn and ignore it", _any, "bool", read_only=True)
+        "file) stops the node at start (exit 2); true: warn and ignore it", any_value, "bool", read_only=True)
     record_enabled: bool = setting(
         False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start (the device at rest) until "
-        "SIGINT/SIGTERM", _any, "bool", name="record.enabled", read_only=True)
+        "SIGINT/SIGTERM", any_value, "bool", name="record.enabled", read_only=True)
     record_directory: str = setting(
-        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", _any, "str",
+        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
         name="record.directory", read_only=True)
     record_name: str = setting(
         "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
@@ -177,9 +184,9 @@ class NodeSettings:
         "record.rate_hz", name="record.signals", read_only=True, convert=_record_signals)
     record_rate_hz: float = setting(
         1000.0, "Hz", "output samples in the bag (model time); 10000 = every 0.1 ms model step; the period must "
-        "be a whole multiple of the model step", _positive, name="record.rate_hz", read_only=True)
+        "be a whole multiple of the model step", positive, name="record.rate_hz", read_only=True)
     record_split_size_mb: float = setting(
-        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", _non_negative,
+        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", non_negative,
         name="record.split_size_mb", read_only=True)
 
     def check(self, params: ValveParams) -> NodeSettings:
@@ -235,10 +242,21 @@ class NodeParameter:
         return check_value(name, self.meta, value)
 
 
-NODE_PARAMETERS: tuple[NodeParameter, ...] = tuple(
-    NodeParameter(f.metadata["name"] or f.name, f.name, list(f.default) if isinstance(f.default, tuple) else f.default,
-                  f.metadata["unit"], f.metadata["description"], f.metadata["read_only"], f.metadata)
-    for f in dataclasses.fields(NodeSettings))
+    @property
+    def is_float(self) -> bool:
+        return bool(self.meta["kind"] == "float")
+
+
+def parameters_of(settings: type) -> tuple[NodeParameter, ...]:
+    """The parameters a node declares, one per field of its settings dataclass (`setting(...)`)."""
+    return tuple(
+        NodeParameter(f.metadata["name"] or f.name, f.name, list(f.default) if isinstance(f.default, tuple)
+                      else f.default, f.metadata["unit"], f.metadata["description"], f.metadata["read_only"],
+                      f.metadata)
+        for f in dataclasses.fields(settings))
+
+
+NODE_PARAMETERS = parameters_of(NodeSettings)
 _NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
 
 

@@ -22,7 +22,6 @@ Everything is deterministic for a given sequence of (step, input) pairs.
 
 from __future__ import annotations
 
-import bisect
 import copy
 import math
 from collections.abc import Mapping
@@ -31,6 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
@@ -98,13 +98,6 @@ class PhysicalLimits:
         return None
 
 
-class WatchdogState:
-    OFF = "off"            # watchdog_timeout = 0
-    WAITING = "waiting"    # no valid duty command yet: safe duty
-    OK = "ok"              # commands arriving
-    FIRED = "fired"        # no valid command for watchdog_timeout: safe duty
-
-
 @dataclass(frozen=True)
 class Sample:
     """The device's outputs at model step `step` (time step * dt)."""
@@ -141,16 +134,11 @@ class ValveDevice:
         self.recorder = recorder
         self.record_every = _positive_int(record_every, "record_every")
         self.counts = _Inputs()
-        self._pending: list[tuple[int, int, str, float]] = []   # (step, seq, input, value), sorted
-        self._seq = 0
+        self._pending: InputQueue[tuple[str, float]] = InputQueue()
         self.command = self.safe_duty       # last valid duty command (the safe duty before any)
         self.load_flow = 0.0
         self.supply_pressure: float | None = None   # None: the parameter file's circuit.supply_pressure
-        self.duty_applied_step: int | None = None    # step at which the last valid duty took effect
-        self.watchdog_state = WatchdogState.WAITING
-        self.watchdog_fired_step: int | None = None
-        self.watchdog_fired = 0                       # how often it fired
-        self._timeout_steps = 0
+        self.watchdog = Watchdog(0)                  # the safe duty while it holds (waiting, fired)
         self.set_watchdog_timeout(watchdog_timeout)
         self.fault: str | None = None
         self.fault_step: int | None = None
@@ -169,18 +157,31 @@ class ValveDevice:
         """Seconds of model time without a valid duty command before the safe duty; 0 = off."""
         if not (math.isfinite(timeout) and timeout >= 0.0):
             raise ValueError(f"watchdog_timeout {timeout!r} s: accepted is a finite number >= 0 (0 = off)")
-        self._timeout_steps = round(timeout / self.dt)
-        if self._timeout_steps == 0:
-            if self.watchdog_state == WatchdogState.FIRED:
-                self._apply_duty(self.command)
-            self.watchdog_state = WatchdogState.OFF if self.duty_applied_step is not None else WatchdogState.WAITING
-        elif self.watchdog_state == WatchdogState.OFF:
-            self.watchdog_state = WatchdogState.OK
+        if self.watchdog.set_timeout(round(timeout / self.dt)):
+            self._apply_duty(self.command)
 
     def set_safe_duty(self, duty: float) -> None:
         self.safe_duty = check_duty(duty, self.params.command.duty_range)
-        if self.watchdog_state in (WatchdogState.WAITING, WatchdogState.FIRED):
+        if self.watchdog.holds:
             self._apply_duty(self.safe_duty)
+
+    @property
+    def watchdog_state(self) -> str:
+        return self.watchdog.state
+
+    @property
+    def watchdog_fired(self) -> int:
+        """How often the watchdog fired."""
+        return self.watchdog.fired
+
+    @property
+    def watchdog_fired_step(self) -> int | None:
+        return self.watchdog.fired_step
+
+    @property
+    def duty_applied_step(self) -> int | None:
+        """The step at which the last valid duty command took effect."""
+        return self.watchdog.command_step
 
     def prepare(self, params: ValveParams | None = None, integrator: str | None = None) -> RealTimeStepper:
         """A stepper at rest at the present operating point, for new parameters (default: the present
@@ -243,8 +244,7 @@ class ValveDevice:
         except CommandError as err:
             return self._reject(name, str(err))
         step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
-        self._seq += 1
-        bisect.insort(self._pending, (step, self._seq, name, value))
+        self._pending.push(step, (name, value))
         return None
 
     def _reject(self, name: str, reason: str) -> str:
@@ -254,24 +254,19 @@ class ValveDevice:
 
     @property
     def duty_command_in_force(self) -> float:
-        if self.watchdog_state in (WatchdogState.WAITING, WatchdogState.FIRED):
-            return self.safe_duty
-        return self.command
+        return self.safe_duty if self.watchdog.holds else self.command
 
     def _apply_duty(self, duty: float) -> None:
         self.stepper.set_duty(duty)
 
     def _apply_due_inputs(self) -> None:
-        pending = self._pending
-        while pending and pending[0][0] <= self.steps:
-            _, _, name, value = pending.pop(0)
+        while (due := self._pending.pop_due(self.steps)) is not None:
+            name, value = due
             try:
                 if name == "duty_cycle":
                     self._apply_duty(value)
                     self.command = value
-                    self.duty_applied_step = self.steps
-                    if self.watchdog_state != WatchdogState.OFF:
-                        self.watchdog_state = WatchdogState.OK if self._timeout_steps else WatchdogState.OFF
+                    self.watchdog.command(self.steps)
                 elif name == "load_flow":
                     self.stepper.set_load_flow(value)
                     self.load_flow = value
@@ -284,12 +279,7 @@ class ValveDevice:
             self.counts.accepted[name] += 1
 
     def _check_watchdog(self) -> None:
-        if (self.watchdog_state == WatchdogState.OK and self._timeout_steps
-                and self.duty_applied_step is not None
-                and self.steps >= self.duty_applied_step + self._timeout_steps):
-            self.watchdog_state = WatchdogState.FIRED
-            self.watchdog_fired_step = self.steps
-            self.watchdog_fired += 1
+        if self.watchdog.check(self.steps):
             self._apply_duty(self.safe_duty)
 
     def _next_event(self, end: int) -> int:
@@ -297,11 +287,7 @@ class ValveDevice:
         stop = min(end, s + self.sample_every - s % self.sample_every)
         if self.recorder is not None and (not self._traced() or self.stepper.ramping):
             stop = min(stop, s + self.record_every - s % self.record_every)
-        if self._pending:
-            stop = min(stop, self._pending[0][0])
-        if self.watchdog_state == WatchdogState.OK and self._timeout_steps and self.duty_applied_step is not None:
-            stop = min(stop, self.duty_applied_step + self._timeout_steps)
-        return stop
+        return min(stop, self._pending.next_step, self.watchdog.deadline)
 
     # --- time --------------------------------------------------------------------------------
 

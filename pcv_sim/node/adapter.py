@@ -35,7 +35,8 @@ The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz
 
 Parameters are declared from `pcv_sim.device.settings` (one declaration each); what rcl leaves
 silent is checked by `pcv_sim.device.parameters`; diagnostics are built by `pcv_sim.device.diagnostics`.
-QoS incompatibility events are polled with the services (no executor runs their callbacks).
+Parameter services, service polling, QoS events, the one-/clock rule and the rejection log are the
+package's node base (`pcv_sim.node.base.DeviceNode`), shared with the rig node.
 
 Recorder hook: `EmulatorNode.set_recorder(recorder, every)` makes the device call
 `recorder(t_ns, signals)` at every `every`-th model step (see pcv_sim.device.valve.SIGNALS); a
@@ -49,10 +50,6 @@ queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`re
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import gc
-import math
 import os
 import sys
 import time
@@ -62,27 +59,15 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.exceptions import InvalidHandle
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import QoSPolicyKind, QoSProfile, qos_profile_sensor_data
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import DiagnosticsBuilder
-from pcv_sim.device.parameters import (
-    Override,
-    check_params_files,
-    command_line_overrides,
-    is_ros_own,
-    override_not_taken,
-    refuse_unknown,
-    unknown_parameters_message,
-)
 from pcv_sim.device.settings import (
     MODEL_PREFIX,
     NODE_PARAMETERS,
@@ -92,7 +77,7 @@ from pcv_sim.device.settings import (
     params_with,
     settings_with,
 )
-from pcv_sim.device.valve import INPUTS, Recorder, Sample, ValveDevice, WatchdogState
+from pcv_sim.device.valve import Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
 from pcv_sim.io.topics import (
@@ -106,11 +91,20 @@ from pcv_sim.io.topics import (
     SPOOL_POSITION,
     SUPPLY_PRESSURE,
 )
-from pcv_sim.node.polling import drain, linger_for_rosout
+from pcv_sim.node.base import (
+    CLOCK_QOS,
+    COMMAND_HINT,
+    COMMAND_QOS,
+    DIAGNOSTICS_QOS,
+    LOCKSTEP_RESEND,
+    SAMPLE_HINT,
+    DeviceNode,
+    freeze_heap,
+    tighten_timer_slack,
+)
+from pcv_sim.node.polling import drain
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET,
-    SIM_TIME_CONFLICT,
     ExternalClock,
     RealTimeSchedule,
     SimulatedSchedule,
@@ -119,21 +113,10 @@ from pcv_sim.simulation.clock import (
 __all__ = ["EmulatorNode", "StopFlag"]
 
 NODE_NAME = "emulator"
-COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
-DIAGNOSTICS_QOS = QoSProfile(depth=10)
-CLOCK_QOS = QoSProfile(depth=10)
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
-CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
-EVENT_POLL_EVERY = 10                       # service polls between QoS event polls (100 ms at 1 kHz)
-LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
                  "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
-
-
-def _ros_value(value: Any) -> Any:
-    """A checked value as a ROS parameter value (ints given for a float parameter stay numbers)."""
-    return list(value) if isinstance(value, tuple) else value
 
 
 class StopFlag(Protocol):
@@ -142,32 +125,19 @@ class StopFlag(Protocol):
     requested: bool
 
 
-class EmulatorNode(Node):
+class EmulatorNode(DeviceNode):
     """ROS parameters in, `ValveDevice` out. Construct, then `run(stop)`."""
 
-    def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
-        super().__init__(NODE_NAME, **kwargs)
-        try:
-            self._setup(argv)
-        except ParameterError as err:
-            # Start-up errors also go to /rosout (a launch file's user may only see that), then the
-            # half-built node is destroyed here: nobody else holds it.
-            self.get_logger().error(f"invalid parameters: {err}")
-            linger_for_rosout(self)
-            self.destroy_node()
-            raise
+    unknown_hint = _UNKNOWN_HINT
 
-    def _setup(self, argv: list[str] | None) -> None:
-        self._argv = list(sys.argv if argv is None else argv)
-        self._retaken: dict[str, Override] = {}      # -p overrides rcl dropped, applied by us
-        self._declared: set[str] = set()
+    def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, argv=argv, **kwargs)
+
+    def _setup(self, argv: list[str]) -> None:
         self.settings, params = self._declare_parameters()
-        if self._retaken:
-            self.set_parameters([Parameter(n, value=_ros_value(o.value)) for n, o in self._retaken.items()])
         dt = params.simulation.time_step
         s = self.settings
         self.simulated = s.time_mode == "simulated"
-        self.external_clock = bool(self.get_parameter("use_sim_time").value)
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt))
         self._external = ExternalClock(self.device.dt_ns)   # use_sim_time: the latest /clock, model time anchored
@@ -183,10 +153,7 @@ class EmulatorNode(Node):
         self._schedule: RealTimeSchedule | None = None
         self._sim: SimulatedSchedule | None = None
         self._duty_messages = 0                      # valid or not: the lockstep handshake counts them
-        self._last_reject_log = dict.fromkeys(INPUTS, -math.inf)
-        self._suppressed = dict.fromkeys(INPUTS, 0)
         self.samples_published = 0
-        self._polls = 0
         self._switch_interval = sys.getswitchinterval()
         self._last_input_step: dict[str, int] = {}   # per input topic: the step its last valid value acts at
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
@@ -198,10 +165,11 @@ class EmulatorNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
                                                event_callbacks=out(DIAGNOSTICS))
         if self.simulated:
-            self._refuse_a_second_clock()
+            self.refuse_a_second_clock("run this emulator with use_sim_time:=true (time_mode real) to follow the "
+                                       "other clock, or simulate several valves in one process (the multi-valve rig)")
         self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
                            if self.simulated else None)
-        inp = self._input_events
+        inp = self.input_events
         self._inputs: list[tuple[Any, Callable[..., None]]] = [
             (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
                                       event_callbacks=inp(DUTY_CYCLE)), self._on_duty),
@@ -213,14 +181,9 @@ class EmulatorNode(Node):
         if self.external_clock:
             self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
                                                           event_callbacks=inp(CLOCK)), self._on_clock))
-        self._event_handlers = [h for e in (*self.publishers, *self.subscriptions)
-                                for h in getattr(e, "event_handlers", ())]
+        self.collect_event_handlers()
         self.create_service(Trigger, RESET, self._on_reset)
-        for srv in self.services:        # rclpy's handlers say "undeclared parameter(s): []": name them
-            if srv.srv_name.endswith("/set_parameters"):
-                srv.callback = self._on_set_parameters
-            elif srv.srv_name.endswith("/set_parameters_atomically"):
-                srv.callback = self._on_set_parameters_atomically
+        self._deferred_callbacks = (self._on_set_parameters, self._on_set_parameters_atomically, self._on_reset)
         self._msg_pressure = FluidPressure()
         self._msg_pressure.header.frame_id = s.frame_id
         self._msg_current = Float64()
@@ -244,59 +207,24 @@ class EmulatorNode(Node):
         Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
         take (rcl drops one whose type differs from the params file's), and names nobody declares
         (unless allow_unknown_parameters) are refused too (see pcv_sim.device.parameters)."""
-        check_params_files(self._argv)
-        cli = command_line_overrides(self._argv, self.get_name())
         values = {}
         for spec in NODE_PARAMETERS:
-            desc = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]", dynamic_typing=True,
-                                       read_only=spec.read_only)
-            value = self._taken(spec.name, self.declare_parameter(spec.name, spec.default, desc).value, cli)
+            value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
+                                 read_only=spec.read_only, is_float=spec.is_float)
             values[spec.name] = check_node_value(spec.name, value)
         settings = NodeSettings.from_parameters(values)
-        if self.get_parameter("use_sim_time").value and settings.time_mode == "simulated":
-            raise ParameterError(SIM_TIME_CONFLICT)
+        self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
         params = load_params(settings.valve_config or None)
         changes = {}
         for mp in model_parameters(params):
-            desc = ParameterDescriptor(description=f"[{mp.unit}] {mp.source}", dynamic_typing=True)
-            value = self._taken(mp.name, self.declare_parameter(mp.name, mp.value, desc).value, cli)
+            value = self.declare(mp.name, mp.value, f"[{mp.unit}] {mp.source}", is_float=mp.kind.startswith("float"))
             if value != mp.value:
                 changes[mp.name] = value
-        overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(cli)
-        self._declared = {spec.name for spec in NODE_PARAMETERS} | {mp.name for mp in model_parameters(params)}
-        unknown = sorted(n for n in overrides if n not in self._declared and not is_ros_own(n))
-        if unknown and not settings.allow_unknown_parameters:
-            refuse_unknown(unknown, self._declared, hint=_UNKNOWN_HINT)
-        if unknown:
-            self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
+        self.refuse_unknown_names(settings.allow_unknown_parameters)
+        self.set_retaken()
         if changes:
             params = params_with(params, changes)
         return settings.check(params), params
-
-    def _taken(self, name: str, declared: Any, cli: dict[str, Override]) -> Any:
-        """The value the command line asked for if rcl dropped it (it is then checked like any value)."""
-        override = cli.get(name)
-        if override is None or not override_not_taken(override, declared):
-            return declared
-        self._retaken[name] = override
-        return override.value
-
-    def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
-        unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
-        if unknown:
-            return SetParametersResult(successful=False, reason=unknown_parameters_message(
-                unknown, self._declared, hint=_UNKNOWN_HINT.split("; allow_unknown", maxsplit=1)[0]))
-        return self.set_parameters_atomically(parameters)
-
-    def _on_set_parameters(self, request: Any, response: Any) -> Any:
-        """SetParameters service: one result per parameter, each set on its own (as rclpy does)."""
-        for msg in request.parameters:
-            response.results.append(self._set_checked([Parameter.from_parameter_msg(msg)]))
-        return response
-
-    def _on_set_parameters_atomically(self, request: Any, response: Any) -> Any:
-        response.result = self._set_checked([Parameter.from_parameter_msg(m) for m in request.parameters])
-        return response
 
     def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
         """on-set callback (worker thread): validate the whole change with the model's rules, prepare
@@ -309,10 +237,8 @@ class EmulatorNode(Node):
                 model_changes[p.name] = p.value
             elif p.name in names:
                 node_changes[p.name] = p.value
-            elif p.name == "use_sim_time" and bool(p.value) != self.external_clock:
-                return SetParametersResult(successful=False, reason=(
-                    "use_sim_time is fixed while the node runs (the model's clock is chosen at start): restart "
-                    f"with -p use_sim_time:={'true' if p.value else 'false'}"))
+            elif (refused := self.sim_time_change_refused([p])) is not None:
+                return refused
         base_settings, base_params = self._pending or (self.settings, self.device.params)
         try:
             settings = settings_with(base_settings, node_changes)
@@ -355,40 +281,6 @@ class EmulatorNode(Node):
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
                                    f"operating point: {what}")
 
-    # --- QoS events ----------------------------------------------------------------------------
-
-    def _output_events(self, topic: str) -> PublisherEventCallbacks:
-        hint = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
-                "ros2 topic echo --qos-reliability best_effort)") if topic in (PRESSURE, CURRENT, SPOOL_POSITION) \
-            else "subscribe with a compatible QoS (reliable, volatile)"
-        return PublisherEventCallbacks(incompatible_qos=lambda info: self._incompatible(
-            topic, "a subscriber", info, hint))
-
-    def _input_events(self, topic: str) -> SubscriptionEventCallbacks:
-        return SubscriptionEventCallbacks(incompatible_qos=lambda info: self._incompatible(
-            topic, "a publisher", info, "publish reliable (the default of ros2 topic pub and of QoSProfile(depth=10))"))
-
-    def _incompatible(self, topic: str, them: str, info: Any, hint: str) -> None:
-        try:
-            policy = QoSPolicyKind(info.last_policy_kind).name
-        except ValueError:
-            policy = str(info.last_policy_kind)
-        self.get_logger().warning(
-            f"QoS incompatible on {topic!r}: {them} has a {policy} policy the node's endpoint cannot match; no "
-            f"messages flow between them ({info.total_count} such endpoint(s) so far). To connect: {hint}")
-
-    def _poll_events(self) -> None:
-        """Run the QoS event callbacks (no executor runs them here): take each event's status, call back
-        when its count changed. ~2 us per endpoint; polled with the services."""
-        for handler in self._event_handlers:
-            try:
-                handler._ready_to_take_data = True     # what a wait set would mark; then rclpy's own take
-                info = handler.take_data()
-            except (InvalidHandle, AttributeError, RuntimeError):
-                continue
-            if info is not None and getattr(info, "total_count_change", 0) > 0:
-                handler.callback(info)
-
     # --- recording ---------------------------------------------------------------------------
 
     def _make_recorder(self) -> BagRecorder | None:
@@ -423,19 +315,10 @@ class EmulatorNode(Node):
             f"model time, inputs on change)")
 
     def _stop_recording(self) -> None:
-        rec = self.recorder
         close = getattr(self.device.recorder, "close", None)
-        if rec is None:
-            if callable(close):
-                close()
-            return
-        st = rec.close()
-        text = (f"bag {st.path}: {st.messages} messages, {st.bytes} bytes in {st.files} file(s)"
-                f"{f', {st.dropped} messages dropped' if st.dropped else ''}")
-        if st.error:
-            self.get_logger().error(f"recording failed ({st.error}); {text}")
-        else:
-            self.get_logger().info(f"recording finished: {text}")
+        if self.recorder is None and callable(close):
+            close()
+        self.close_recorder(self.recorder)
 
     # --- recorder hook -----------------------------------------------------------------------
 
@@ -486,41 +369,15 @@ class EmulatorNode(Node):
         self._input(SUPPLY_PRESSURE, msg.fluid_pressure, info)
 
     def _log_rejection(self, name: str, reason: str) -> None:
-        now = time.monotonic()
-        if now - self._last_reject_log[name] < self.settings.reject_log_period:
-            self._suppressed[name] += 1
-            return
-        more = self._suppressed[name]
-        self._suppressed[name] = 0
-        self._last_reject_log[name] = now
-        tail = f" ({more} more rejected since the last message)" if more else ""
-        self.get_logger().warning(f"rejected {name}: {reason}; the last valid value stays in force{tail}")
+        self.log_rejection(name, name, reason, "the last valid value stays in force", self.settings.reject_log_period)
 
     def _drain(self) -> int:
         """Take every pending input message (no executor: `take_message` polling)."""
         return drain(self._inputs)
 
-    def _poll_services(self) -> None:
-        """Answer pending service requests the way an executor would; parameter sets and reset go
-        to the worker thread (`_pump`), the rest is answered here."""
-        deferred = (self._on_set_parameters, self._on_set_parameters_atomically, self._on_reset)
-        for srv in list(self.services):
-            while True:
-                try:
-                    with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
-                except InvalidHandle:
-                    break
-                if header is None:
-                    break
-                if srv.callback in deferred:
-                    self._deferred.append((srv, request, header))
-                else:
-                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
-        self._pump()
-        self._polls += 1
-        if self._polls % EVENT_POLL_EVERY == 0:
-            self._poll_events()
+    def _defer(self, srv: Any, request: Any, header: Any) -> None:
+        """Parameter sets and reset: to the worker thread, in arrival order (`_pump`)."""
+        self._deferred.append((srv, request, header))
 
     def _pump(self) -> None:
         """At a step boundary: apply a finished worker job (new model, settings) and answer its request;
@@ -612,6 +469,9 @@ class EmulatorNode(Node):
             self._pub_spool.publish(self._msg_spool)
         self.samples_published += len(samples)
 
+    def _output_events(self, topic: str) -> PublisherEventCallbacks:
+        return self.output_events(topic, SAMPLE_HINT if topic in (PRESSURE, CURRENT, SPOOL_POSITION) else COMMAND_HINT)
+
     def _publish_clock(self) -> None:
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
@@ -660,13 +520,13 @@ class EmulatorNode(Node):
         sched = RealTimeSchedule(dev.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
                                  max_catchup=s.catchup_bound)
         self._schedule = sched
-        _tighten_timer_slack()
+        tighten_timer_slack()
         # The worker thread (rest states) competes for the interpreter lock: hand it back within one
         # wake period rather than the default 5 ms.
         sys.setswitchinterval(SWITCH_INTERVAL)
         if s.realtime_priority:
-            self._set_realtime_priority(s.realtime_priority)
-        _freeze_heap()
+            self.set_realtime_priority(s.realtime_priority)
+        freeze_heap()
         mono = time.monotonic
         sched.start()
         dev.origin_ns = self.get_clock().now().nanoseconds
@@ -706,15 +566,6 @@ class EmulatorNode(Node):
             if delay > 0.0:
                 time.sleep(delay)
 
-    def _set_realtime_priority(self, priority: int) -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError) as err:
-            self.get_logger().warning(f"realtime_priority {priority}: SCHED_FIFO refused ({err}); running with "
-                                      "normal scheduling (grant an rtprio limit or run as root)")
-        else:
-            self.get_logger().info(f"loop thread under SCHED_FIFO, priority {priority}")
-
     def _run_simulated(self, stop: StopFlag) -> None:
         """Simulated time: model time from 0, chunks of one publish period, /clock published.
 
@@ -732,7 +583,7 @@ class EmulatorNode(Node):
         s, dev = self.settings, self.device
         sim = SimulatedSchedule(dev.dt, factor=s.real_time_factor)
         self._sim = sim
-        _freeze_heap()
+        freeze_heap()
         mono = time.monotonic
         dev.origin_ns = 0
         self._start_recording()
@@ -780,82 +631,28 @@ class EmulatorNode(Node):
             published = mono()
 
 
-    def _refuse_a_second_clock(self) -> None:
-        """Two simulated-time emulators would both publish /clock, and every node with use_sim_time would
-        see time jump between them. Before creating its own /clock publisher the node looks for another
-        one for up to CLOCK_DISCOVERY s (discovery is usually done within the node's creation; under
-        load it can take longer) and refuses to start if it finds one. Only the newcomer looks, so a
-        running simulation is never stopped by a second one."""
-        end = time.monotonic() + CLOCK_DISCOVERY
-        while True:
-            others = self.count_publishers(CLOCK)
-            if others > 0 or time.monotonic() >= end:
-                break
-            time.sleep(0.05)
-        if others > 0:
-            raise ParameterError(
-                    f"time_mode: simulated: {others} other publisher(s) of {CLOCK} found; two clocks make time jump "
-                    "for every node that follows /clock. Accepted is one clock: run this emulator with "
-                    "use_sim_time:=true (time_mode real) to follow the other clock, or simulate several valves "
-                    "in one process (the multi-valve rig)")
+    # --- the device under the node base's loops ----------------------------------------------
 
-    def _run_external_clock(self, stop: StopFlag) -> None:
-        """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
+    @property
+    def model_steps(self) -> int:
+        return self.device.steps
 
-        Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
-        the steps up to it run and the samples that fell due are published. An input acts from the
-        step after the last one run when it was taken. The clock going back (a simulation reset)
-        re-anchors model time at the new clock, keeping the model's state."""
-        s, dev = self.settings, self.device
-        _freeze_heap()
-        mono = time.monotonic
-        ext = self._external
-        self._diag.restart(mono(), dev.steps)
-        next_diag = mono() + s.diagnostics_period
-        loops = 0
-        while not stop.requested:
-            loops += 1
-            self._drain()
-            now = mono()
-            if loops % SERVICE_POLL_EVERY == 0:
-                self._poll_services()
-            elif self._job is not None:
-                self._pump()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if ext.latest_ns is None:
-                if loops == 2000:           # ~2 s: say why nothing is published
-                    self.get_logger().warning(NO_CLOCK_YET)
-                time.sleep(1e-3)
-                continue
-            if not ext.started:
-                dev.origin_ns = ext.start(dev.steps)
-                self._start_recording()
-                self._publish([dev.sample()])
-                continue
-            plan = ext.plan(dev.steps)
-            if plan.reanchored:
-                dev.origin_ns = ext.origin_ns
-                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
-            elif plan.skip:
-                dev.skip(plan.skip)
-                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
-            elif plan.run:
-                self._publish(self._run_steps(plan.run))
-            else:
-                time.sleep(2e-4)           # wait for the clock to advance
+    def _begin(self, origin_ns: int) -> None:
+        self.device.origin_ns = origin_ns
+        self._start_recording()
+        self._publish([self.device.sample()])
 
+    def _set_origin(self, origin_ns: int) -> None:
+        self.device.origin_ns = origin_ns
 
-def _tighten_timer_slack() -> None:
-    """Ask Linux for 1 ns timer slack (default 50 us): wakes land ~50 us closer to the grid."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(29, 1, 0, 0, 0)   # PR_SET_TIMERSLACK
+    def _skip(self, n: int) -> None:
+        self.device.skip(n)
 
+    def _compute(self, n: int) -> None:
+        self._publish(self._run_steps(n))
 
-def _freeze_heap() -> None:
-    """Move everything allocated so far (rclpy, numpy, scipy, the model: ~50 000 objects) out of
-    the garbage collector's reach. A full collection over them takes ~17 ms here, which would
-    make a wake-up that many ms late; the loop itself only makes short-lived objects."""
-    gc.collect()
-    gc.freeze()
+    def _tick_services(self, loops: int) -> None:
+        if loops % SERVICE_POLL_EVERY == 0:
+            self._poll_services()
+        elif self._job is not None:
+            self._pump()

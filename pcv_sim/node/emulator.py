@@ -38,13 +38,16 @@ def main(args: list[str] | None = None) -> int:
 def _run(argv: list[str], stop: Stop) -> int:
     import argparse
 
-    from rclpy.utilities import remove_ros_args
+    from pcv_sim.node.command_line import command_line_problem
 
     parser = argparse.ArgumentParser(
         prog="emulator", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
         description="Hydraulic proportional pressure control valve emulator (ROS 2 node). Topics: in duty_cycle, "
                     "load_flow, supply_pressure; out pressure, current, spool_position, /diagnostics.")
-    parser.parse_args(remove_ros_args(argv)[1:])
+    reason = command_line_problem(argv, parser)
+    if reason is not None:
+        print(f"emulator: invalid parameters: {reason}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETERS
     if stop.requested:
         print(f"emulator: stopped on {stop.name} while starting", file=sys.stderr)
         return EXIT_OK

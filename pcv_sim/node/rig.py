@@ -23,7 +23,7 @@ def _parameter_help() -> str:
 
     lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file FILE):"]
     for spec in RIG_PARAMETERS:
-        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]")
+        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]{' (read-only)' if spec.read_only else ''}")
         lines.append(f"      {spec.description}")
     lines.append("  the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
     return "\n".join(lines)
@@ -56,7 +56,7 @@ def main(args: list[str] | None = None) -> int:
 def _run(argv: list[str], stop: Stop) -> int:
     import argparse
 
-    from rclpy.utilities import remove_ros_args
+    from pcv_sim.node.command_line import command_line_problem
 
     parser = argparse.ArgumentParser(
         prog="rig", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
@@ -65,12 +65,7 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, cylinder/pressure_a|b; in faults, cylinder/external_force; service reset; "
                     "/diagnostics, /clock (out in simulated time, in with use_sim_time); record.enabled records "
                     "a bag.")
-    reason = _rig_yaml_as_params_file(argv)
-    if reason is None:
-        try:
-            parser.parse_args(remove_ros_args(argv)[1:])
-        except Exception as err:
-            reason = f"--ros-args: {err}"
+    reason = command_line_problem(argv, parser, _rig_yaml_as_params_file)
     if reason is not None:
         print(f"rig: invalid parameters: {reason}", file=sys.stderr)
         return EXIT_INVALID_PARAMETERS

@@ -70,22 +70,13 @@ from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import InvalidHandle
-from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
-from pcv_sim.device.parameters import (
-    check_params_files,
-    command_line_overrides,
-    is_ros_own,
-    override_not_taken,
-    refuse_unknown,
-)
 from pcv_sim.errors import BagError, CommandError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RigRecorder
 from pcv_sim.io.topics import (
@@ -102,24 +93,31 @@ from pcv_sim.io.topics import (
     chamber_topic,
     valve_topic,
 )
-from pcv_sim.node.adapter import (
-    CLOCK_DISCOVERY,
+from pcv_sim.node.adapter import StopFlag
+from pcv_sim.node.base import (
     CLOCK_QOS,
+    COMMAND_HINT,
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
     LOCKSTEP_RESEND,
-    StopFlag,
-    _freeze_heap,
-    _tighten_timer_slack,
+    SAMPLE_HINT,
+    DeviceNode,
+    freeze_heap,
+    tighten_timer_slack,
 )
-from pcv_sim.node.polling import drain, linger_for_rosout
+from pcv_sim.node.polling import drain
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
-from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value, parse_fault_command, settings_from
+from pcv_sim.node.rig_settings import (
+    RIG_PARAMETERS,
+    RigNodeSettings,
+    check_rig_value,
+    parse_fault_command,
+    rig_settings_with,
+    settings_from,
+)
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
-    NO_CLOCK_YET,
-    SIM_TIME_CONFLICT,
     ExternalClock,
     RealTimeSchedule,
     SimulatedSchedule,
@@ -139,28 +137,18 @@ SERVICE_POLL_PERIOD = 0.01      # s (wall) between polls for service requests (r
 EXTERNAL_FORCE_TOPIC = f"{CYLINDER}/external_force"
 
 
-class RigNode(Node):
+class RigNode(DeviceNode):
     """ROS parameters in, `Rig` out. Construct, then `run(stop)`."""
 
+    unknown_hint = "; the physics is set in the rig YAML (rig_config)"
+
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
-        super().__init__(NODE_NAME, **kwargs)
-        try:
-            self._setup(argv)
-        except ParameterError as err:
-            # As the emulator: also to /rosout, then the half-built node goes.
-            self.get_logger().error(f"invalid parameters: {err}")
-            linger_for_rosout(self)
-            self.destroy_node()
-            raise
+        super().__init__(NODE_NAME, argv=argv, **kwargs)
 
     # --- set-up --------------------------------------------------------------------------------
 
-    def _setup(self, argv: list[str] | None) -> None:
-        self._argv = list(sys.argv if argv is None else argv)
+    def _setup(self, argv: list[str]) -> None:
         s = self.settings = self._declare_parameters()
-        self.external_clock = bool(self.get_parameter("use_sim_time").value)
-        if self.external_clock and s.time_mode == "simulated":
-            raise ParameterError(SIM_TIME_CONFLICT)
         loaded = load_rig(s.rig_config or None)
         rig_params = s.check(loaded).rig_params(loaded)
         self.rig = rig = Rig(rig_params, seed=s.seed)
@@ -171,11 +159,12 @@ class RigNode(Node):
         self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
         self.failure: str | None = None
         self._schedule: RealTimeSchedule | None = None
+        self._next_service_poll = 0.0                      # monotonic s of the next service poll
+        self._sim: SimulatedSchedule | None = None
+        self._staged: RigNodeSettings | None = None        # parameters checked, about to be applied
         self._shown = 0                                     # last step whose sample was published
         self._last_input: dict[str, int] = {}               # per input: the step its last value acts at
         self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
-        self._last_reject_log: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
         #: a scenario's hook (pcv_sim.node.scenario_host): `sampled(true, measured)` before each period's
@@ -185,28 +174,35 @@ class RigNode(Node):
         sensor = qos_profile_sensor_data
         self._valve_pubs = []
         self._inputs: list[tuple[Any, Callable[..., None]]] = []
+        def publisher(msg_type: Any, topic: str, qos: Any = sensor, hint: str = SAMPLE_HINT) -> Any:
+            return self.create_publisher(msg_type, topic, qos, event_callbacks=self.output_events(topic, hint))
+
+        def subscription(msg_type: Any, topic: str, handler: Callable[..., None], qos: Any = COMMAND_QOS) -> None:
+            sub = self.create_subscription(msg_type, topic, handler, qos, event_callbacks=self.input_events(topic))
+            self._inputs.append((sub, handler))
+
+        self._publisher = publisher
+        self._subscription = subscription
         for name in rig.valve_names:
-            self._valve_pubs.append((
-                self.create_publisher(FluidPressure, valve_topic(name, PRESSURE), sensor),
-                self.create_publisher(Float64, valve_topic(name, CURRENT), sensor),
-                self.create_publisher(Float64, valve_topic(name, SPOOL_POSITION), sensor)))
-            handler = partial(self._on_duty, name)
-            self._inputs.append((self.create_subscription(Float64, valve_topic(name, DUTY_CYCLE), handler,
-                                                          COMMAND_QOS), handler))
-        self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS), self._on_fault))
-        self._pub_joint = self.create_publisher(JointState, f"{CYLINDER}/{JOINT_STATES}", sensor)
+            self._valve_pubs.append((publisher(FluidPressure, valve_topic(name, PRESSURE)),
+                                     publisher(Float64, valve_topic(name, CURRENT)),
+                                     publisher(Float64, valve_topic(name, SPOOL_POSITION))))
+            subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
+        if s.faults_enabled:                                # any node on the domain could break the bench
+            subscription(String, FAULTS, self._on_fault)
+        self._pub_joint = publisher(JointState, f"{CYLINDER}/{JOINT_STATES}")
         #: (publisher, index of the valve's pressure in the samples, its message) per chamber
-        self._chamber_pubs = [(self.create_publisher(FluidPressure, chamber_topic(v.chamber), sensor),
+        self._chamber_pubs = [(publisher(FluidPressure, chamber_topic(v.chamber)),
                                rig.signals.index(f"{v.name}.pressure"),
                                FluidPressure(header=Header(frame_id=f"chamber_{v.chamber}")))
                               for v in rig_params.valves if v.chamber in ("a", "b")]
         self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
         self._msg_float = Float64()
         self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
-        self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS)
+        self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
         if self.simulated:
-            self._refuse_a_second_clock()
-        self._pub_clock = self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.simulated else None
+            self.refuse_a_second_clock("stop the other simulation, or run this rig with time_mode real")
+        self._pub_clock = publisher(Clock, CLOCK, CLOCK_QOS, COMMAND_HINT) if self.simulated else None
         self._n_signals = len(rig.signals)
         self._cyl_i = [rig.signals.index(f"{CYLINDER}.{q}") for q in ("position", "velocity", "effort")]
         self._diag = RigDiagnostics(self.get_fully_qualified_name(), time.monotonic())
@@ -216,46 +212,25 @@ class RigNode(Node):
             f"rig: valves {', '.join(f'{v.name} (chamber {v.chamber})' for v in rig_params.valves)} + cylinder, "
             f"step {rig.dt * 1e3:g} ms, {mode}, samples and commands every "
             f"{rig_params.timing.control_period * 1e3:g} ms, watchdog {rig_params.timing.watchdog_timeout:g} s, "
-            f"rig config {s.rig_config or 'shipped default'}")
+            f"rig config {s.rig_config or 'shipped default'}, fault topic "
+            f"{'on (faults.enabled)' if s.faults_enabled else 'off (faults.enabled: false)'}")
         self._setup_more_interface()
+        self.collect_event_handlers()
 
     def _declare_parameters(self) -> RigNodeSettings:
         """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
         As the emulator: a key given twice in a params file, a `-p` override rcl dropped for its type,
         and names nobody declares are refused too (pcv_sim.device.parameters)."""
-        check_params_files(self._argv)
-        cli = command_line_overrides(self._argv, self.get_name())
         values = {}
         for spec in RIG_PARAMETERS:
-            desc = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]", dynamic_typing=True,
-                                       read_only=spec.read_only)
-            value = self.declare_parameter(spec.name, spec.default, desc).value
-            override = cli.get(spec.name)
-            if override is not None and override_not_taken(override, value):
-                value = override.value                   # rcl dropped it (type differs from the file's)
+            value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
+                                 read_only=spec.read_only, is_float=spec.is_float)
             values[spec.name] = check_rig_value(spec.name, value)
         settings = settings_from(values)
-        declared = {spec.name for spec in RIG_PARAMETERS}
-        overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(cli)
-        unknown = sorted(n for n in overrides if n not in declared and not is_ros_own(n))
-        if unknown and not settings.allow_unknown_parameters:
-            refuse_unknown(unknown, declared, hint="; the physics is set in the rig YAML (rig_config)")
-        if unknown:
-            self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
+        self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
+        self.refuse_unknown_names(settings.allow_unknown_parameters)
+        self.set_retaken()
         return settings
-
-    def _refuse_a_second_clock(self) -> None:
-        """As the emulator: one /clock only; the newcomer looks for another for CLOCK_DISCOVERY s."""
-        end = time.monotonic() + CLOCK_DISCOVERY
-        while True:
-            others = self.count_publishers(CLOCK)
-            if others > 0 or time.monotonic() >= end:
-                break
-            time.sleep(0.05)
-        if others > 0:
-            raise ParameterError(f"time_mode: simulated: {others} other publisher(s) of {CLOCK} found; two clocks "
-                                 "make time jump for every node that follows /clock. Accepted is one clock: stop the "
-                                 "other simulation, or run this rig with time_mode real")
 
     # --- inputs --------------------------------------------------------------------------------
 
@@ -295,6 +270,7 @@ class RigNode(Node):
 
     def _on_fault(self, msg: String, info: Any = None) -> None:
         rig = self.rig
+        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
         try:
             cmd = parse_fault_command(msg.data, valves=rig.valve_names, signals=rig.signals)
         except FaultError as err:
@@ -323,14 +299,7 @@ class RigNode(Node):
         self._log_rejection(_FAULTS_KEY, FAULTS, reason, "nothing changed")
 
     def _log_rejection(self, key: str, topic: str, reason: str, outcome: str) -> None:
-        now = time.monotonic()
-        if now - self._last_reject_log.get(key, -math.inf) < self.settings.reject_log_period:
-            self._suppressed[key] = self._suppressed.get(key, 0) + 1
-            return
-        more = self._suppressed.pop(key, 0)
-        self._last_reject_log[key] = now
-        tail = f" ({more} more rejected since the last message)" if more else ""
-        self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
+        self.log_rejection(key, topic, reason, outcome, self.settings.reject_log_period)
 
     def add_input(self, msg_type: Any, topic: str, handler: Callable[..., None], qos: Any) -> Any:
         """One more input taken with the node's own (`handler(msg, info)`, after the duties and faults)."""
@@ -342,7 +311,10 @@ class RigNode(Node):
         """Take every pending input message (no executor: `take_message` polling); every
         SERVICE_POLL_PERIOD also the service requests."""
         n = drain(self._inputs)
-        self._poll_services()
+        now = time.monotonic()
+        if now >= self._next_service_poll:
+            self._next_service_poll = now + SERVICE_POLL_PERIOD
+            self._poll_services()
         return n
 
     # --- outputs -------------------------------------------------------------------------------
@@ -489,9 +461,9 @@ class RigNode(Node):
     def _run_simulated(self, stop: StopFlag) -> None:
         s, rig = self.settings, self.rig
         lock = s.lockstep
-        sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
-        _tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
-        _freeze_heap()
+        sim = self._sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
+        tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
+        freeze_heap()
         mono = time.monotonic
         if lock:
             self._wait_for_controllers(stop)
@@ -508,7 +480,7 @@ class RigNode(Node):
             now = mono()
             if now >= next_diag:
                 self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
             if self.failure is not None:
                 time.sleep(1e-2)
                 continue
@@ -549,8 +521,8 @@ class RigNode(Node):
         s, rig = self.settings, self.rig
         sched = RealTimeSchedule(rig.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
                                  max_catchup=s.max_catchup)
-        _tighten_timer_slack()
-        _freeze_heap()
+        tighten_timer_slack()
+        freeze_heap()
         mono = time.monotonic
         sched.start()
         self.origin_ns = self.get_clock().now().nanoseconds
@@ -566,16 +538,16 @@ class RigNode(Node):
                 if plan.skipped:
                     # The process was stopped or starved beyond max_catchup: the model is held over
                     # the backlog (its state unchanged, model time jumps to wall time), as the emulator.
-                    rig.sim.steps += plan.skipped
+                    rig.skip(plan.skipped)
                     self.get_logger().warning(f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup "
-                                              f"{s.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
+                                              f"{self.settings.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
                                               "state was held over them", throttle_duration_sec=1.0)
                 if plan.steps:
                     self._advance(rig.steps + plan.steps)
                 sched.finish()
             if now >= next_diag:
                 self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
             delay = sched.next_wake() - mono()
             if delay > 0.0:
                 time.sleep(delay)
@@ -585,16 +557,15 @@ class RigNode(Node):
     def _setup_more_interface(self) -> None:
         """The endpoints beside the samples and the duty and fault commands: `cylinder/external_force`,
         the `reset` service, /clock in (use_sim_time), the recorder (record.enabled)."""
-        force = self._on_external_force
-        self._inputs.append((self.create_subscription(Float64, EXTERNAL_FORCE_TOPIC, force, COMMAND_QOS), force))
+        self._subscription(Float64, EXTERNAL_FORCE_TOPIC, self._on_external_force)
         self._external = ExternalClock(self.dt_ns)
         if self.external_clock:
-            self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS), self._on_clock))
+            self._subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS)
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
                                    "received, the model computes up to each new one")
         self.create_service(Trigger, RESET, self._on_reset)
-        self.add_on_set_parameters_callback(self._refuse_clock_change)
-        self._next_service_poll = 0.0
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
         self._rec_logged = 0                                # rig.log entries written to the bag
         self.recorder = self._make_recorder()
 
@@ -611,31 +582,32 @@ class RigNode(Node):
         self.counts.force_accepted += 1
         self._when(EXTERNAL_FORCE, info, partial(self.rig.set_external_force, force))
 
-    def _poll_services(self) -> None:
-        """Answer pending service requests (no executor), at most every SERVICE_POLL_PERIOD."""
-        now = time.monotonic()
-        if now < self._next_service_poll:
-            return
-        self._next_service_poll = now + SERVICE_POLL_PERIOD
-        for srv in list(self.services):
-            while True:
-                try:
-                    with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
-                except InvalidHandle:
-                    break
-                if header is None:
-                    break
-                srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
-
-    def _refuse_clock_change(self, parameters: list[Any]) -> SetParametersResult:
-        """The parameter services are answered now: use_sim_time (not read-only, ROS's own) cannot change."""
-        for p in parameters:
-            if p.name == "use_sim_time" and bool(p.value) != self.external_clock:
-                return SetParametersResult(successful=False, reason=(
-                    "use_sim_time is fixed while the node runs (the model's clock is chosen at start): restart "
-                    f"with -p use_sim_time:={'true' if p.value else 'false'}"))
+    def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
+        """on-set callback (the loop answers the parameter services): the changed settings checked with
+        the same rules as at start, staged for `_apply_parameters`; use_sim_time cannot change.
+        rclpy refuses the read-only ones (what the rig and its schedule are built on) before this."""
+        refused = self.sim_time_change_refused(parameters)
+        if refused is not None:
+            return refused
+        changes = {p.name: p.value for p in parameters if p.name in self._declared}
+        try:
+            self._staged = rig_settings_with(self.settings, changes).check(self.rig.params) if changes else None
+        except ParameterError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Any]) -> None:
+        """post-set callback (on the loop, between steps): the staged settings in force from now on."""
+        settings, self._staged = self._staged, None
+        if settings is None:
+            return
+        self.settings = settings
+        if self._schedule is not None:
+            self._schedule.late_threshold = settings.late_threshold
+            self._schedule.max_catchup_steps = int(settings.max_catchup / self.rig.dt)
+        if self._sim is not None and self._sim.factor != settings.real_time_factor:
+            self._sim.set_factor(settings.real_time_factor)
+        self.get_logger().info(f"parameters changed: {', '.join(f'{p.name} = {p.value!r}' for p in parameters)}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The rig back to rest: valves at their initial duty, piston at its initial position and at
@@ -668,50 +640,27 @@ class RigNode(Node):
     def _on_clock(self, msg: Clock, _info: Any = None) -> None:
         self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
-    def _run_external_clock(self, stop: StopFlag) -> None:
-        """use_sim_time (time_mode real): model time follows an external /clock, as the emulator
-        (`pcv_sim.simulation.clock.ExternalClock`): model time 0 is the first /clock (stamps are that
-        clock); whenever it advances, the steps up to it are computed and the samples of the control
-        periods passed published. An input acts at the present step (the one after the last computed).
-        The clock going back re-anchors model time there (state kept); a jump of more than 10 s ahead
-        is held but for the last 10 s."""
-        s, rig = self.settings, self.rig
-        _freeze_heap()
-        mono = time.monotonic
-        ext = self._external
-        self._diag.restart(mono(), rig.steps)
-        next_diag = mono() + s.diagnostics_period
-        loops = 0
-        while not stop.requested:
-            loops += 1
-            self._drain()
-            now = mono()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + s.diagnostics_period, now)
-            if ext.latest_ns is None:
-                if loops == 2000:                   # ~2 s: say why nothing is published
-                    self.get_logger().warning(NO_CLOCK_YET)
-                time.sleep(1e-3)
-                continue
-            if not ext.started:
-                self.origin_ns = ext.start(rig.steps)
-                self._publish_samples()
-                continue
-            if self.failure is not None:
-                time.sleep(1e-2)
-                continue
-            plan = ext.plan(rig.steps)
-            if plan.reanchored:
-                self.origin_ns = ext.origin_ns
-                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
-            elif plan.skip:
-                rig.sim.steps += plan.skip
-                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
-            elif plan.run:
-                self._advance(rig.steps + plan.run)
-            else:
-                time.sleep(2e-4)                     # wait for the clock to advance
+    # --- the rig under the node base's loops ---------------------------------------------------
+
+    @property
+    def model_steps(self) -> int:
+        return self.rig.steps
+
+    def _begin(self, origin_ns: int) -> None:
+        self.origin_ns = origin_ns
+        self._publish_samples()
+
+    def _set_origin(self, origin_ns: int) -> None:
+        self.origin_ns = origin_ns
+
+    def _skip(self, n: int) -> None:
+        self.rig.skip(n)
+
+    def _compute(self, n: int) -> None:
+        self._advance(self.rig.steps + n)
+
+    def _halted(self) -> bool:
+        return self.failure is not None
 
     def _make_recorder(self) -> RigRecorder | None:
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
@@ -766,13 +715,4 @@ class RigNode(Node):
                      self.origin_ns + self.rig.steps * self.dt_ns, text)
 
     def _stop_recording(self) -> None:
-        rec = self.recorder
-        if rec is None:
-            return
-        st = rec.close()
-        text = (f"bag {st.path}: {st.messages} messages, {st.bytes} bytes in {st.files} file(s)"
-                f"{f', {st.dropped} messages dropped' if st.dropped else ''}")
-        if st.error:
-            self.get_logger().error(f"recording failed ({st.error}); {text}")
-        else:
-            self.get_logger().info(f"recording finished: {text}")
+        self.close_recorder(self.recorder)

@@ -18,50 +18,33 @@ validated with the rig's own fault table (`pcv_sim.rig.faults.parse_fault`).
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import yaml
 
-from pcv_sim.device.settings import bag_name_check
+from pcv_sim.device.settings import (
+    any_value,
+    bag_name_check,
+    non_negative,
+    one_of,
+    parameters_of,
+    positive,
+    real_time_factor,
+)
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import check_value, setting
 from pcv_sim.rig.faults import Fault, FaultError, parse_fault
 from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.clock import steps_per
 
-__all__ = ["RIG_PARAMETERS", "FaultCommand", "RigNodeSettings", "check_rig_value", "parse_fault_command"]
-
-
-def _positive(v: float) -> str | None:
-    return None if v > 0.0 else "a finite number > 0"
-
-
-def _non_negative(v: float) -> str | None:
-    return None if v >= 0.0 else "a finite number >= 0"
-
-
-def _one_of(*choices: str) -> Callable[[Any], str | None]:
-    def check(v: Any) -> str | None:
-        return None if v in choices else f"one of {', '.join(map(repr, choices))}"
-    return check
-
-
-def _any(_v: Any) -> str | None:
-    return None
+__all__ = ["RIG_PARAMETERS", "FaultCommand", "RigNodeSettings", "check_rig_value", "parse_fault_command",
+           "rig_settings_with", "settings_from"]
 
 
 def _seed(v: int) -> str | None:
     return None if 0 <= v < 2**32 else "an integer 0 .. 2^32 - 1"
-
-
-def _factor(name: str, v: Any) -> float:
-    """real_time_factor: a number >= 0, where 0 and inf both mean as fast as possible."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
-        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
-    return float(v)
 
 
 @dataclass(frozen=True)
@@ -69,53 +52,56 @@ class RigNodeSettings:
     """The rig node's parameters (the physics is in the rig YAML)."""
 
     rig_config: str = setting(
-        "", "-", "rig YAML (valves, cylinder, timing); '' = the shipped config/rig.yaml", _any, "str",
+        "", "-", "rig YAML (valves, cylinder, timing); '' = the shipped config/rig.yaml", any_value, "str",
         read_only=True)
     time_mode: str = setting(
         "simulated", "-", "simulated: model time from 0, one /clock for the whole rig (controller CI); real: "
-        "model time follows the wall clock (hardware in the loop)", _one_of("real", "simulated"), "str",
+        "model time follows the wall clock (hardware in the loop)", one_of("real", "simulated"), "str",
         read_only=True)
     lockstep: bool = setting(
         True, "-", "simulated time: publish the samples of a control period, then wait for one duty_cycle "
-        "command of every valve before computing the next period (deterministic bit for bit)", _any, "bool",
+        "command of every valve before computing the next period (deterministic bit for bit)", any_value, "bool",
         read_only=True)
     real_time_factor: float = setting(
         0.0, "-", "simulated time without lockstep: model seconds per wall second; 0 or inf = as fast as "
-        "possible", convert=_factor, read_only=True)
+        "possible", convert=real_time_factor)
     control_period: float = setting(
         0.0, "s", "samples out and commands in every control period (model time); 0 = the rig YAML's "
-        "rig.control_period; a whole multiple of rig.time_step", _non_negative, read_only=True)
+        "rig.control_period; a whole multiple of rig.time_step", non_negative, read_only=True)
     wake_period: float = setting(
         1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock and computes the steps "
-        "due", _positive, read_only=True)
+        "due", positive, read_only=True)
     late_threshold: float = setting(
         1e-3, "s", "real time: a step is late when the wake that computes it comes more than this after its "
-        "scheduled wake", _non_negative, read_only=True)
+        "scheduled wake", non_negative)
     max_catchup: float = setting(
-        0.05, "s", "real time: a backlog longer than this is skipped (model held), not computed", _positive,
-        read_only=True)
+        0.05, "s", "real time: a backlog longer than this is skipped (model held), not computed", positive)
     seed: int = setting(0, "-", "seed of the sensor-noise faults (a run repeats bit for bit)", _seed, "int",
                         read_only=True)
-    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", _positive, read_only=True)
+    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
     reject_log_period: float = setting(
         1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
-        _non_negative, read_only=True)
+        non_negative)
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo) stops the node at start (exit 2); true: "
-        "warn and ignore it", _any, "bool", read_only=True)
+        "warn and ignore it", any_value, "bool", read_only=True)
+    faults_enabled: bool = setting(
+        False, "-", "take fault commands on the `faults` topic; off unless asked, since any node on the ROS "
+        "domain could then break the bench; each command is logged with its publisher's node name", any_value,
+        "bool", name="faults.enabled", read_only=True)
     record_enabled: bool = setting(
         False, "-", "record every valve (under its namespace, as the emulator records one), the cylinder, the "
         "fault commands and the rig's events to a rosbag2/MCAP bag from the start (the rig at rest) until "
         "SIGINT/SIGTERM; outputs at every published sample (control_period), inputs on change at the step they "
-        "act", _any, "bool", name="record.enabled", read_only=True)
+        "act", any_value, "bool", name="record.enabled", read_only=True)
     record_directory: str = setting(
-        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", _any, "str",
+        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
         name="record.directory", read_only=True)
     record_name: str = setting(
         "", "-", "bag directory name; '' = rig[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
         "overwritten", bag_name_check, "str", name="record.name", read_only=True)
     record_split_size_mb: float = setting(
-        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", _non_negative,
+        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", non_negative,
         name="record.split_size_mb", read_only=True)
 
     def check(self, rig: RigParams) -> RigNodeSettings:
@@ -139,21 +125,7 @@ class RigNodeSettings:
         return dataclasses.replace(rig, timing=dataclasses.replace(rig.timing, control_period=self.control_period))
 
 
-@dataclass(frozen=True)
-class RigParameter:
-    name: str
-    attr: str
-    default: Any
-    unit: str
-    description: str
-    read_only: bool
-    meta: Mapping[str, Any]
-
-
-RIG_PARAMETERS: tuple[RigParameter, ...] = tuple(
-    RigParameter(f.metadata["name"] or f.name, f.name, f.default, f.metadata["unit"], f.metadata["description"],
-                 f.metadata["read_only"], f.metadata)
-    for f in dataclasses.fields(RigNodeSettings))
+RIG_PARAMETERS = parameters_of(RigNodeSettings)
 _BY_NAME = {p.name: p for p in RIG_PARAMETERS}
 
 
@@ -167,6 +139,11 @@ def check_rig_value(name: str, value: Any) -> Any:
 
 def settings_from(values: Mapping[str, Any]) -> RigNodeSettings:
     return RigNodeSettings(**{_BY_NAME[k].attr: v for k, v in values.items()})
+
+
+def rig_settings_with(settings: RigNodeSettings, changes: Mapping[str, Any]) -> RigNodeSettings:
+    """A copy of settings with parameters changed, each checked (not yet cross-checked)."""
+    return dataclasses.replace(settings, **{_BY_NAME[k].attr: check_rig_value(k, v) for k, v in changes.items()})
 
 
 # --- fault commands ------------------------------------------------------------------------------

@@ -262,7 +262,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     host = None
     try:
         overrides = [Parameter("seed", value=scenario.seed), Parameter("time_mode", value="simulated"),
-                     Parameter("lockstep", value=True)]
+                     Parameter("lockstep", value=True), Parameter("faults.enabled", value=True)]
         if scenario.rig_file is not None:
             overrides.append(Parameter("rig_config", value=str(scenario.rig_file)))
         if log_path is not None:

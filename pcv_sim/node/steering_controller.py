@@ -108,7 +108,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
 
     from pcv_sim.control.steering import PositionController
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.adapter import _freeze_heap, _tighten_timer_slack
+    from pcv_sim.node.base import freeze_heap, tighten_timer_slack
     from pcv_sim.node.polling import linger_for_rosout
     from pcv_sim.node.rig_client import RigClient, _ignore
 
@@ -189,8 +189,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self._pub_flags.publish(msg)
 
         def run(self, stop: Stop) -> None:
-            _tighten_timer_slack()       # the lockstep polls in 20 us sleeps, as the rig node's
-            _freeze_heap()               # no 17 ms collection over rclpy's objects in a period
+            tighten_timer_slack()        # the lockstep polls in 20 us sleeps, as the rig node's
+            freeze_heap()                # no 17 ms collection over rclpy's objects in a period
             self.client.run(self._control, None, timeout=None, stop=stop, on_flags=self._publish_flags,
                             rewind=self._rewind)
 

@@ -9,9 +9,10 @@ load flow is never a step late.
 Inputs follow the emulator's rules (`pcv_sim.device.valve`): a duty command is validated on
 arrival (`CommandError` naming what is accepted; the last valid one stays) and acts from the
 present step on, i.e. at the first step at or after its reception; the watchdog runs in model
-time: `watchdog_timeout` s after a valve's last valid command took effect its duty falls to
-`safe_duty`, and the next valid command resumes. The rig starts with each valve at rest at its
-`initial_duty` (the watchdog counts from t = 0) and the piston at `initial_position`, at rest.
+time (`pcv_sim.device.inputs.Watchdog`, the emulator's): `watchdog_timeout` s after a valve's last
+valid command took effect its duty falls to `safe_duty`, and the next valid command resumes. The
+rig starts with each valve at rest at its `initial_duty`, its watchdog waiting for a first command
+(no controller yet: it does not fire), and the piston at `initial_position`, at rest.
 
 Faults (`pcv_sim.rig.faults`) are injected and cleared at the present step; scheduled inputs
 (`schedule`) act at the first step at or after their time. Everything is deterministic: the same
@@ -20,7 +21,6 @@ inputs at the same steps give the same numbers bit for bit.
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
@@ -89,13 +90,6 @@ class RigStatus:
     rejected: int                         # commands refused since reset
 
 
-@dataclass(order=True)
-class _Event:
-    step: int
-    seq: int
-    action: Callable[[], None]
-
-
 class Rig:
     """N valves + one cylinder at one fixed step (see the module docstring)."""
 
@@ -135,7 +129,9 @@ class Rig:
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
-        self._wd_steps = round(params.timing.watchdog_timeout / self.dt)
+        wd_steps = round(params.timing.watchdog_timeout / self.dt)
+        self.watchdogs = {name: Watchdog(wd_steps) for name in self.valve_names}
+        self._events: InputQueue[Callable[[], None]] = InputQueue()
         self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
         #: Called whenever an input of the model (a duty in force, a supply pressure, the external
@@ -154,8 +150,8 @@ class Rig:
 
     def reset(self, *, keep_time: bool = False) -> None:
         """Valves at rest at their initial duty, piston at rest at its initial position, no faults,
-        no scheduled inputs; t = 0, or with `keep_time` the present time goes on (the watchdog
-        counts from now, the log and the refused commands are kept, inputs scheduled for later
+        no scheduled inputs; t = 0, or with `keep_time` the present time goes on (the watchdogs
+        wait for a first command again, as at a start; the log and the refused commands are kept, inputs scheduled for later
         still act, and the reset is logged)."""
         sim = self.sim
         steps = sim.steps
@@ -182,8 +178,8 @@ class Rig:
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
-        self._last_cmd = dict.fromkeys(self.valve_names, sim.steps)
-        self.watchdog_fired = dict.fromkeys(self.valve_names, False)
+        for watchdog in self.watchdogs.values():
+            watchdog.restart()
         self.faults: dict[tuple[str, str], Fault] = {}
         self.sensors.reset()
         if keep_time:
@@ -192,8 +188,7 @@ class Rig:
         else:
             self.rejected: list[tuple[float, str]] = []
             self.log: list[tuple[float, str]] = []
-            self._events: list[_Event] = []
-            self._seq = 0
+            self._events.clear()
         self._inputs_changed()
 
     def _inputs_changed(self) -> None:
@@ -220,6 +215,16 @@ class Rig:
     @property
     def steps(self) -> int:
         return self.sim.steps
+
+    @property
+    def watchdog_fired(self) -> dict[str, bool]:
+        """Per valve: has its watchdog fired (and no command come since)."""
+        return {name: w.state == WatchdogState.FIRED for name, w in self.watchdogs.items()}
+
+    def skip(self, n: int) -> None:
+        """Let n steps of model time pass without computing them (the model state is held): a real-time
+        loop that fell too far behind, an external clock that jumped."""
+        self.sim.steps += n
 
     @property
     def time(self) -> float:
@@ -257,11 +262,9 @@ class Rig:
         self.commands[valve] = d
         self.duties[valve] = d
         self.sim.u[self._duty_i[k]] = d
-        self._last_cmd[valve] = self.sim.steps
         if self.on_input is not None:
             self.on_input(self.sim.steps, f"{valve}.duty_cycle", d)
-        if self.watchdog_fired[valve]:
-            self.watchdog_fired[valve] = False
+        if self.watchdogs[valve].command(self.sim.steps):
             self.log.append((self.time, f"{valve}: watchdog cleared by a valid command"))
 
     def set_external_force(self, force: Any) -> None:
@@ -359,11 +362,12 @@ class Rig:
         if self.on_input is not None:
             self.on_input(self.sim.steps, f"{name}.supply_pressure", supply)
 
-    def schedule(self, t: float, action: Callable[[], None]) -> None:
-        """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s)."""
+    def schedule(self, t: float, action: Callable[[], None]) -> int:
+        """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s); returns
+        that step."""
         step = max(self.sim.steps, math.ceil(t / self.dt - 1e-9))
-        heapq.heappush(self._events, _Event(step, self._seq, action))
-        self._seq += 1
+        self._events.push(step, action)
+        return step
 
     # --- stepping ------------------------------------------------------------------------------
 
@@ -397,13 +401,8 @@ class Rig:
     def _next_due(self) -> int:
         """The first step after the present one at which a scheduled input or a watchdog deadline
         falls (a large number if none): where a batch of compiled steps must stop."""
-        sim = self.sim
-        nxt = self._events[0].step if self._events else sim.steps + (1 << 62)
-        if self._wd_steps:
-            for name in self.valve_names:
-                if not self.watchdog_fired[name]:
-                    nxt = min(nxt, self._last_cmd[name] + self._wd_steps)
-        return max(nxt, sim.steps + 1)
+        nxt = min(self._events.next_step, *(w.deadline for w in self.watchdogs.values()))
+        return max(nxt, self.sim.steps + 1)
 
     def _check_finite(self) -> None:
         x = self.sim.x
@@ -413,14 +412,12 @@ class Rig:
 
     def _due(self) -> None:
         steps = self.sim.steps
-        while self._events and self._events[0].step <= steps:
-            heapq.heappop(self._events).action()
-        if self._wd_steps:
-            for k, name in enumerate(self.valve_names):
-                if not self.watchdog_fired[name] and steps >= self._last_cmd[name] + self._wd_steps:
-                    self.watchdog_fired[name] = True
-                    self.duties[name] = self._safe
-                    self.sim.u[self._duty_i[k]] = self._safe
-                    if self.on_input is not None:
-                        self.on_input(steps, f"{name}.duty_cycle", self._safe)
-                    self.log.append((self.time, f"{name}: watchdog fired, duty -> {self._safe:g}"))
+        while (action := self._events.pop_due(steps)) is not None:
+            action()
+        for k, name in enumerate(self.valve_names):
+            if self.watchdogs[name].check(steps):
+                self.duties[name] = self._safe
+                self.sim.u[self._duty_i[k]] = self._safe
+                if self.on_input is not None:
+                    self.on_input(steps, f"{name}.duty_cycle", self._safe)
+                self.log.append((self.time, f"{name}: watchdog fired, duty -> {self._safe:g}"))

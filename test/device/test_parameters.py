@@ -7,6 +7,7 @@ from pcv_sim.device.parameters import (
     override_not_taken,
     params_files,
     parse_override_value,
+    ros_arguments_message,
     unknown_parameters_message,
 )
 from pcv_sim.errors import ParameterError
@@ -52,3 +53,21 @@ def test_a_duplicate_key_in_a_params_file_is_refused_with_key_and_line(tmp_path)
     with pytest.raises(ParameterError, match=r"--params-file .*emulator\.yaml: duplicate key 'safe_duty' at line 5 "
                                              r"\(first at line 3\)"):
         check_params_files(['e', '--ros-args', '--params-file', str(f)])
+
+
+def test_a_params_file_that_cannot_be_read_or_is_not_yaml_is_refused_naming_file_and_reason(tmp_path):
+    missing = tmp_path / 'missing.yaml'
+    with pytest.raises(ParameterError, match=f'--params-file {missing}: cannot read it: No such file'):
+        check_params_files(['emulator', '--ros-args', '--params-file', str(missing)])
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**:\n  ros__parameters:\n    a: [1, 2]: 3\n')
+    with pytest.raises(ParameterError, match='not valid YAML: mapping values are not allowed here at line 3, column 14'):
+        check_params_files(['emulator', '--ros-args', '--params-file', str(bad)])
+
+
+def test_rcl_refusals_lose_their_c_source_locations():
+    err = RuntimeError("Failed to parse ROS arguments: Couldn't parse params file: '--params-file f.yaml'. Error: "
+                       "Cannot have a value before ros__parameters at line 7\n, at /project/src/parse.c:835, at "
+                       "/project/src/rcl/arguments.c:415")
+    assert ros_arguments_message(err) == ("Couldn't parse params file: '--params-file f.yaml'. Error: Cannot have a "
+                                          "value before ros__parameters at line 7")

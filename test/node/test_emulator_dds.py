@@ -250,12 +250,14 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
         'model.calibration.net_area': (1.0, 'calibration.net_area'),
         'model.nosuch.key': (1.0, 'unknown parameter(s) model.nosuch.key; accepted are'),
         'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),
+        'max_catchup': ('fast', "max_catchup: got 'fast' (str)"),         # text that is no number stays refused
     }
     results = c.set_parameters({k: v for k, (v, _) in cases.items()})
     for (name, (_, reason)), result in zip(cases.items(), results):
         assert not result.successful, name
         assert reason in result.reason, (name, result.reason)
-    ok = c.set_parameters({'model.spool.mass': 0.05, 'watchdog_timeout': 1.0})
+    # `ros2 param set /emulator model.circuit.load_volume 2e-5` sends text (YAML 1.1 reads 2e-5 so): a number
+    ok = c.set_parameters({'model.spool.mass': 0.05, 'watchdog_timeout': '1e0', 'model.circuit.load_volume': '2e-5'})
     assert all(r.successful for r in ok), ok
     n = len(c.samples)
     assert c.spin_until(lambda: len(c.samples) > n + 100, 10)

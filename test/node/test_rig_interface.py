@@ -39,7 +39,8 @@ def test_a_lockstep_run_is_recorded_per_valve_namespace_and_one_valve_replays(ro
     from pcv_sim.rig import load_rig
 
     bags = ros.tmp_path / 'bags'
-    rig = start_rig(ros, params={'record.enabled': True, 'record.directory': str(bags), 'record.name': 'run'})
+    rig = start_rig(ros, params={'record.enabled': True, 'record.directory': str(bags), 'record.name': 'run',
+                                 'faults.enabled': True})
     client = rig_client(ros)
     assert client.wait_for_rig(START), rig.output()
     periods = client.run(steps, 200, timeout=120)
@@ -102,7 +103,7 @@ def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(r
     """cylinder/external_force (N, + extending; refused ones counted and logged, the last valid one
     stays) pushes the piston; `reset` puts valves, piston, inputs and faults back to the start with
     time going on: the periods after it are a fresh run's, bit for bit, 1 reset later."""
-    rig = start_rig(ros, params={'diagnostics_period': 0.2})
+    rig = start_rig(ros, params={'diagnostics_period': 0.2, 'faults.enabled': True})
     client = rig_client(ros)
     assert client.wait_for_rig(START), rig.output()
     fresh = client.run(hold, 30, timeout=120)
@@ -232,7 +233,7 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
         node._on_duty('left', Float64(data=0.8), {'received_timestamp': 1})    # long ago: at step 21
         response = node._on_reset(Trigger.Request(), Trigger.Response())
         assert response.success and 'at the next step' in response.message
-        reset_at = max(rig._events, key=lambda e: e.seq).step
+        reset_at = node._last_input['reset']
         assert reset_at >= 24                            # not before its reception (~2.4 ms)
         node._on_external_force(Float64(data=300.0), {'received_timestamp': 10**12})  # after it: it stays
         rig.advance_to(reset_at + 10)
@@ -258,3 +259,29 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     # On the 1 ms grid, in order; how many depends on the load (a backlog beyond max_catchup is skipped)
     assert len(t) > 20 and all(x % 1_000_000 == 0 for x in t) and all(b > a for a, b in itertools.pairwise(t))
     assert bag.topic_types[f'{ns}/cylinder/joint_states'] == 'sensor_msgs/msg/JointState'
+
+
+def test_the_rig_takes_run_time_parameter_changes_with_the_emulators_refusals(ros):
+    """The parameters the rig is not built on change while it runs; the rest is refused with the
+    emulator's reasons (one node base): read-only, a bad value, an unknown name (named, with the close
+    one), use_sim_time; a numeric text for a float (`ros2 param set` sends 2e-1 so) is the number."""
+    from pcv_sim.node.client import EmulatorClient
+
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01})
+    c = EmulatorClient(ros.ns('rig'), context=ros.context, node_name='rig_params', emulator_node='rig', outputs=())
+    ros.clients.append(c)
+    cases = {
+        'diagnostics_period': ('2e-1', None),
+        'real_time_factor': (4.0, None),
+        'reject_log_period': (-1.0, 'reject_log_period: got -1.0; accepted is a finite number >= 0'),
+        'max_catchup': (1e-4, 'max_catchup: got 0.0001; accepted is a number >= wake_period'),
+        'seed': (3, 'read-only'),
+        'diagnostics_perod': (1.0, 'unknown parameter(s) diagnostics_perod (did you mean diagnostics_period?)'),
+        'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),
+    }
+    results = c.set_parameters({k: v for k, (v, _) in cases.items()}, timeout=START)
+    for (name, (_, reason)), result in zip(cases.items(), results):
+        assert result.successful == (reason is None), (name, result.reason)
+        assert reason is None or reason in result.reason, (name, result.reason)
+    assert wait_until(lambda: "parameters changed: diagnostics_period = 0.2" in rig.output(), 10), rig.output()
+    assert "parameters changed: real_time_factor = 4.0" in rig.output()

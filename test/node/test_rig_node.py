@@ -91,7 +91,7 @@ def _rig_status(client, predicate, timeout=10.0):
 
 
 def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
-    rig = start_rig(ros, params={'control_period': 0.001})
+    rig = start_rig(ros, params={'control_period': 0.001, 'faults.enabled': True})
     client = rig_client(ros, currents=True)
     assert client.wait_for_rig(60), rig.output()
     hold = lambda t, m: {'left': 0.6, 'right': 0.6}      # noqa: E731
@@ -117,6 +117,8 @@ def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
     out = rig.output()
     assert "rejected faults: fault: kind 'coil_opn'; accepted are supply_drop" in out
     assert 'fault coil_open on left' in out
+    # every command is logged with the node that sent it
+    assert f"fault command '{{fault: coil_open, valve: left}}' from node {ros.ns('rig')}/rig_ctl_0" in out
     client.send_fault('{clear: coil_open, valve: left}')
     client.run(hold, 250, timeout=60)
     assert client.currents['left'][-1][1] == pytest.approx(i_before, rel=0.02)
@@ -244,7 +246,7 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
 
         def acted_at(valve, received_ns):
             node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
-            steps.append(max(rig._events, key=lambda e: e.seq).step)   # the one just given
+            steps.append(node._last_input[valve])          # the step the one just given acts at
 
         acted_at('left', node.origin_ns + 2_345_000)    # received at 2.345 ms: step 24 (2.4 ms), not 23
         acted_at('left', node.origin_ns + 2_345_000)    # the same instant again: the step after
@@ -261,6 +263,8 @@ def test_free_running_simulated_time_runs_without_a_controller_and_takes_command
     rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01})
     client = rig_client(ros)
     assert client.wait_for_rig(60), rig.output()
+    # the fault topic is off unless faults.enabled: nobody on the domain can break this bench
+    assert client.node.count_subscribers(f"{ros.ns('rig')}/faults") == 0
     seen = {}
 
     def collect():
@@ -281,4 +285,7 @@ def test_free_running_simulated_time_runs_without_a_controller_and_takes_command
     before = max(p for t, p in seen.items() if t <= sent_after)      # 0.5 (the initial duty) or, after the
     after = max(p for t, p in seen.items() if t > sent_after)        # 0.5 s watchdog, the safe duty 0
     assert after > before + 20e5                                     # 0.9 raised the left pressure
-    assert 'left: watchdog fired' in rig.output()                    # no controller: model-time watchdog
+    # no controller after the 0.9: the model-time watchdog fires 0.5 s after it took effect (it waited
+    # for that first command), which may be after the 100 samples above; the log line follows
+    assert wait_until(lambda: 'left: watchdog fired' in rig.output(), 30), rig.output()
+    assert 'fault topic off (faults.enabled: false)' in rig.output()

@@ -132,6 +132,21 @@ def test_watchdog_falls_to_safe_duty_and_a_valid_command_resumes(rig):
     assert status.watchdog_fired == {"left": False, "right": False} and status.duties["left"] == 0.6
 
 
+def test_the_watchdog_waits_for_a_first_command_and_a_reset_waits_again(rig):
+    """As the emulator's: no controller yet is no lost controller; the valves stay at their initial duty."""
+    t_wd = rig.params.timing.watchdog_timeout
+    run = run_lockstep(rig, lambda t, m: {"left": 0.7} if t_wd + 0.1 <= t < t_wd + 0.15 else {}, 2 * t_wd + 0.3)
+    right, left = run.duties[:, 1], run.duties[:, 0]
+    assert np.all(right == rig.params.valves[1].initial_duty)          # never commanded: never fired
+    assert left[-1] == rig.params.timing.safe_duty                       # commanded once: fired after t_wd
+    assert [text for _, text in run.log if "watchdog" in text] == [f"left: watchdog fired, duty -> "
+                                                                    f"{rig.params.timing.safe_duty:g}"]
+    rig.reset(keep_time=True)
+    assert rig.watchdogs["left"].state == "waiting" and not any(rig.watchdog_fired.values())
+    rig.advance_to(rig.steps + round(2 * t_wd / rig.dt))
+    assert not any(rig.watchdog_fired.values()) and rig.duties["left"] == rig.params.valves[0].initial_duty
+
+
 def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_params, tmp_path):
     """A third valve with chamber: none sits on its own dead-ended load volume: the same
     arithmetic as the emulator's stepper, so the same numbers bit for bit."""

@@ -1,0 +1,406 @@
+"""`DeviceNode`: what every node of the package does the same way, written once (the emulator's
+`EmulatorNode` and the rig's `RigNode` are made of it).
+
+- Construction: a ParameterError while setting up is logged (stderr and /rosout), the half-built
+  node destroyed, the error raised for the process to exit 2 (`pcv_sim.node.process`).
+- Parameters: each declared from its one declaration (dynamic typing, so that a wrong type gets our
+  message, not rcl's); a `-p` override rcl dropped for its type is applied and checked like any
+  value; names nobody declares are refused (or, with allow_unknown_parameters, warned about), at
+  start and at run time ("unknown parameter(s) x (did you mean y?)", not rclpy's "undeclared
+  parameter(s): []"); a numeric text for a float parameter (`ros2 param set` sends 2e-5 as text)
+  is the number; use_sim_time cannot change while the node runs, nor go with simulated time.
+- Services without an executor (`_poll_services`): requests are taken and answered in the loop;
+  those in `_deferred_callbacks` are queued for `_pump` (the emulator computes rest states in a
+  worker thread). QoS incompatibility events are polled with them and logged with the way out.
+- One /clock: a simulated-time node refuses to start beside another /clock publisher.
+- Refused inputs are counted by the device and logged at most once per reject_log_period per input.
+- Recording: the recorder closed at the end, with what it wrote.
+- The external-clock loop (use_sim_time), over the device hooks `model_steps`, `_begin`,
+  `_set_origin`, `_skip`, `_compute`, `_halted`, `_tick_services`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import gc
+import math
+import os
+import sys
+import time
+from collections.abc import Iterable
+from typing import Any
+
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidHandle
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSPolicyKind, QoSProfile
+
+from pcv_sim.device.parameters import (
+    Override,
+    check_params_files,
+    command_line_overrides,
+    is_ros_own,
+    numeric_text,
+    override_not_taken,
+    refuse_unknown,
+    unknown_parameters_message,
+)
+from pcv_sim.errors import ParameterError
+from pcv_sim.io.topics import CLOCK
+from pcv_sim.node.polling import linger_for_rosout
+from pcv_sim.simulation.clock import NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock
+
+__all__ = [
+    "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_RESEND",
+    "DeviceNode", "freeze_heap", "ros_value", "tighten_timer_slack",
+]
+
+COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
+DIAGNOSTICS_QOS = QoSProfile(depth=10)
+CLOCK_QOS = QoSProfile(depth=10)
+CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
+EVENT_POLL_EVERY = 10                       # service polls between QoS event polls
+LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
+SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
+               "ros2 topic echo --qos-reliability best_effort)")
+COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
+
+
+def ros_value(value: Any) -> Any:
+    """A checked value as a ROS parameter value (ints given for a float parameter stay numbers)."""
+    return list(value) if isinstance(value, tuple) else value
+
+
+class DeviceNode(Node):
+    """The common part of the package's nodes (see the module docstring). A subclass sets up in
+    `_setup(argv)` and runs in `run(stop)`."""
+
+    #: What the unknown-name message adds (where the other parameters are set).
+    unknown_hint = ""
+    settings: Any
+    _diag: Any
+    _external: ExternalClock
+
+    def __init__(self, node_name: str, *, argv: list[str] | None = None, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._argv = list(sys.argv if argv is None else argv)
+        self._retaken: dict[str, Override] = {}      # -p overrides rcl dropped, applied by us
+        self._declared: set[str] = set()
+        self._float_names: set[str] = set()
+        self._deferred_callbacks: tuple[Any, ...] = ()
+        self._event_handlers: list[Any] = []
+        self._polls = 0
+        self._last_reject_log: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        try:
+            check_params_files(self._argv)
+            self._cli = command_line_overrides(self._argv, self.get_name())
+            self._setup(self._argv)
+        except ParameterError as err:
+            # Start-up errors also go to /rosout (a launch file's user may only see that), then the
+            # half-built node is destroyed here: nobody else holds it.
+            self.get_logger().error(f"invalid parameters: {err}")
+            linger_for_rosout(self)
+            self.destroy_node()
+            raise
+
+    def _setup(self, argv: list[str]) -> None:
+        raise NotImplementedError
+
+    # --- parameters ------------------------------------------------------------------------------
+
+    def declare(self, name: str, default: Any, description: str, *, read_only: bool = False,
+                is_float: bool = False) -> Any:
+        """Declare one parameter; its value as given (the command line's if rcl dropped it)."""
+        desc = ParameterDescriptor(description=description, dynamic_typing=True, read_only=read_only)
+        value = self.declare_parameter(name, default, desc).value
+        self._declared.add(name)
+        if is_float:
+            self._float_names.add(name)
+        override = self._cli.get(name)
+        if override is None or not override_not_taken(override, value):
+            return value
+        self._retaken[name] = override
+        return override.value
+
+    def refuse_unknown_names(self, allowed: bool) -> None:
+        """Names given (params file, -p) that nobody declared: ParameterError, or a warning if allowed."""
+        overrides = set(getattr(self, "_parameter_overrides", {}) or {}) | set(self._cli)
+        unknown = sorted(n for n in overrides if n not in self._declared and not is_ros_own(n))
+        if unknown and not allowed:
+            refuse_unknown(unknown, self._declared, hint=self.unknown_hint)
+        if unknown:
+            self.get_logger().warning(f"ignoring unknown parameter(s) (allow_unknown_parameters): {', '.join(unknown)}")
+
+    def set_retaken(self) -> None:
+        """After declaring: the values rcl dropped (and we took) set on the node, so that they read back."""
+        if self._retaken:
+            self.set_parameters([Parameter(n, value=ros_value(o.value)) for n, o in self._retaken.items()])
+
+    def take_parameter_services(self, external_clock: bool, simulated: bool) -> None:
+        """The parameter services answered by ours (unknown names named, numeric text for floats);
+        use_sim_time with simulated time refused (ParameterError)."""
+        if external_clock and simulated:
+            raise ParameterError(SIM_TIME_CONFLICT)
+        self.external_clock = external_clock
+        for srv in self.services:
+            if srv.srv_name.endswith("/set_parameters"):
+                srv.callback = self._on_set_parameters
+            elif srv.srv_name.endswith("/set_parameters_atomically"):
+                srv.callback = self._on_set_parameters_atomically
+
+    def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
+        parameters = [Parameter(p.name, value=numeric_text(p.value)) if p.name in self._float_names else p
+                      for p in parameters]
+        unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
+        if unknown:
+            return SetParametersResult(successful=False, reason=unknown_parameters_message(
+                unknown, self._declared, hint=self.unknown_hint.split("; allow_unknown", maxsplit=1)[0]))
+        return self.set_parameters_atomically(parameters)
+
+    def _on_set_parameters(self, request: Any, response: Any) -> Any:
+        """SetParameters service: one result per parameter, each set on its own (as rclpy does)."""
+        for msg in request.parameters:
+            response.results.append(self._set_checked([Parameter.from_parameter_msg(msg)]))
+        return response
+
+    def _on_set_parameters_atomically(self, request: Any, response: Any) -> Any:
+        response.result = self._set_checked([Parameter.from_parameter_msg(m) for m in request.parameters])
+        return response
+
+    def sim_time_change_refused(self, parameters: Iterable[Any]) -> SetParametersResult | None:
+        """use_sim_time (ROS's own, not read-only) cannot change while the node runs: the reason, or None."""
+        for p in parameters:
+            if p.name == "use_sim_time" and bool(p.value) != self.external_clock:
+                return SetParametersResult(successful=False, reason=(
+                    "use_sim_time is fixed while the node runs (the model's clock is chosen at start): restart "
+                    f"with -p use_sim_time:={'true' if p.value else 'false'}"))
+        return None
+
+    # --- clock -----------------------------------------------------------------------------------
+
+    def refuse_a_second_clock(self, accepted: str) -> None:
+        """Two simulated-time nodes would both publish /clock, and every node with use_sim_time would see
+        time jump between them. Before creating its own /clock publisher the node looks for another one
+        for up to CLOCK_DISCOVERY s (discovery is usually done within the node's creation; under load it
+        can take longer) and refuses to start if it finds one. Only the newcomer looks, so a running
+        simulation is never stopped by a second one."""
+        end = time.monotonic() + CLOCK_DISCOVERY
+        while True:
+            others = self.count_publishers(CLOCK)
+            if others > 0 or time.monotonic() >= end:
+                break
+            time.sleep(0.05)
+        if others > 0:
+            raise ParameterError(f"time_mode: simulated: {others} other publisher(s) of {CLOCK} found; two clocks "
+                                 f"make time jump for every node that follows /clock. Accepted is one clock: {accepted}")
+
+    # --- inputs ----------------------------------------------------------------------------------
+
+    def log_rejection(self, key: str, topic: str, reason: str, outcome: str, period: float) -> None:
+        """One log line per `key` per `period` s for refused inputs (the device counts them all)."""
+        now = time.monotonic()
+        if now - self._last_reject_log.get(key, -math.inf) < period:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+            return
+        more = self._suppressed.pop(key, 0)
+        self._last_reject_log[key] = now
+        tail = f" ({more} more rejected since the last message)" if more else ""
+        self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
+
+    def publisher_of(self, topic: str, info: Any) -> str:
+        """The node that published a message, from the publisher's GID in its MessageInfo (where DDS
+        gives it) against the topic's publishers."""
+        gid = info.get("publisher_gid") if isinstance(info, dict) else None
+        data = list(gid.get("data", ())) if isinstance(gid, dict) else []
+        if any(data):
+            for endpoint in self.get_publishers_info_by_topic(topic):
+                known = list(endpoint.endpoint_gid)
+                n = min(len(known), len(data))
+                if n and known[:n] == data[:n]:
+                    return f"node {endpoint.node_namespace.rstrip('/')}/{endpoint.node_name}"
+        return "a publisher DDS did not name"
+
+    # --- services and QoS events ---------------------------------------------------------------
+
+    def _poll_services(self) -> None:
+        """Answer pending service requests the way an executor would; those in `_deferred_callbacks`
+        go to `_defer` (a worker thread), the rest is answered here. Every EVENT_POLL_EVERY polls the
+        QoS events too."""
+        for srv in list(self.services):
+            while True:
+                try:
+                    with srv.handle:
+                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                except InvalidHandle:
+                    break
+                if header is None:
+                    break
+                if srv.callback in self._deferred_callbacks:
+                    self._defer(srv, request, header)
+                else:
+                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+        self._pump()
+        self._polls += 1
+        if self._polls % EVENT_POLL_EVERY == 0:
+            self._poll_events()
+
+    def _defer(self, srv: Any, request: Any, header: Any) -> None:
+        srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+
+    def _pump(self) -> None:
+        """Finish deferred requests (none here)."""
+
+    def output_events(self, topic: str, hint: str = COMMAND_HINT) -> PublisherEventCallbacks:
+        return PublisherEventCallbacks(incompatible_qos=lambda info: self._incompatible(
+            topic, "a subscriber", info, hint))
+
+    def input_events(self, topic: str) -> SubscriptionEventCallbacks:
+        return SubscriptionEventCallbacks(incompatible_qos=lambda info: self._incompatible(
+            topic, "a publisher", info, "publish reliable (the default of ros2 topic pub and of QoSProfile(depth=10))"))
+
+    def _incompatible(self, topic: str, them: str, info: Any, hint: str) -> None:
+        try:
+            policy = QoSPolicyKind(info.last_policy_kind).name
+        except ValueError:
+            policy = str(info.last_policy_kind)
+        self.get_logger().warning(
+            f"QoS incompatible on {topic!r}: {them} has a {policy} policy the node's endpoint cannot match; no "
+            f"messages flow between them ({info.total_count} such endpoint(s) so far). To connect: {hint}")
+
+    def collect_event_handlers(self) -> None:
+        """After the endpoints are made: the QoS event handlers `_poll_events` takes."""
+        self._event_handlers = [h for e in (*self.publishers, *self.subscriptions)
+                                for h in getattr(e, "event_handlers", ())]
+
+    def _poll_events(self) -> None:
+        """Run the QoS event callbacks (no executor runs them here): take each event's status, call back
+        when its count changed. ~2 us per endpoint; polled with the services."""
+        for handler in self._event_handlers:
+            try:
+                handler._ready_to_take_data = True     # what a wait set would mark; then rclpy's own take
+                info = handler.take_data()
+            except (InvalidHandle, AttributeError, RuntimeError):
+                continue
+            if info is not None and getattr(info, "total_count_change", 0) > 0:
+                handler.callback(info)
+
+    # --- the external-clock loop -----------------------------------------------------------------
+
+    def _run_external_clock(self, stop: Any) -> None:
+        """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
+
+        Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
+        the steps up to it run and the samples that fell due are published. An input acts from the
+        step after the last one run when it was taken. The clock going back (a simulation reset)
+        re-anchors model time at the new clock, keeping the model's state; a jump far ahead is held
+        (`ExternalClock`)."""
+        freeze_heap()
+        mono = time.monotonic
+        ext = self._external
+        self._diag.restart(mono(), self.model_steps)
+        next_diag = mono() + self.settings.diagnostics_period
+        loops = 0
+        while not stop.requested:
+            loops += 1
+            self._drain()
+            now = mono()
+            self._tick_services(loops)
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
+            if ext.latest_ns is None:
+                if loops == 2000:           # ~2 s: say why nothing is published
+                    self.get_logger().warning(NO_CLOCK_YET)
+                time.sleep(1e-3)
+                continue
+            if not ext.started:
+                self._begin(ext.start(self.model_steps))
+                continue
+            if self._halted():
+                time.sleep(1e-2)
+                continue
+            plan = ext.plan(self.model_steps)
+            if plan.reanchored:
+                self._set_origin(ext.origin_ns)
+                self.get_logger().warning(ext.went_back(), throttle_duration_sec=1.0)
+            elif plan.skip:
+                self._skip(plan.skip)
+                self.get_logger().warning(ext.jumped(plan.skip), throttle_duration_sec=1.0)
+            elif plan.run:
+                self._compute(plan.run)
+            else:
+                time.sleep(2e-4)           # wait for the clock to advance
+
+    @property
+    def model_steps(self) -> int:
+        """The device's model steps computed (or skipped) so far."""
+        raise NotImplementedError
+
+    def _drain(self) -> int:
+        raise NotImplementedError
+
+    def _publish_diagnostics(self, now: float) -> None:
+        raise NotImplementedError
+
+    def _begin(self, origin_ns: int) -> None:
+        """Model time 0 is stamped origin_ns: the first sample (and the recording) start."""
+        raise NotImplementedError
+
+    def _set_origin(self, origin_ns: int) -> None:
+        raise NotImplementedError
+
+    def _skip(self, n: int) -> None:
+        """n steps of model time pass uncomputed (the state held)."""
+        raise NotImplementedError
+
+    def _compute(self, n: int) -> None:
+        """n model steps computed, their samples published."""
+        raise NotImplementedError
+
+    def _halted(self) -> bool:
+        """True while the model stands still (it ran away) until a reset."""
+        return False
+
+    def _tick_services(self, loops: int) -> None:
+        """Called at every pass of a loop (a node that polls its services in `_drain` does nothing)."""
+
+    # --- recording and scheduling ----------------------------------------------------------------
+
+    def close_recorder(self, recorder: Any) -> None:
+        """Close a bag recorder (None: nothing) and say what it wrote."""
+        if recorder is None:
+            return
+        st = recorder.close()
+        text = (f"bag {st.path}: {st.messages} messages, {st.bytes} bytes in {st.files} file(s)"
+                f"{f', {st.dropped} messages dropped' if st.dropped else ''}")
+        if st.error:
+            self.get_logger().error(f"recording failed ({st.error}); {text}")
+        else:
+            self.get_logger().info(f"recording finished: {text}")
+
+    def set_realtime_priority(self, priority: int) -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as err:
+            self.get_logger().warning(f"realtime_priority {priority}: SCHED_FIFO refused ({err}); running with "
+                                      "normal scheduling (grant an rtprio limit or run as root)")
+        else:
+            self.get_logger().info(f"loop thread under SCHED_FIFO, priority {priority}")
+
+
+def tighten_timer_slack() -> None:
+    """Ask Linux for 1 ns timer slack (default 50 us): wakes land ~50 us closer to the grid."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(29, 1, 0, 0, 0)   # PR_SET_TIMERSLACK
+
+
+def freeze_heap() -> None:
+    """Move everything allocated so far (rclpy, numpy, scipy, the model: ~50 000 objects) out of
+    the garbage collector's reach. A full collection over them takes ~17 ms here, which would
+    make a wake-up that many ms late; the loop itself only makes short-lived objects."""
+    gc.collect()
+    gc.freeze()
