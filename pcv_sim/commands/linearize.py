@@ -16,8 +16,9 @@ from pcv_sim.analysis.calibrate import point_params
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.linear import linearize
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS
-from pcv_sim.commands.common import add_output_options, emit_json, params_from, pyplot, save
+from pcv_sim.commands.common import add_output_options, emit_json, params_from, save
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.plotting import pyplot
 
 NAME = "linearize"
 HELP = "Sec. 5 linear model at both working points, margins, Bode plot of the loop gain"

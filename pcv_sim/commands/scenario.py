@@ -93,7 +93,12 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
                 domain = _worker_domain if _worker_domain is not None else private_domain(os.getpid())
         else:
             domain = None                  # a node the user started: in $ROS_DOMAIN_ID
-        result = run_scenario(scenario, domain=domain)
+        if scenario.ros is not None:
+            from pcv_sim.node.scenario_host import run_ros_scenario
+
+            result = run_ros_scenario(scenario, domain=domain)
+        else:
+            result = run_scenario(scenario)
     except PcvSimError as err:
         return {"name": path.stem, "path": str(path), "status": 2, "error": str(err)}
     out = result.to_dict()

@@ -15,9 +15,10 @@ import sys
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
-from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, pyplot, save
+from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
 from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.plotting import pyplot
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 from pcv_sim.simulation.stepper import RealTimeStepper

@@ -1,6 +1,7 @@
 """A scenario whose controller is a ROS 2 node: the runner hosts the rig node in lockstep.
 
-`pcv_sim.rig.scenario.run_scenario` comes here for `controller: {ros: {namespace, command, wait}}`.
+`pcv-sim scenario run` and `pcv_sim.testing` come here for `controller: {ros: {namespace, command, wait}}`
+(`pcv_sim.rig.scenario.run_scenario` runs callables and refuses these).
 The rig is the real rig node (`RigNode`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
 this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes it a scenario:
 

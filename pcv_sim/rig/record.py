@@ -86,7 +86,7 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
 def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") -> bytes:
     """A PNG of the run: position vs setpoint, chamber pressures, duties, currents (bytes; also
     written to `path` when given)."""
-    from pcv_sim.commands.common import pyplot
+    from pcv_sim.plotting import pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(4, 1, figsize=(8, 9), sharex=True)

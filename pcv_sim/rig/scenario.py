@@ -511,16 +511,15 @@ def check_assertion(run: RigRun, a: Mapping[str, Any]) -> Outcome:
                    f"{sig} at least {worst:.6g}, limit {float(a['min']):g}")
 
 
-def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None,
-                 domain: int | None = None) -> ScenarioResult:
+def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None) -> ScenarioResult:
     """Run `scenario` in lockstep (with `controller`, or the one the file names) and check its
     assertions. A run whose model runs away fails with the reason (no exception). A ROS
-    controller (`scenario.ros`, no `controller` given) runs over DDS in ROS domain `domain`
-    (None: $ROS_DOMAIN_ID), the rig hosted as the rig node (`pcv_sim.node.scenario_host`)."""
+    controller (`scenario.ros`) runs over DDS with the rig node as host: that is
+    `pcv_sim.node.scenario_host.run_ros_scenario`, a layer above this one."""
     if controller is None and scenario.ros is not None:
-        from pcv_sim.node.scenario_host import run_ros_scenario
-
-        return run_ros_scenario(scenario, domain=domain)
+        raise ScenarioError(f"{scenario.name}: the controller is a ROS node; run it with "
+                            "pcv_sim.node.scenario_host.run_ros_scenario (as `pcv-sim scenario run` does), "
+                            "or pass a callable controller")
     if controller is None and scenario.controller is not None:
         controller = resolve_controller(scenario.controller, scenario.controller_params,
                                         scenario.path.parent if scenario.path else None)
