@@ -118,7 +118,7 @@ def _x_at_pressure(model: ValveModel, wp: WorkingPoint) -> float:
         if not model.x_min <= x1 <= model.x_max:
             return math.nan
         if excess(x1) * e0 <= 0:
-            return brentq(excess, min(x0, x1), max(x0, x1), xtol=1e-12)
+            return float(brentq(excess, min(x0, x1), max(x0, x1), xtol=1e-12))
         x0 = x1
     return math.nan
 

@@ -427,7 +427,8 @@ def calibrate(
         theta = tuple(z[:n_theta].tolist())
         if cache.get("theta") != theta:
             cache["theta"], cache["runs"] = theta, simulate(valve(z))
-        return cache["runs"]
+        runs: list[dict[str, npt.NDArray[np.float64]]] = cache["runs"]
+        return runs
 
     def fun(z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         r = residuals(z, runs_at(z))

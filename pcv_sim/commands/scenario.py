@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
             for g, rs in zip(groups, done):
                 for k, r in zip(g, rs):
                     results[k] = r
-        status = max(r["status"] for r in results)
+        status = max(int(r["status"]) for r in results)
         if args.json:
             emit_json({"passed": status == 0, "scenarios": results})
         else:

@@ -18,6 +18,7 @@ from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
 from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.params import ValveParams
 from pcv_sim.plotting import pyplot
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
@@ -45,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_output_options(p)
 
 
-def step_params(args: argparse.Namespace):
+def step_params(args: argparse.Namespace) -> ValveParams:
     return with_damping(params_from(args), getattr(args, "damping", None))
 
 

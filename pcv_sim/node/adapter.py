@@ -281,7 +281,7 @@ class EmulatorNode(Node):
         self._retaken[name] = override
         return override.value
 
-    def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
+    def _set_checked(self, parameters: list[Any]) -> SetParametersResult:   # rclpy Parameters (generic from kilted on)
         unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
         if unknown:
             return SetParametersResult(successful=False, reason=unknown_parameters_message(
@@ -504,10 +504,11 @@ class EmulatorNode(Node):
         to the worker thread (`_pump`), the rest is answered here."""
         deferred = (self._on_set_parameters, self._on_set_parameters_atomically, self._on_reset)
         for srv in list(self.services):
+            srv_type: Any = srv.srv_type      # a generated service class (jazzy's rclpy types it as a bare TypeVar)
             while True:
                 try:
                     with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                        request, header = srv.handle.service_take_request(srv_type.Request)
                 except InvalidHandle:
                     break
                 if header is None:
@@ -515,7 +516,7 @@ class EmulatorNode(Node):
                 if srv.callback in deferred:
                     self._deferred.append((srv, request, header))
                 else:
-                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+                    srv.send_response(srv.callback(request, srv_type.Response()), header)
         self._pump()
         self._polls += 1
         if self._polls % EVENT_POLL_EVERY == 0:

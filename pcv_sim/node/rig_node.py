@@ -618,15 +618,16 @@ class RigNode(Node):
             return
         self._next_service_poll = now + SERVICE_POLL_PERIOD
         for srv in list(self.services):
+            srv_type: Any = srv.srv_type      # a generated service class (jazzy's rclpy types it as a bare TypeVar)
             while True:
                 try:
                     with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                        request, header = srv.handle.service_take_request(srv_type.Request)
                 except InvalidHandle:
                     break
                 if header is None:
                     break
-                srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+                srv.send_response(srv.callback(request, srv_type.Response()), header)
 
     def _refuse_clock_change(self, parameters: list[Any]) -> SetParametersResult:
         """The parameter services are answered now: use_sim_time (not read-only, ROS's own) cannot change."""

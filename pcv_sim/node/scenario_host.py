@@ -33,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -213,7 +214,7 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
     names = node.rig.valve_names
     duty = [(node.resolve_topic_name(f"{v}/duty_cycle"), sub) for v, (sub, _h) in zip(names, node._inputs)]
     joint = node._pub_joint
-    optional = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
+    optional: list[tuple[str, Callable[[], bool]]] = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
     if host.setpoint is not None:
         optional.append((host._pub_sp.topic_name, lambda: host._pub_sp.get_subscription_count() > 0))
     end = time.monotonic() + spec.wait
@@ -242,9 +243,11 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     """Run `scenario` (its controller a ROS node) over DDS; see the module docstring."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
 
     from pcv_sim.node.rig_node import RigNode
 
@@ -253,7 +256,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     path = str(scenario.path) if scenario.path else ""
     if domain is not None:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"     # the runner's own domain: this machine only
-    context = rclpy.Context()
+    context = Context()
     rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     proc = None
     node = None
@@ -291,7 +294,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         if node is not None:
             node.hook = None
             node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
         if host is not None and host.failure is not None:
             host.failure += _log_tail(log_path)
         log_dir.cleanup()

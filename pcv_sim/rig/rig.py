@@ -232,7 +232,7 @@ class Rig:
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
         self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
-        return y[self._signal_i]
+        return np.asarray(y[self._signal_i])
 
     def load_volumes(self) -> list[float]:
         """Each valve's load volume at the last `sample()` (not updated by `advance_sample`'s fused

@@ -432,7 +432,8 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
             raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
     if not callable(obj):
         raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
-    return obj
+    controller: Controller = obj
+    return controller
 
 
 # --- running ---------------------------------------------------------------------------------------
