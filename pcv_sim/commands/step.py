@@ -24,12 +24,13 @@ from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.simulation.trajectory import Trajectory
+from pcv_sim.units import MM_PER_M, PA_PER_BAR
 
 NAME = "step"
 HELP = "simulate a duty step and report rise time, overshoot, settling time, steady state"
 
-SIGNALS = (("pressure", "pressure [bar]", 1e-5, 0.5e5), ("current", "current [A]", 1.0, 0.005),
-           ("spool_position", "spool position [mm]", 1e3, 0.002e-3))
+SIGNALS = (("pressure", "pressure [bar]", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR), ("current", "current [A]", 1.0, 0.005),
+           ("spool_position", "spool position [mm]", MM_PER_M, 0.002e-3))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.rig.lockstep import RigRun
+from pcv_sim.units import PA_PER_BAR
 
 __all__ = ["JOINT_STATE", "STRING", "plot_run", "render_html", "write_bag"]
 
@@ -96,7 +97,7 @@ def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") ->
         ax[0].plot(t, run.setpoint * 1e3, "--", label="setpoint")
     ax[0].set_ylabel("piston [mm]")
     for v in run.valves:
-        ax[1].plot(t, run.signal(f"{v}.pressure") / 1e5, label=v)
+        ax[1].plot(t, run.signal(f"{v}.pressure") / PA_PER_BAR, label=v)
         ax[2].plot(t, run.signal(f"{v}.duty"), label=v)
         ax[3].plot(t, run.signal(f"{v}.current"), label=v)
     ax[1].set_ylabel("pressure [bar]")
