@@ -40,13 +40,14 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.errors import PcvSimError
+from pcv_sim.io.topics import CONTROLLER_FLAGS, SETPOINT
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.scenario import RosController, Scenario, ScenarioResult, scenario_result, schedule_timeline
 
 __all__ = ["FLAGS_TOPIC", "SETPOINT_TOPIC", "run_ros_scenario"]
 
-SETPOINT_TOPIC = "setpoint"
-FLAGS_TOPIC = "controller/flags"
+SETPOINT_TOPIC = SETPOINT
+FLAGS_TOPIC = CONTROLLER_FLAGS
 _STOP_GRACE = 10.0          # s a started controller has to exit after SIGINT
 _OPTIONAL_MATCH = 2.0       # s more for the setpoint's subscriber and the flags' publisher
 _SETTLE = 0.1               # s after the matching, before the first sample

@@ -62,7 +62,7 @@ from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.faults import FaultError, parse_fault
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
-from pcv_sim.rig.rig import Rig, RigError
+from pcv_sim.rig.rig import Rig, RigError, signal_names
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -197,10 +197,8 @@ def _unknown(where: str, v: Mapping[str, Any], keys: tuple[str, ...]) -> None:
 
 
 def _signals(rig: RigParams) -> tuple[str, ...]:
-    out = []
-    for v in rig.valves:
-        out += [f"{v.name}.pressure", f"{v.name}.current", f"{v.name}.spool_position", f"{v.name}.duty"]
-    return (*out, "cylinder.position", "cylinder.velocity", "cylinder.effort", "setpoint")
+    names = [v.name for v in rig.valves]
+    return (*signal_names(names), *(f"{n}.duty" for n in names), "setpoint")
 
 
 def _check_setpoint(raw: Any) -> tuple[Mapping[str, Any], ...]:
