@@ -18,8 +18,7 @@ validated with the rig's own fault table (`pcv_sim.rig.faults.parse_fault`).
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,7 +26,12 @@ import yaml
 
 from pcv_sim.device.settings import bag_name_check
 from pcv_sim.errors import ParameterError
-from pcv_sim.params import check_value, setting
+from pcv_sim.params import any_value as _any
+from pcv_sim.params import check_value, int_range, setting
+from pcv_sim.params import non_negative as _non_negative
+from pcv_sim.params import one_of as _one_of
+from pcv_sim.params import positive as _positive
+from pcv_sim.params import speed_factor as _factor
 from pcv_sim.rig.faults import Fault, FaultError, parse_fault
 from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.clock import steps_per
@@ -35,33 +39,7 @@ from pcv_sim.simulation.clock import steps_per
 __all__ = ["RIG_PARAMETERS", "FaultCommand", "RigNodeSettings", "check_rig_value", "parse_fault_command"]
 
 
-def _positive(v: float) -> str | None:
-    return None if v > 0.0 else "a finite number > 0"
-
-
-def _non_negative(v: float) -> str | None:
-    return None if v >= 0.0 else "a finite number >= 0"
-
-
-def _one_of(*choices: str) -> Callable[[Any], str | None]:
-    def check(v: Any) -> str | None:
-        return None if v in choices else f"one of {', '.join(map(repr, choices))}"
-    return check
-
-
-def _any(_v: Any) -> str | None:
-    return None
-
-
-def _seed(v: int) -> str | None:
-    return None if 0 <= v < 2**32 else "an integer 0 .. 2^32 - 1"
-
-
-def _factor(name: str, v: Any) -> float:
-    """real_time_factor: a number >= 0, where 0 and inf both mean as fast as possible."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
-        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
-    return float(v)
+_seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
 
 
 @dataclass(frozen=True)

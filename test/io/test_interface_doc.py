@@ -31,11 +31,12 @@ def documented(rows: list[list[str]]) -> dict[str, tuple[str, str, str, str]]:
     for row in rows:          # a `|` inside the meaning splits it: the QoS is the last cell
         direction, names, msgtype, meaning, qos = *row[:3], "|".join(row[3:-1]), row[-1]
         prefix = ""
-        for name in re.findall(r"`([^`]+)`", names):
-            if "/" in name.lstrip("/"):
-                prefix = name.lstrip("/").rpartition("/")[0] + "/" if not name.startswith("/") else ""
+        for written in re.findall(r"`([^`]+)`", names):
+            name = written
+            if "/" in written.lstrip("/"):
+                prefix = written.rpartition("/")[0] + "/" if not written.startswith("/") else ""
             elif prefix:
-                name = prefix + name
+                name = prefix + written
             out[name] = (direction, msgtype, meaning, qos)
     return out
 
