@@ -168,3 +168,16 @@ def test_every_example_scenario_loads():
     ros = load_scenario(EXAMPLES / "ros" / "step.yaml").ros
     assert ros.namespace == "/steering" and ros.argv("py")[:3] == ["py", "-m", "pcv_sim.node.steering_controller"]
     assert "__ns:=/steering" in ros.argv("py")
+
+
+def test_a_ros_controller_is_refused_below_the_node_layer():
+    """rig.scenario.run_scenario runs callables; a ROS controller needs the node layer's host."""
+    from pcv_sim.rig.scenario import run_scenario
+
+    data = _step()
+    data["controller"] = {"ros": {"namespace": "/x", "wait": 1.0}}
+    sc = scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
+    assert sc.ros is not None
+    with pytest.raises(ScenarioError, match=r"the controller is a ROS node; run it with "
+                                            r"pcv_sim\.node\.scenario_host\.run_ros_scenario"):
+        run_scenario(sc)
