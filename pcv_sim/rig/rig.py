@@ -51,6 +51,7 @@ __all__ = [
     "RigError",
     "RigStatus",
     "check_external_force",
+    "signal_kind",
     "signal_names",
 ]
 
@@ -61,6 +62,15 @@ CYLINDER_SIGNALS = ("position", "velocity", "effort")
 def signal_names(valve_names: Sequence[str]) -> tuple[str, ...]:
     """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve, then `cylinder.<...>`."""
     return tuple(f"{n}.{s}" for n in valve_names for s in VALVE_SIGNALS) + tuple(f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+
+
+def signal_kind(signal: str) -> str:
+    """The physical kind of a rig signal, a duty, the setpoint or a controller flag (`pcv_sim.units.KINDS`)."""
+    if signal.startswith("controller."):
+        return "number"
+    tail = signal.rsplit(".", 1)[-1]
+    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
+            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length"}.get(tail, "number")
 
 
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.
