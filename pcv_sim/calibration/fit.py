@@ -57,6 +57,7 @@ __all__ = [
     "Estimate",
     "FitParameter",
     "SignalFit",
+    "Suggestion",
     "calibrate",
     "first_order",
     "fit_parameter",
@@ -70,6 +71,25 @@ LAG_BOUNDS = (-0.002, 0.05)
 #: Default bounds of the sensor's first-order time constant (s).
 TIME_CONSTANT_BOUNDS = (0.0, 0.03)
 _FD_STEP = 1e-3          # relative forward-difference step of the valve parameters
+#: A signal whose RMSE after the fit exceeds this many times its noise level (estimated from the
+#: recording) is not explained by the model: a right model leaves the noise (about 1x).
+NOISE_RATIO_LIMIT = 1.5
+#: Sensor offsets larger than these (SI) are more than a sensor's zero error: they likely absorb a
+#: model error (a pressure transducer's zero is within ~0.5 % of 200 bar, a current shunt's within
+#: tens of mA, a position sensor's within tens of um).
+PLAUSIBLE_OFFSET = {"pressure": 1e5, "current": 0.03, "spool_position": 2e-5}
+#: A sensor delay plus time constant above this (s) is slower than a valve's pressure, current or
+#: position sensor: it likely absorbs a model's slow dynamics.
+PLAUSIBLE_LAG = 0.01
+#: Parameters checked against what the fit leaves (the ones that differ from valve to valve or with
+#: the oil and the circuit); those not fitted whose effect matches the residual are named.
+CANDIDATES = ("solenoid.coil_resistance", "solenoid.supply_voltage", "spool.mass", "spool.spring_stiffness",
+              "spool.spring_preload", "spool.viscous_friction_simplified", "spool.viscous_friction",
+              "orifice.gap_height", "fluid.bulk_modulus", "fluid.kinematic_viscosity", "circuit.load_volume",
+              "circuit.supply_pressure", "calibration.net_area", "damping.restrictor_conductance")
+#: A candidate is named when adding it alone would explain at least this share of the residual's
+#: sum of squares beyond what the fitted parameters and sensors already can.
+SUGGEST_SHARE = 0.2
 _Z95 = 1.959963984540054
 
 
@@ -139,6 +159,11 @@ def fit_parameter(params: ValveParams, spec: str) -> FitParameter:
         if not sep or not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
             msg = f"--fit {spec!r}: bounds are KEY=LOW:HIGH with finite LOW < HIGH, e.g. {key}={x0 / 2:g}:{x0 * 2:g}"
             raise CalibrationError(msg)
+        for name_, bound in (("LOW", lo), ("HIGH", hi)):   # a bound is a value the fit may try
+            problem = f.metadata["check"](bound)
+            if problem is not None:
+                msg = f"--fit {spec!r}: {name_} = {bound:g} {f.metadata['unit']} is not a value of {key}; accepted is {problem}"
+                raise CalibrationError(msg)
         if not lo <= x0 <= hi:
             msg = f"--fit {spec!r}: the start value {x0:g} (from the config) lies outside {lo:g}..{hi:g}"
             raise CalibrationError(msg)
@@ -224,6 +249,22 @@ class SignalFit:
 
 
 @dataclass(frozen=True)
+class Suggestion:
+    """A parameter not fitted whose effect matches what the fit left: adding it alone (linearised
+    at the fitted values) would explain ``share`` of the residual's sum of squares, with the value
+    moved by ``relative_change`` (e.g. +0.15: 15 % up)."""
+
+    key: str
+    share: float
+    value: float
+    relative_change: float
+    unit: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """What ``calibrate`` found. ``params`` is the fitted parameter set (nuisance excluded)."""
 
@@ -247,6 +288,7 @@ class CalibrationResult:
     status_code: int                         # least_squares' status: > 0 converged, 0 out of evaluations
     warnings: tuple[str, ...] = ()
     traces: Mapping[tuple[int, str], tuple[npt.NDArray[np.float64], ...]] = field(default_factory=dict, repr=False)
+    suggestions: tuple[Suggestion, ...] = ()  # parameters whose effect matches the residual, best first
 
     def scalar_metrics(self) -> dict[str, float]:
         """After the fit, per signal over the bags: the worst NRMSE fit % and RMSE, in display
@@ -274,6 +316,7 @@ class CalibrationResult:
             "correlation": {"keys": [e.name for e in self.parameters], "matrix": self.correlation.tolist()},
             "signals": [dataclasses.asdict(s) for s in self.signals],
             "warnings": list(self.warnings),
+            "suggestions": [x.as_dict() for x in self.suggestions],
             "units": "SI: Pa, A, m, s; parameters in the unit of their YAML key",
         }
 
@@ -328,6 +371,14 @@ def calibrate(
     if len(set(keys)) != len(keys):
         raise CalibrationError(f"--fit names a parameter twice: {keys}")
     wanted = tuple(roles) if roles else OUTPUT_ROLES
+    for rec in recordings if roles else ():   # a signal asked for by name is never dropped in silence
+        missing = [r for r in wanted if r not in rec.measured or len(rec.measured[r]) < 3]
+        if missing:
+            has = [r for r in OUTPUT_ROLES if r in rec.measured and len(rec.measured[r]) >= 3]
+            msg = (f"--signals {','.join(missing)}: {rec.path} does not record {', '.join(missing)} (it has "
+                   f"{', '.join(has) or 'no output'}); accepted are the signals every bag records"
+                   f"{' (' + ','.join(has) + ')' if has else ''}, or --topic ROLE=/TOPIC where it is under another name")
+            raise CalibrationError(msg)
     data: list[_Data] = []
     for b, rec in enumerate(recordings):
         for role in wanted:
@@ -374,7 +425,7 @@ def calibrate(
     hi = np.concatenate([[p.upper / p.scale for p in fit], np.full(n_lag, lb[1] * 1e3),
                          np.full(n_tc, tb[1] * 1e3), np.full(n_off, np.inf)])
     z0 = np.clip(z0, lo, hi)
-    counts = {"evaluations": 0, "simulations": 0}
+    counts: dict[str, Any] = {"evaluations": 0, "simulations": 0}
     start = time.perf_counter()
 
     def valve(z: npt.NDArray[np.float64]) -> ValveParams:
@@ -401,6 +452,7 @@ def calibrate(
                       f"{', '.join(f'{_get(p, k):g}' for k in keys)}: {exc}"
                 raise CalibrationError(msg) from exc
             outs.append(dict(run.outputs))
+            counts["solver"] = run.solver   # what ran (auto is the stepper for either model)
         return outs
 
     grids = [ns.astype(np.float64) / _NS for ns in sample_ns]
@@ -537,14 +589,96 @@ def calibrate(
                                 f"apart only through the other signals and the dynamics, and its interval is "
                                 f"mostly that trade; if the sensor is known (e.g. zeroed), fix it (--no-offset, "
                                 f"--sensor) to narrow it")
+    # What the fit leaves: a signal well above its noise, a sensor that had to be implausibly
+    # off or slow, and the parameters not fitted whose effect matches the residual.
+    display = {"pressure": (1e-5, "bar"), "current": (1.0, "A"), "spool_position": (1e3, "mm")}
+    unexplained = []
+    for sf, d in zip(signals, data):
+        scale, unit = display[sf.role]
+        if sf.rmse_after > NOISE_RATIO_LIMIT * sf.noise_sigma:
+            unexplained.append(sf.role)
+            spread = float(np.linalg.norm(d.value - d.value.mean()))
+            floor = 100.0 * (1.0 - sf.noise_sigma * math.sqrt(len(d.value)) / spread) if spread > 0 else math.nan
+            warnings.append(
+                f"the model does not explain the {sf.role} of {sf.bag}: after the fit its RMSE is "
+                f"{sf.rmse_after * scale:.3g} {unit}, {sf.rmse_after / sf.noise_sigma:.1f}x the recording's noise "
+                f"level ({sf.noise_sigma * scale:.3g} {unit}, from its sample-to-sample differences); fit "
+                f"{sf.fit_after_percent:.2f} % where the noise allows {floor:.2f} %: a parameter that differs is "
+                f"not in --fit (see the suggestions) or the values found are biased by it")
+    for e, d in zip(off_est, data):
+        limit = PLAUSIBLE_OFFSET.get(d.role, math.inf)
+        if abs(e.value) > limit:
+            scale, unit = display[d.role]
+            span = float(np.ptp(d.value))
+            warnings.append(
+                f"the {d.role} offset of {recordings[d.bag].path} is {e.value * scale:+.3g} {unit} "
+                f"({abs(e.value) / span * 100 if span > 0 else math.nan:.1f} % of the signal's span), more than a "
+                f"{d.role} sensor's zero error (~{limit * scale:g} {unit}): it likely absorbs a model error; "
+                f"if the sensor was zeroed, --no-offset keeps it out")
+    for role in all_roles:
+        total = lags.get(role, 0.0) + tcs.get(role, 0.0)
+        if total > PLAUSIBLE_LAG:
+            warnings.append(
+                f"the {role} sensor lags by {total * 1e3:.1f} ms (delay {lags.get(role, 0.0) * 1e3:.1f} ms + time "
+                f"constant {tcs.get(role, 0.0) * 1e3:.1f} ms), slower than a {role} sensor "
+                f"(~{PLAUSIBLE_LAG * 1e3:g} ms): it likely absorbs the model's slow dynamics")
+    suggestions: list[Suggestion] = []
+    if unexplained:
+        # Each candidate's sensitivity (one run at the fitted values), the part of it the fitted
+        # parameters and sensors cannot already produce, projected on the residual.
+        u_j, sv_j, _ = np.linalg.svd(J, full_matrices=False)
+        q = u_j[:, sv_j > sv_j[0] * 1e-10] if sv_j.size else u_j
+        rr = float(r @ r)
+        effects: dict[str, npt.NDArray[np.float64]] = {}
+        for key in CANDIDATES:
+            if key in keys:
+                continue
+            try:
+                cand = fit_parameter(fitted, key)
+                h = 0.01 * cand.initial if cand.initial != 0.0 else 0.01 * cand.scale
+                probe = replace_param(fitted, key, cand.initial + h)
+                col = (residuals(z, simulate(probe)) - r) / 0.01   # per unit of relative change (of scale at 0)
+            except (CalibrationError, ParameterError):
+                continue            # not a number in this config, or refused by the model: not a candidate
+            perp = col - q @ (q.T @ col)
+            norm2 = float(perp @ perp)
+            if norm2 <= 0.0 or rr <= 0.0:
+                continue
+            share = float(perp @ r) ** 2 / norm2 / rr
+            step = -float(perp @ r) / norm2       # the least-squares change, relative to the value
+            rel = step if cand.initial != 0.0 else math.nan
+            if share >= SUGGEST_SHARE:
+                suggestions.append(Suggestion(key, share, cand.initial, rel, cand.unit))
+                effects[key] = perp / math.sqrt(norm2)
+        suggestions.sort(key=lambda x: -x.share)
+        if suggestions:
+            def alike(x: Suggestion) -> str:
+                """Names an earlier suggestion with the same effect here (e.g. V and beta: only V/beta acts)."""
+                for y in suggestions:
+                    if y is x:
+                        return ""
+                    if abs(float(effects[x.key] @ effects[y.key])) > CORRELATION_LIMIT:
+                        return f", the same effect as {y.key} here"
+                return ""
+
+            listing = "; ".join(f"{x.key} (explains {x.share * 100:.0f} % of it, at about "
+                                f"{x.relative_change * 100:+.0f} % = {x.value * (1 + x.relative_change):.4g} {x.unit}"
+                                f"{alike(x)})" for x in suggestions[:4])
+            warnings.append(f"what the fit leaves in {', '.join(dict.fromkeys(unexplained))} matches the effect of: "
+                            f"{listing}; add the first to --fit (--fit {','.join([*keys, suggestions[0].key])})")
+        else:
+            warnings.append(f"what the fit leaves in {', '.join(dict.fromkeys(unexplained))} matches none of "
+                            f"{', '.join(k for k in CANDIDATES if k not in keys)} alone: a model error "
+                            f"beyond one parameter, or a recording the model does not describe")
     return CalibrationResult(
         params=fitted, initial_params=params, parameters=estimates, lags=lag_est, time_constants=tc_est,
         offsets=off_est,
         correlation=corr, signals=tuple(signals), model=model,
-        solver=solver if solver != "auto" else ("radau" if model == "full" else "stepper"),
+        solver=str(counts.get("solver", solver)),
         evaluations=counts["evaluations"], simulations=counts["simulations"],
         elapsed_s=time.perf_counter() - start, cost_before=cost_before, cost_after=0.5 * float(r @ r),
         autocorrelation=rho, status=sol.message, status_code=int(sol.status), warnings=tuple(warnings), traces=traces,
+        suggestions=tuple(suggestions),
     )
 
 

@@ -4,7 +4,8 @@ pressure, current and spool position with the recorded ones: per duty step (rise
 overshoot, settling time, steady-state error) and over the whole run (RMSE, max error, NRMSE
 fit %). Gaps in the recorded outputs (an emulator that skipped steps, a logger that lost samples)
 are listed, and the samples from each gap until --resync-ms after it are not compared. Exit
-status 1 when a --fail-above / --fail-below threshold is crossed, 2 on bad input."""
+status 1 when a --fail-above / --fail-below threshold is crossed or the bag was not closed
+properly (unless --allow-unclosed), 2 on bad input."""
 
 from __future__ import annotations
 
@@ -69,9 +70,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fail-above", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC > LIMIT, e.g. pressure_rmse_bar=0.5 (comma-separated or repeated); "
                         "metrics: <signal>_rmse_<u>, _max_error_<u>, _steady_state_error_<u>, _rise_time_error_ms, "
-                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm; gaps, gap_max_ms")
+                        "_overshoot_error_percent, _settling_time_error_ms with u = bar, a, mm; gaps, gap_max_ms; "
+                        "closed_cleanly (1 or 0)")
     p.add_argument("--fail-below", action="append", metavar="METRIC=LIMIT",
                    help="exit 1 if METRIC < LIMIT, e.g. pressure_fit_percent=99")
+    p.add_argument("--allow-unclosed", action="store_true",
+                   help="accept a bag that was not closed properly (a writer killed, a file cut short): replay "
+                        "its readable part and exit 0 if no limit is crossed; without it such a bag fails the run "
+                        "(exit 1, metric closed_cleanly = 0 < 1)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,11 +96,18 @@ def run(args: argparse.Namespace) -> int:
             raise ReplayError(msg)
         params = dataclasses.replace(params, circuit=dataclasses.replace(params.circuit, load_volume=args.load_volume))
     recording = load_recording(args.bag, parse_topic_map(args.topic), namespace=args.namespace)
+    if not args.allow_unclosed:   # a damaged recording passes no gate unless accepted by name
+        below.setdefault("closed_cleanly", 1.0)
     result = replay(recording, params, model=args.model, solver=args.solver, resync=args.resync_ms / 1e3)
     failures = check_thresholds(result, above, below)
-    if not recording.closed_cleanly:
-        print(f"pcv-sim replay: warning: {args.bag} was not closed properly; replaying its readable part",
-              file=sys.stderr)
+    if not recording.closed_cleanly:   # the reader's warning below says what was lost and where
+        if args.allow_unclosed:
+            print(f"pcv-sim replay: warning: {args.bag} was not closed properly; its readable part "
+                  f"({result.duration_s:.3f} s) is replayed, accepted by --allow-unclosed", file=sys.stderr)
+        else:
+            print(f"pcv-sim replay: error: {args.bag} was not closed properly: its readable part "
+                  f"({result.duration_s:.3f} s) is replayed but the run fails (exit 1); --allow-unclosed "
+                  f"accepts a partial recording", file=sys.stderr)
     for w in result.warnings:
         print(f"pcv-sim replay: warning: {w}", file=sys.stderr)
     if result.gaps:

@@ -23,6 +23,7 @@ import argparse
 import multiprocessing
 import os
 import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,7 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
     from pcv_sim.rig.report import render_html
     from pcv_sim.rig.scenario import run_scenario
 
+    started = time.perf_counter()
     try:
         scenario = _load(path, ros, wait)
         if scenario.ros is not None and scenario.ros.command:
@@ -109,6 +111,10 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
     except PcvSimError as err:
         return {"name": path.stem, "path": str(path), "status": 2, "error": str(err)}
     out = result.to_dict()
+    # Reading the files, building the rig and compiling (or loading) its kernels: apart from the
+    # run, whose real-time factor is the model's speed (a first run with an empty kernel cache
+    # spends ~10-100 s here).
+    out["setup_time_s"] = max(time.perf_counter() - started - result.wall_time, 0.0)
     out["status"] = 0 if result.passed else 1
     if result.run is not None and bag is not None:
         chambers = {v.name: v.chamber for v in scenario.rig.valves}
@@ -153,7 +159,8 @@ def _text(r: dict[str, Any]) -> str:
     if r["status"] == 2:
         return f"{r['name']}: BAD FILE: {r['error']}"
     lines = [f"{r['name']}: {'passed' if r['status'] == 0 else 'FAILED'} "
-             f"(real-time factor {r['real_time_factor']:.1f}x)"]
+             f"(real-time factor {r['real_time_factor']:.1f}x: {r['wall_time_s']:.2f} s for the run; "
+             f"{r['setup_time_s']:.2f} s before it to load the files and compile or load the model)"]
     if r.get("error"):
         lines.append(f"  {r['error']}")
     for a in r["assertions"]:

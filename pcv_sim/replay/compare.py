@@ -108,8 +108,18 @@ class StepComparison:
             "steady_state_error": s.final - m.final,
             "rise_time_error": _diff(s.rise_time, m.rise_time),
             "overshoot_error": s.overshoot_percent - m.overshoot_percent,
-            "settling_time_error": _diff(s.settling_time, m.settling_time),
+            "settling_time_error": _settling_error(s, m),
         }
+
+
+def _settling_error(model: StepMetrics, measured: StepMetrics) -> float:
+    """Model minus measured settling time; for a noisy measurement, the distance from the model's
+    to the interval the noise leaves open [settling_early, settling_late] (0 inside it)."""
+    s, lo, hi = model.settling_time, measured.settling_early, measured.settling_late
+    if math.isnan(s) or math.isnan(lo) or (lo == hi == measured.settling_time):
+        return _diff(s, measured.settling_time)
+    hi = math.inf if math.isnan(hi) else hi
+    return s - min(max(s, lo), hi)
 
 
 def _diff(a: float, b: float) -> float:
@@ -175,6 +185,7 @@ class ReplayResult:
     def scalar_metrics(self) -> dict[str, float]:
         """Flat metrics in display units, the keys ``--fail-above``/``--fail-below`` accept."""
         out: dict[str, float] = {
+            "closed_cleanly": 1.0 if self.closed_cleanly else 0.0,
             "gaps": float(len(self.gaps)),
             "gap_max_ms": max((g.duration for g in self.gaps), default=0.0) * 1e3,
         }

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from pcv_sim.analysis.metrics import StepMetrics
 from pcv_sim.replay.compare import DISPLAY, ReplayResult, ThresholdFailure
 
 __all__ = ["plot_signals", "render_html", "render_markdown", "render_text"]
@@ -66,11 +67,18 @@ def _step_rows(r: ReplayResult, role: str) -> list[list[str]]:
             str(st.index), f"{st.t_start:.3f}", f"{st.duty_from:g} -> {st.duty_to:g}{ramp}",
             f"{_f(m.rise_time * 1e3)} / {_f(s.rise_time * 1e3)}",
             f"{_f(m.overshoot_percent, 3)} / {_f(s.overshoot_percent, 3)}",
-            f"{_f(m.settling_time * 1e3)} / {_f(s.settling_time * 1e3)}",
+            f"{_f(m.settling_time * 1e3)}{_open(m)} / {_f(s.settling_time * 1e3)}",
             f"{_f(m.final * d.scale, 6)} / {_f(s.final * d.scale, 6)}",
             _f(e["steady_state_error"] * d.scale, 3),
         ])
     return rows
+
+
+def _open(m: StepMetrics) -> str:
+    """' (20..60)': the settling times (ms) the noise leaves open, when it leaves any."""
+    if m.settling_early == m.settling_late or math.isnan(m.settling_early):
+        return ""
+    return f" ({_f(m.settling_early * 1e3)}..{_f(m.settling_late * 1e3)})"
 
 
 _SUMMARY_HEAD = ["signal", "unit", "samples compared", "not compared (gaps)", "RMSE", "max error", "NRMSE fit %"]

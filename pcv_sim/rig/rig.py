@@ -160,9 +160,11 @@ class Rig:
         self.on_input: InputHook | None = None
         self._rest: list[tuple[np.ndarray, float]] | None = None     # the valves' initial rest states
         self.reset()
-        # Compile (or load from the cache) the composite's functions now, not in the first run.
+        # Compile (or load from the cache) the composite's functions now, not in the first run
+        # (whose speed would then count the compile): each one the lockstep and the node call.
         self.sim.outputs()
         self.sim.advance(1)
+        self.sim.advance_sample(1, self._signal_i, np.empty(len(self._signal_i)), 1)
         self.reset()
 
     # --- state -------------------------------------------------------------------------------

@@ -403,8 +403,9 @@ def _check_assertions(raw: Any, rig: RigParams, has_setpoint: bool, timeline: tu
     return tuple(out)
 
 
-def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
-    """A validated Scenario (ScenarioError naming the key otherwise)."""
+def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: RigParams | None = None) -> Scenario:
+    """A validated Scenario (ScenarioError naming the key otherwise). `rig_params`, when given,
+    stand in for the parameters of the file that `rig` names (a campaign's variant of the rig)."""
     origin = str(path) if path else "scenario"
     try:
         if not isinstance(data, Mapping):
@@ -415,7 +416,7 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
         if rig_file is not None and not isinstance(rig_file, str):
             raise ScenarioError(f"rig: got {rig_file!r}; accepted is the path of a rig YAML (relative to the scenario)")
         try:
-            rig = load_rig(base / rig_file if rig_file else None)
+            rig = rig_params if rig_params is not None else load_rig(base / rig_file if rig_file else None)
         except PcvSimError as err:
             raise ScenarioError(f"rig: {err}") from None
         if "duration" not in data:

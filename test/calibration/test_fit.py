@@ -116,6 +116,12 @@ def test_two_bags_and_the_written_yaml(tmp_path: Path) -> None:
     ("spool.mass=1:", r"bounds are KEY=LOW:HIGH with finite LOW < HIGH"),
     ("spool.mass=0.5:1", r"the start value 0.04 \(from the config\) lies outside 0.5..1"),
     ("command.duty_fall_rate_limit", r"the config has null \(off\) here"),
+    # Bounds are values the fit may try: the key's plausible range applies to them.
+    ("fluid.bulk_modulus=-1:2e9", r"--fit 'fluid.bulk_modulus=-1:2e9': LOW = -1 Pa is not a value of "
+                                  r"fluid.bulk_modulus; accepted is a plausible value 1e\+08 .. 5e\+09"),
+    ("solenoid.coil_resistance=1:1000", r"HIGH = 1000 ohm is not a value of solenoid.coil_resistance; "
+                                        r"accepted is a plausible value 0.5 .. 200"),
+    ("spool.mass=0:1", r"LOW = 0 kg is not a value of spool.mass; accepted is a plausible value"),
 ])
 def test_fit_keys_are_checked(spec: str, match: str) -> None:
     with pytest.raises(CalibrationError, match=match):

@@ -69,6 +69,7 @@ def test_calibrate_text_and_markdown(rig_bag: Path, tmp_path: Path, capsys: pyte
     (["--fit", "spool.mass", "--signals", "flux"], "--signals 'flux': accepted are pressure, current"),
     (["--fit", "spool.mass", "--report", "r.pdf"], "must end in .md or .html"),
     (["--fit", "spool.mass", "--max-evaluations", "1"], "accepted is an integer >= 2"),
+    (["--fit", "fluid.bulk_modulus=-1:2e9"], "LOW = -1 Pa is not a value of fluid.bulk_modulus"),
 ])
 def test_calibrate_bad_input_exits_2(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                      argv: list[str], message: str) -> None:
@@ -125,3 +126,34 @@ def test_calibrate_thresholds(rig_bag: Path, tmp_path: Path, capsys: pytest.Capt
         in capsys.readouterr().err
     assert main([*base, "--fail-below", "x"]) == 2
     assert "expected METRIC=NUMBER" in capsys.readouterr().err
+
+
+def test_calibrate_refuses_a_named_signal_the_bag_lacks(rig_bag: Path, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """--signals pressure,current on a bag without current: exit 2 naming what the bag has, not a
+    fit of the pressure alone that puts the difference into the pressure offset."""
+    csv = tmp_path / "rig.csv"
+    write_rig_csv(csv, default_params(), [0.4, 0.8], hold_s=0.2, noise=NOISE, seed=3, broken_rows=0)
+    rows = [line.split(",") for line in csv.read_text().splitlines()]
+    csv.write_text("\n".join(",".join(r[:3] + r[4:]) for r in rows) + "\n")   # the current column out
+    assert main(["import-csv", str(csv), str(tmp_path / "bag")]) == 0
+    out = tmp_path / "f.yaml"
+    argv = ["calibrate", str(tmp_path / "bag"), "--fit", "calibration.net_area", "-o", str(out)]
+    assert main([*argv, "--signals", "pressure,current"]) == 2
+    err = capsys.readouterr().err
+    assert "--signals current: " in err and "does not record current (it has pressure, spool_position)" in err
+    assert not out.exists()
+    # Two bags: one lacking the signal is enough to refuse it.
+    assert main(["calibrate", str(rig_bag), str(tmp_path / "bag"), "--fit", "none", "-o", str(out),
+                 "--signals", "current"]) == 2
+    assert f"{tmp_path / 'bag'} does not record current" in capsys.readouterr().err
+
+
+def test_calibrate_names_the_solver_that_ran(rig_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--model full runs the emulator's fixed-step engine unless --solver radau: the result says so."""
+    base = ["calibrate", str(rig_bag), "--fit", "none", "--model", "full", "--signals", "pressure",
+            "--max-evaluations", "2", "-o", str(tmp_path / "f.yaml"), "--json"]
+    main(base)
+    assert json.loads(capsys.readouterr().out)["solver"] == "stepper"
+    main([*base, "--solver", "fast"])
+    assert json.loads(capsys.readouterr().out)["solver"] == "stepper"

@@ -42,15 +42,31 @@ def test_truncated_file_is_replayed_in_part_and_said_so(tmp_path, params, capsys
     assert 1.0 < r.duration_s < 3.5  # the complete chunks in the first half only (of 4.743 s)
     assert r.scalar_metrics()["pressure_fit_percent"] > 99.99
     report = tmp_path / "cut.md"
-    assert main(["replay", str(bag), "--model", "simplified", "--report", str(report)]) == 0
-    err = capsys.readouterr().err
-    assert "was not closed properly; replaying its readable part" in err
+    # A gate on a damaged file fails (exit 1), however good its readable part fits, saying what is
+    # wrong and how to accept it; the report is written all the same.
+    assert main(["replay", str(bag), "--model", "simplified", "--report", str(report)]) == 1
+    captured = capsys.readouterr()
+    assert (f"pcv-sim replay: error: {bag} was not closed properly: its readable part ({r.duration_s:.3f} s) is "
+            f"replayed but the run fails (exit 1); --allow-unclosed accepts a partial recording") in captured.err
+    assert f"warning: {mcap.name}: not closed properly (" in captured.err      # what was lost and where
+    assert "FAILED: closed_cleanly = 0 < 1" in captured.out
     md = report.read_text()
     assert "**bag closed properly**: NO" in md
     assert "## Warnings from the bag reader" in md and "not closed properly" in md
-    assert main(["replay", str(bag), "--model", "simplified", "--json"]) == 0
+    assert main(["replay", str(bag), "--model", "simplified", "--json"]) == 1
     doc = json.loads(capsys.readouterr().out)
     assert doc["closed_cleanly"] is False and doc["warnings"]
+    assert doc["thresholds"]["failed"] == ["closed_cleanly = 0 < 1"]
+    # Accepted by name: the readable part replays, exit 0 unless a limit is crossed.
+    assert main(["replay", str(bag), "--model", "simplified", "--allow-unclosed"]) == 0
+    err = capsys.readouterr().err
+    assert "was not closed properly" in err and "accepted by --allow-unclosed" in err
+    assert main(["replay", str(bag), "--model", "simplified", "--allow-unclosed",
+                 "--fail-below", "pressure_fit_percent=100.1"]) == 1
+    assert "FAILED: pressure_fit_percent" in capsys.readouterr().out
+    # A bag closed properly is not touched by the rule.
+    assert main(["replay", str(BAGS / "pcv_step_levels"), "--model", "simplified", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["thresholds"]["failed"] == []
 
 
 def test_bag_not_closed_properly(tmp_path, params):
@@ -59,6 +75,13 @@ def test_bag_not_closed_properly(tmp_path, params):
     assert not rec.closed_cleanly
     assert any("not closed properly" in w for w in rec.warnings)
     assert replay(rec, params, model="simplified").signals["pressure"].samples > 300
+
+
+def test_bag_of_a_writer_that_did_not_finish_fails_unless_allowed(tmp_path, capsys):
+    bag = write_bag(tmp_path / "open", DEVICE, until_s=0.4, close=False)
+    assert main(["replay", str(bag), "--model", "simplified"]) == 1
+    assert "--allow-unclosed accepts a partial recording" in capsys.readouterr().err
+    assert main(["replay", str(bag), "--model", "simplified", "--allow-unclosed"]) == 0
 
 
 def test_unknown_message_type(tmp_path, capsys):
@@ -121,7 +144,7 @@ def test_thresholds_and_options(tmp_path, capsys):
     bag = str(BAGS / "pcv_step_levels")
     assert main(["replay", bag, "--model", "simplified", "--fail-above", "pressure_rmse_psi=1"]) == 2
     err = capsys.readouterr().err
-    assert "unknown metric 'pressure_rmse_psi' for --fail-above; this bag has: current_fit_percent" in err
+    assert "unknown metric 'pressure_rmse_psi' for --fail-above; this bag has: closed_cleanly, current_fit_percent" in err
     assert main(["replay", bag, "--fail-above", "pressure_rmse_bar"]) == 2
     assert "expected METRIC=NUMBER" in capsys.readouterr().err
     assert main(["replay", bag, "--report", "out.pdf"]) == 2
