@@ -97,7 +97,8 @@ def node_controller_run(domain: int, period: float, duration: float, tmp: Path) 
     and the wall time of one period (sample to sample, p50 / p99), the first WARMUP periods not timed."""
     import yaml
 
-    from pcv_sim.rig.scenario import run_scenario, scenario_from_mapping
+    from pcv_sim.node.scenario_host import run_ros_scenario
+    from pcv_sim.rig.scenario import scenario_from_mapping
 
     rig = yaml.safe_load((REPO / "config" / "rig.yaml").read_text())
     rig["rig"]["control_period"] = period
@@ -112,7 +113,7 @@ def node_controller_run(domain: int, period: float, duration: float, tmp: Path) 
         "controller": {"ros": {"namespace": "/bench", "command": cmd, "wait": 60}},
         "setpoint": [{"t": 0.0, "value": 0.0}, {"t": 0.1, "value": 0.02}],
         "assertions": [{"type": "never_above", "signal": "controller.fault_detected", "max": 0.0}]}, path=tmp / "x.yaml")
-    result = run_scenario(sc, domain=domain)
+    result = run_ros_scenario(sc, domain=domain)
     if not result.passed or result.run is None or result.run.sample_walls is None:
         raise RuntimeError(result.summary())
     walls = result.run.sample_walls

@@ -1,6 +1,13 @@
 """Typed, validated valve parameters, loaded from `config/*.yaml`; the one parameter mechanism.
 
-One frozen dataclass per section of the YAML file. Each field carries its unit, its source and
+Every parameter set of the package (the valve YAML, the plants, the rig, the node settings) is a
+frozen dataclass whose fields are declared with `parameter` (or its two shorthands: `setting` for
+a node setting, `_param` for a valve YAML key): type (`kind`), unit, check (a plausible range,
+a choice...), default and one line of doc, in one declaration. `check_value` converts and checks
+a value from that declaration, `section_from_mapping` a whole section; the checks below
+(`positive`, `fraction`, `plausible_range`, `one_of`, ...) are the ones every set uses.
+
+One frozen dataclass per section of the valve YAML file. Each field carries its unit, its source and
 the check that makes it physical; `load_params` refuses unknown keys, wrong types and
 non-physical values with a message naming the key and what is accepted.
 
@@ -19,7 +26,7 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 
@@ -39,15 +46,29 @@ __all__ = [
     "SolenoidParams",
     "SpoolParams",
     "ValveParams",
+    "any_value",
+    "check_field",
     "check_value",
     "default_params",
+    "duty_fraction",
+    "fraction",
+    "int_range",
     "load_params",
+    "non_negative",
+    "one_of",
+    "parameter",
     "params_from_mapping",
     "params_to_mapping",
+    "plausible_range",
+    "positive",
     "replace_param",
+    "section_from_mapping",
     "setting",
+    "speed_factor",
     "yaml_load_unique",
 ]
+
+T = TypeVar("T")
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
 
@@ -69,16 +90,45 @@ def _installed_default() -> Path:
 Check = Callable[[Any], "str | None"]
 
 
-def _positive(v: float) -> str | None:
+def positive(v: float) -> str | None:
     return None if v > 0 else "a finite number > 0"
 
 
-def _non_negative(v: float) -> str | None:
+def non_negative(v: float) -> str | None:
     return None if v >= 0 else "a finite number >= 0"
 
 
-def _any_finite(_v: float) -> str | None:
+def any_value(_v: Any) -> str | None:
+    """No check beyond the kind's (a finite number, a string, a bool...)."""
     return None
+
+
+def fraction(v: float) -> str | None:
+    return None if 0.0 <= v <= 1.0 else "a fraction 0..1"
+
+
+def duty_fraction(v: float) -> str | None:
+    return None if 0.0 <= v <= 1.0 else "a duty fraction 0..1"
+
+
+def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
+    """An integer lo..hi (inclusive); `accepted`: the message's words for it, if not 'an integer lo..hi'."""
+
+    def check(v: int) -> str | None:
+        return None if lo <= v <= hi else (accepted or f"an integer {lo}..{hi}")
+
+    return check
+
+
+def speed_factor(name: str, v: Any) -> float:
+    """Converter of a real-time factor: a number >= 0, where 0 and inf both mean as fast as possible."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
+        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
+    return float(v)
+
+
+# The valve sections' names for the same checks.
+_positive, _non_negative, _any_finite = positive, non_negative, any_value
 
 
 def _fraction(v: float) -> str | None:
@@ -97,32 +147,46 @@ def _range(lo: float, hi: float) -> Check:
     return check
 
 
-#: Public name of the plausible-range check, for other parameter sections (plant, rig).
+#: The plausible-range check by its public name (every parameter set's ranges).
 plausible_range = _range
 
 
-def _one_of(*choices: str) -> Check:
+def one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
 
     return check
 
 
+_one_of = one_of
+
+
+def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "float", default: Any = dataclasses.MISSING,
+              source: str = "", name: str | None = None, read_only: bool = False,
+              convert: Callable[[str, Any], Any] | None = None) -> Any:
+    """One parameter, declared once: its unit, one line of doc, its check (a plausible range, a
+    choice...), its type (`kind`: float, int, str, bool, float_or_null, vectorN, ...) and its default
+    (none: required). `source`: where the value comes from (the paper's table or section); `name`:
+    the parameter's name if not the field's (`record.enabled`); `read_only`: a node setting that
+    cannot change while the node runs; `convert`: a converter `(name, value) -> value` raising
+    ParameterError, for values no kind describes."""
+    return field(default=default, metadata={"unit": unit, "source": source or doc, "description": doc,
+                                            "check": check, "kind": kind, "name": name, "read_only": read_only,
+                                            "convert": convert})
+
+
 def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float", default: Any = dataclasses.MISSING) -> Any:
-    """A valve YAML key. Required, unless it has a `default` (keys added after files were written:
-    an older YAML without them still loads, with the default)."""
-    return field(default=default, metadata={"unit": unit, "source": source, "check": check, "kind": kind})
+    """A valve YAML key (`parameter` with the paper's source as its doc). Required, unless it has a
+    `default` (keys added after files were written: an older YAML without them still loads)."""
+    return parameter(unit, "", check, kind=kind, default=default, source=source)
 
 
 def setting(default: Any, unit: str, description: str, check: Check = _any_finite, kind: str = "float", *,
             name: str | None = None, read_only: bool = False,
             convert: Callable[[str, Any], Any] | None = None) -> Any:
-    """A parameter with its default, unit, description, check and read-only flag, in one place (the
-    node's settings). `name`: the parameter's name if not the field's (`record.enabled`); `convert`:
-    a converter `(name, value) -> value` raising ParameterError, for values no kind describes."""
-    return field(default=default, metadata={"unit": unit, "source": "", "description": description,
-                                            "check": check, "kind": kind, "name": name, "read_only": read_only,
-                                            "convert": convert})
+    """A node setting: `parameter` with its default first (every setting has one)."""
+    return parameter(unit, description, check, kind=kind, default=default, name=name, read_only=read_only,
+                     convert=convert)
 
 
 # --- sections ---------------------------------------------------------------------------------
@@ -422,6 +486,36 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     if problem is not None:
         raise ParameterError(f"{path}: got {value!r}; accepted is {problem}{f' ({unit})' if in_unit else ''}")
     return out
+
+
+def check_field(path: str, f: dataclasses.Field[Any], value: Any) -> Any:
+    """`check_value` for a declared field; a refusal also says what the parameter is (its doc)."""
+    try:
+        return check_value(path, f.metadata, value)
+    except ParameterError as err:
+        doc = f.metadata.get("description")
+        raise ParameterError(f"{err} ({doc})" if doc else str(err)) from None
+
+
+def section_from_mapping(cls: type[T], data: Any, path: str, *, defaults: bool = False) -> T:
+    """Build the frozen dataclass `cls` (fields declared with `parameter`) from a mapping, refusing
+    unknown keys and missing ones (with `defaults`, only those without a default), naming `path.key`."""
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{path}: got {data!r}; accepted is a mapping of key: value")
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(str(k) for k in data if k not in fields)
+    if unknown:
+        raise ParameterError(f"{path}: unknown key(s) {', '.join(f'{path}.{k}' for k in unknown)}; "
+                             f"accepted: {', '.join(fields)}")
+    missing = [k for k, f in fields.items() if k not in data
+               and not (defaults and (f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING))]
+    if missing:
+        raise ParameterError(f"{path}: missing key(s) {', '.join(f'{path}.{k}' for k in missing)}")
+    values = {k: check_field(f"{path}.{k}", fields[k], v) for k, v in data.items()}
+    try:
+        return cls(**values)
+    except ParameterError as err:
+        raise ParameterError(f"{path}: {err}") from None
 
 
 def params_from_mapping(data: Any, *, origin: str | None = "parameters", prefix: str = "") -> ValveParams:

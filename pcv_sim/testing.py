@@ -73,7 +73,9 @@ def run_rig_scenario(scenario: str | Path | Mapping[str, Any],
         data.update(overrides)
         sc = scenario_from_mapping(data, path=path)
     if controller is None and sc.ros is not None:
-        return run_scenario(sc)                  # over DDS: the rig node builds its own rig
+        from pcv_sim.node.scenario_host import run_ros_scenario
+
+        return run_ros_scenario(sc)              # over DDS: the rig node builds its own rig
     key = hash((sc.rig, sc.seed))
     rig = _RIGS.get(key)
     if rig is None:

@@ -39,6 +39,7 @@ from pcv_sim.analysis.static import balance_pressure, static_point
 from pcv_sim.errors import ParameterError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams, replace_param
+from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = [
     "CALIBRATION_KINDS",
@@ -118,7 +119,7 @@ def _x_at_pressure(model: ValveModel, wp: WorkingPoint) -> float:
         if not model.x_min <= x1 <= model.x_max:
             return math.nan
         if excess(x1) * e0 <= 0:
-            return brentq(excess, min(x0, x1), max(x0, x1), xtol=1e-12)
+            return float(brentq(excess, min(x0, x1), max(x0, x1), xtol=1e-12))
         x0 = x1
     return math.nan
 
@@ -206,7 +207,7 @@ def fit_calibration(params: ValveParams, kind: CalibrationKind = "net_area", coi
         for wp in WORKING_POINTS:
             m = ValveModel(point_params(p, wp, coil))
             i = m.steady_current(WORKING_POINT_DUTY)
-            out.append((balance_pressure(m, i, wp.spool_position, m.p_supply) - wp.pressure) / 1e5)
+            out.append((balance_pressure(m, i, wp.spool_position, m.p_supply) - wp.pressure) / PA_PER_BAR)
         return np.array(out)
 
     z0 = {"net_area": [1.0], "force_offset": [0.0], "both": [1.0, 0.0]}[kind]
@@ -263,7 +264,7 @@ def report(title: str, results: list[WorkingPointResult]) -> str:
     for r in results:
         lines.append(
             f"  {r.name:5s}  {r.model_current:.3f}/{r.table_current:.3f}        "
-            f"{r.model_pressure_at_table_x / 1e5:7.2f}/{r.table_pressure / 1e5:6.1f} ({r.pressure_error / 1e5:+.2f})     "
+            f"{bar(r.model_pressure_at_table_x):7.2f}/{bar(r.table_pressure):6.1f} ({bar(r.pressure_error):+.2f})     "
             f"{r.model_x_at_table_p * 1e3:+.4f}/{r.table_spool_position * 1e3:+.4f} ({r.position_error * 1e3:+.4f})   "
             f"{r.load_flow_at_table_x * 6e4:7.3f}     {r.branch}"
         )

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcv_sim.analysis.static import StaticPoint, static_point
-from pcv_sim.model.valve import ValveModel
+from pcv_sim.model.valve import Hydraulics, ValveModel
 
 __all__ = ["LinearModel", "Margins", "linearize", "loop_gain", "margins"]
 
@@ -129,7 +129,7 @@ def linearize(model: ValveModel, duty: float, x0: float, supply_pressure: float 
     def fs(i: float, x: float) -> float:
         return model.solenoid_force(i, x)
 
-    def hyd(x: float, p: float, p_s: float):
+    def hyd(x: float, p: float, p_s: float) -> Hydraulics:
         return model.hydraulics(x, p, p_s)
 
     k_fi = (fs(i0 + hi, x0) - fs(i0 - hi, x0)) / (2 * hi)

@@ -43,8 +43,9 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.io.topics import OUTPUT_ROLES
+from pcv_sim.io.topics import OUTPUT_ROLES, ROLE_UNITS
 from pcv_sim.params import ValveParams, replace_param
+from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
@@ -292,7 +293,7 @@ class CalibrationResult:
     def scalar_metrics(self) -> dict[str, float]:
         """After the fit, per signal over the bags: the worst NRMSE fit % and RMSE, in display
         units, keyed as replay's metrics (``pressure_fit_percent``, ``pressure_rmse_bar``, ...)."""
-        units = {"pressure": ("bar", 1e-5), "current": ("a", 1.0), "spool_position": ("mm", 1e3)}
+        units = {role: (d.key_unit, d.scale) for role, d in DISPLAY.items()}
         out: dict[str, float] = {}
         for s in self.signals:
             unit, scale = units[s.role]
@@ -479,7 +480,8 @@ def calibrate(
         theta = tuple(z[:n_theta].tolist())
         if cache.get("theta") != theta:
             cache["theta"], cache["runs"] = theta, simulate(valve(z))
-        return cache["runs"]
+        runs: list[dict[str, npt.NDArray[np.float64]]] = cache["runs"]
+        return runs
 
     def fun(z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         r = residuals(z, runs_at(z))
@@ -557,7 +559,7 @@ def calibrate(
     tc_est = tuple(Estimate(f"time_constant.{role}", float(z[n_theta + n_lag + k]) * 1e-3, 0.0,
                             _Z95 * float(sd[n_theta + n_lag + k]), "s", tb[0], tb[1])
                    for k, role in enumerate(tc_roles))
-    units = {"pressure": "Pa", "current": "A", "spool_position": "m"}
+    units = ROLE_UNITS
     off_est = tuple(Estimate(f"offset.{d.role}[{d.bag}]", float(z[n_theta + n_sensor + k]) * d.sigma, 0.0,
                              _Z95 * float(sd[n_theta + n_sensor + k]), units.get(d.role, "SI"))
                     for k, d in enumerate(data)) if fit_offsets else ()

@@ -16,14 +16,15 @@ from typing import Literal
 import numpy as np
 
 from pcv_sim.calibration.fit import first_order
-from pcv_sim.io.topics import CURRENT, PRESSURE, SPOOL_POSITION
 from pcv_sim.params import ValveParams
+from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.simulate import InputTimeline, run_model
+from pcv_sim.units import M3S_PER_LPM
 
 __all__ = ["RIG_HEADER", "write_rig_csv"]
 
 RIG_HEADER = "time[s],duty[%],pressure[bar],current[A],position[mm]"
-_DISPLAY = {PRESSURE: 1e-5, CURRENT: 1.0, SPOOL_POSITION: 1e3}   # SI -> bar, A, mm
+_DISPLAY = {role: d.scale for role, d in DISPLAY.items()}   # SI -> bar, A, mm
 _NS = 1_000_000_000
 
 
@@ -60,7 +61,7 @@ def write_rig_csv(
     t_ns = np.arange(n, dtype=np.int64) * period_ns
     hold_ns = round(hold_s * _NS)
     change_ns = np.arange(len(duties), dtype=np.int64) * hold_ns
-    flows = np.zeros(len(duties)) if load_flows_lpm is None else np.asarray(load_flows_lpm, float) * 1e-3 / 60.0
+    flows = np.zeros(len(duties)) if load_flows_lpm is None else np.asarray(load_flows_lpm, float) * M3S_PER_LPM
     tl = InputTimeline(change_ns, np.asarray(duties, float), flows,
                        np.full(len(duties), params.circuit.supply_pressure))
     # The model at every sample time and at every lagged one (before 0 it rests).

@@ -50,7 +50,7 @@ def _ppf(d: Distribution, u: np.ndarray) -> np.ndarray:
     if math.isinf(d.low) and math.isinf(d.high):
         return np.asarray(stats.norm.ppf(u, loc=d.mean, scale=d.sd))
     a, b = (d.low - d.mean) / d.sd, (d.high - d.mean) / d.sd
-    return np.clip(stats.truncnorm.ppf(u, a, b, loc=d.mean, scale=d.sd), d.low, d.high)
+    return np.asarray(np.clip(stats.truncnorm.ppf(u, a, b, loc=d.mean, scale=d.sd), d.low, d.high))
 
 
 class Variants:

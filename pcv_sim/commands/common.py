@@ -1,4 +1,4 @@
-"""Shared pieces of the subcommands: options, output, progress, plotting backend."""
+"""Shared pieces of the subcommands: options, output, progress, saving plots."""
 
 from __future__ import annotations
 
@@ -80,15 +80,6 @@ def progress(items: Iterable[T], total: int, label: str) -> Iterator[T]:
         yield item
     if tty:
         sys.stderr.write(f"\r{label}: {total}/{total} ({time.monotonic() - start:.1f} s)\n")
-
-
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def save(fig: Any, path: Path) -> None:

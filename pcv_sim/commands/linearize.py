@@ -16,8 +16,10 @@ from pcv_sim.analysis.calibrate import point_params
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.linear import linearize
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS
-from pcv_sim.commands.common import add_output_options, emit_json, params_from, pyplot, save
+from pcv_sim.commands.common import add_output_options, emit_json, params_from, save
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.plotting import pyplot
+from pcv_sim.units import MM_PER_M, bar
 
 NAME = "linearize"
 HELP = "Sec. 5 linear model at both working points, margins, Bode plot of the loop gain"
@@ -51,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"In force: {state.text()}; coil: {'the table current per point' if args.coil == 'table' else 'config'}")
         for name, lin in lins.items():
             m = lin.margins
-            print(f"{name}: x = {lin.point.spool_position * 1e3:+.4f} mm, p = {lin.point.pressure / 1e5:.2f} bar, "
+            print(f"{name}: x = {lin.point.spool_position * MM_PER_M:+.4f} mm, p = {bar(lin.point.pressure):.2f} bar, "
                   f"i = {lin.point.current:.3f} A")
             print(f"  K_e = K - K_fx + K_ff = {lin.K:.0f} - ({lin.K_fx:.0f}) + ({lin.K_ff:.0f}) = {lin.K_e:.0f} N/m")
             print(f"  K_fi = {lin.K_fi:.2f} N/A, K_q = {lin.K_q:.4g} m^2/s, K_c = {lin.K_c:.4g} m^3/(s Pa), "

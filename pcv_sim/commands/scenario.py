@@ -102,7 +102,12 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
                 domain = _worker_domain if _worker_domain is not None else private_domain(os.getpid())
         else:
             domain = None                  # a node the user started: in $ROS_DOMAIN_ID
-        result = run_scenario(scenario, domain=domain)
+        if scenario.ros is not None:
+            from pcv_sim.node.scenario_host import run_ros_scenario
+
+            result = run_ros_scenario(scenario, domain=domain)
+        else:
+            result = run_scenario(scenario)
     except PcvSimError as err:
         return {"name": path.stem, "path": str(path), "status": 2, "error": str(err)}
     out = result.to_dict()
@@ -212,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
             for g, rs in zip(groups, done):
                 for k, r in zip(g, rs):
                     results[k] = r
-        status = max(r["status"] for r in results)
+        status = max(int(r["status"]) for r in results)
         _outputs(args, results, path)
         if args.json:
             emit_json({"passed": status == 0, "scenarios": results})

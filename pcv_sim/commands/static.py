@@ -8,9 +8,10 @@ import argparse
 import numpy as np
 
 from pcv_sim.analysis.static import pressure_flow_curve, zero_flow_equilibrium
-from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, progress, pyplot, save
+from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, progress, save
 from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.plotting import pyplot
 from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR
 
 NAME = "static"

@@ -15,19 +15,22 @@ import sys
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
-from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, pyplot, save
+from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
 from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
+from pcv_sim.params import ValveParams
+from pcv_sim.plotting import pyplot
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.simulation.trajectory import Trajectory
+from pcv_sim.units import MM_PER_M, PA_PER_BAR
 
 NAME = "step"
 HELP = "simulate a duty step and report rise time, overshoot, settling time, steady state"
 
-SIGNALS = (("pressure", "pressure [bar]", 1e-5, 0.5e5), ("current", "current [A]", 1.0, 0.005),
-           ("spool_position", "spool position [mm]", 1e3, 0.002e-3))
+SIGNALS = (("pressure", "pressure [bar]", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR), ("current", "current [A]", 1.0, 0.005),
+           ("spool_position", "spool position [mm]", MM_PER_M, 0.002e-3))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_output_options(p)
 
 
-def step_params(args: argparse.Namespace):
+def step_params(args: argparse.Namespace) -> ValveParams:
     return with_damping(params_from(args), getattr(args, "damping", None))
 
 

@@ -14,14 +14,27 @@ are set through the YAML file named by `valve_config`. `null` in the YAML (e.g.
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import RECORDABLE, check_signals
-from pcv_sim.params import ValveParams, check_value, params_from_mapping, params_to_mapping, setting
+from pcv_sim.params import (
+    ValveParams,
+    any_value,
+    check_value,
+    int_range,
+    non_negative,
+    one_of,
+    params_from_mapping,
+    params_to_mapping,
+    positive,
+    setting,
+)
+from pcv_sim.params import duty_fraction as _duty_fraction
+from pcv_sim.params import fraction as _fraction
+from pcv_sim.params import speed_factor as real_time_factor
 from pcv_sim.simulation.clock import steps_per
 from pcv_sim.simulation.duty import check_duty
 
@@ -57,34 +70,7 @@ RUNTIME_FIXED_MODEL = ("simulation.time_step",)
 # the rig node's settings (pcv_sim.node.rig_settings) use them too.
 
 
-def positive(v: float) -> str | None:
-    return None if v > 0.0 else "a finite number > 0"
-
-
-def non_negative(v: float) -> str | None:
-    return None if v >= 0.0 else "a finite number >= 0"
-
-
-def _duty_fraction(v: float) -> str | None:
-    return None if 0.0 <= v <= 1.0 else "a duty fraction 0..1"
-
-
-def _fraction(v: float) -> str | None:
-    return None if 0.0 <= v <= 1.0 else "a fraction 0..1"
-
-
-def one_of(*choices: str) -> Callable[[Any], str | None]:
-    def check(v: Any) -> str | None:
-        return None if v in choices else f"one of {', '.join(map(repr, choices))}"
-    return check
-
-
-def _priority(v: int) -> str | None:
-    return None if 0 <= v <= 99 else "an integer 0..99 (0 = normal scheduling)"
-
-
-def any_value(_v: Any) -> str | None:
-    return None
+_priority = int_range(0, 99, "an integer 0..99 (0 = normal scheduling)")
 
 
 def bag_name_check(v: str) -> str | None:
@@ -93,12 +79,6 @@ def bag_name_check(v: str) -> str | None:
         return "'' (a timestamped name) or a plain directory name of letters, digits, '_', '-', '.'"
     return None
 
-
-def real_time_factor(name: str, v: Any) -> float:
-    """real_time_factor: a number >= 0, where 0 and inf both mean as fast as possible."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
-        raise ParameterError(f"{name}: got {v!r}; accepted is a number >= 0 (0 or inf: as fast as possible)")
-    return float(v)
 
 
 def _record_signals(name: str, v: Any) -> tuple[str, ...]:

@@ -34,11 +34,12 @@ from pcv_sim.io.topics import (
     bag_topic,
     role_of,
 )
+from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR
 
 __all__ = ["RANGES", "UNITS", "BadRow", "CsvImportError", "CsvImportResult", "Range", "import_csv", "parse_units"]
 
 TIME: Final = "time"
-_PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": 1e5, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
+_PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": PA_PER_BAR, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
 #: Accepted units per column and their factor to SI.
 UNITS: Final[Mapping[str, Mapping[str, float]]] = {
     TIME: {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
@@ -47,7 +48,7 @@ UNITS: Final[Mapping[str, Mapping[str, float]]] = {
     SUPPLY_PRESSURE: _PRESSURE_UNITS,
     CURRENT: {"a": 1.0, "ma": 1e-3},
     SPOOL_POSITION: {"m": 1.0, "mm": 1e-3, "um": 1e-6},
-    LOAD_FLOW: {"m3/s": 1.0, "m^3/s": 1.0, "l/min": 1e-3 / 60.0, "lpm": 1e-3 / 60.0, "l/s": 1e-3},
+    LOAD_FLOW: {"m3/s": 1.0, "m^3/s": 1.0, "l/min": M3S_PER_LPM, "lpm": M3S_PER_LPM, "l/s": 1e-3},
 }
 _SI: Final = {TIME: "s", DUTY_CYCLE: "1", PRESSURE: "pa", SUPPLY_PRESSURE: "pa", CURRENT: "a",
               SPOOL_POSITION: "m", LOAD_FLOW: "m3/s"}  # keys of UNITS (lower case)
@@ -136,7 +137,7 @@ RANGES: Final[Mapping[str, Range]] = {
     SUPPLY_PRESSURE: Range(0.0, 1e8, "0 .. 1000 bar", 200e5, 1e5),
     SPOOL_POSITION: Range(-5e-3, 5e-3, "within +-5 mm (the stroke is about -0.55 .. +0.85 mm)", 0.5e-3),
     CURRENT: Range(-1.0, 10.0, "-1 .. 10 A", 1.5, 0.05),
-    LOAD_FLOW: Range(-100e-3 / 60.0, 100e-3 / 60.0, "+-100 L/min", 10e-3 / 60.0),
+    LOAD_FLOW: Range(-100 * M3S_PER_LPM, 100 * M3S_PER_LPM, "+-100 L/min", 10 * M3S_PER_LPM),
 }
 
 

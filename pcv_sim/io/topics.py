@@ -1,4 +1,5 @@
-"""The device's topics and service (docs/interface.md): names, message types and units, in one place.
+"""The interface registry: every topic and service of the emulator, the rig and a ROS scenario
+(docs/interface.md) with its name, message type, unit and QoS, in one place.
 
 The node uses the relative names (so ``--ros-args -r __ns:=/left`` moves a whole valve); a bag
 recorded by the emulator in the root namespace holds them as ``/<name>`` (:data:`BAG_TOPICS`).
@@ -11,33 +12,44 @@ position m (the paper's sign convention: + opens pump -> load).
 
 from __future__ import annotations
 
-from typing import Final
+from dataclasses import dataclass
+from typing import Final, Literal
 
-from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
+from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, Qos
 
 __all__ = [
     "BAG_TOPICS",
     "CHAMBER_PRESSURE",
     "CLOCK",
+    "CONTROLLER_FLAGS",
     "CURRENT",
     "CYLINDER",
     "DIAGNOSTICS",
     "DUTY_CYCLE",
+    "EMULATOR_INTERFACE",
+    "EXTERNAL_FORCE",
     "FAULTS",
+    "FLAGS_QOS",
     "INPUT_ROLES",
     "JOINT_STATES",
     "LOAD_FLOW",
     "OUTPUT_ROLES",
     "PRESSURE",
+    "RELIABLE_10",
     "RESET",
+    "RIG_INTERFACE",
     "ROLES",
     "ROLE_ALIASES",
     "ROLE_TYPES",
     "ROLE_UNITS",
+    "SCENARIO_INTERFACE",
+    "SETPOINT",
     "SPOOL_POSITION",
     "SUPPLY_PRESSURE",
+    "Endpoint",
     "bag_topic",
     "chamber_topic",
+    "cylinder_topic",
     "role_of",
     "valve_topic",
 ]
@@ -58,6 +70,11 @@ CYLINDER: Final = "cylinder"                # namespace of the cylinder's topics
 JOINT_STATES: Final = "joint_states"        # out, sensor_msgs/JointState: prismatic joint, m, m/s, N
 CHAMBER_PRESSURE: Final = "pressure_{}"     # out, sensor_msgs/FluidPressure, Pa, chamber a | b (= its valve's)
 FAULTS: Final = "faults"                    # in, std_msgs/String: {fault: coil_open, valve: left} (YAML)
+EXTERNAL_FORCE: Final = "external_force"    # in, std_msgs/Float64, N on the rod, + extending (under cylinder/)
+
+# A scenario whose controller is a ROS node (`pcv_sim.node.scenario_host`), relative to its namespace:
+SETPOINT: Final = "setpoint"                # out (rig side), std_msgs/Float64, m
+CONTROLLER_FLAGS: Final = "controller/flags"  # in (rig side), diagnostic_msgs/DiagnosticArray
 
 INPUT_ROLES: Final = (DUTY_CYCLE, LOAD_FLOW, SUPPLY_PRESSURE)
 OUTPUT_ROLES: Final = (PRESSURE, CURRENT, SPOOL_POSITION)
@@ -117,3 +134,54 @@ def role_of(name: str) -> str | None:
     if key in ROLE_TYPES:
         return key
     return ROLE_ALIASES.get(key)
+
+
+def cylinder_topic(name: str) -> str:
+    """The rig node's relative topic of one of the cylinder's endpoints (``cylinder/external_force``)."""
+    return f"{CYLINDER}/{name}"
+
+
+#: The QoS of the diagnostics, the clock and the controller's flags (reliable, volatile).
+RELIABLE_10: Final = COMMAND_QOS
+FLAGS_QOS: Final = Qos("reliable", 100)
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """One topic or service of a node: what docs/interface.md lists, and what the node, the clients
+    and the recorder use. `unit` is the SI unit of the value ("1": a fraction; "": none)."""
+
+    direction: Literal["in", "out", "out/in", "srv"]
+    name: str
+    type: str
+    unit: str
+    qos: Qos | None = None         # None for a service
+
+
+EMULATOR_INTERFACE: Final = (
+    Endpoint("in", DUTY_CYCLE, FLOAT64, ROLE_UNITS[DUTY_CYCLE], COMMAND_QOS),
+    Endpoint("in", LOAD_FLOW, FLOAT64, ROLE_UNITS[LOAD_FLOW], COMMAND_QOS),
+    Endpoint("in", SUPPLY_PRESSURE, FLUID_PRESSURE, ROLE_UNITS[SUPPLY_PRESSURE], COMMAND_QOS),
+    Endpoint("out", PRESSURE, FLUID_PRESSURE, ROLE_UNITS[PRESSURE], SENSOR_DATA_QOS),
+    Endpoint("out", CURRENT, FLOAT64, ROLE_UNITS[CURRENT], SENSOR_DATA_QOS),
+    Endpoint("out", SPOOL_POSITION, FLOAT64, ROLE_UNITS[SPOOL_POSITION], SENSOR_DATA_QOS),
+    Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
+    Endpoint("out", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
+    Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
+)
+#: Beside each valve's outputs and duty_cycle under ``<valve>/`` (:func:`valve_topic`).
+RIG_INTERFACE: Final = (
+    Endpoint("out", cylinder_topic(JOINT_STATES), "sensor_msgs/msg/JointState", "m", SENSOR_DATA_QOS),
+    Endpoint("out", chamber_topic("a"), FLUID_PRESSURE, "Pa", SENSOR_DATA_QOS),
+    Endpoint("out", chamber_topic("b"), FLUID_PRESSURE, "Pa", SENSOR_DATA_QOS),
+    Endpoint("in", cylinder_topic(EXTERNAL_FORCE), FLOAT64, "N", COMMAND_QOS),
+    Endpoint("in", FAULTS, "std_msgs/msg/String", "", COMMAND_QOS),
+    Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
+    Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
+    Endpoint("out/in", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
+)
+#: Seen from the rig's side.
+SCENARIO_INTERFACE: Final = (
+    Endpoint("out", SETPOINT, FLOAT64, "m", COMMAND_QOS),
+    Endpoint("in", CONTROLLER_FLAGS, "diagnostic_msgs/msg/DiagnosticArray", "", FLAGS_QOS),
+)

@@ -65,7 +65,7 @@ def balance_pressure(model: ValveModel, current: float, x: float, supply_pressur
         raise EquilibriumError(f"the spool cannot rest at x={x:.4g} m with i={current:.4g} A at any load pressure")
     if r_hi > 0.0:
         raise EquilibriumError(f"no balance pressure below {hi:.3g} Pa at x={x:.3g} m, i={current:.3g} A")
-    return brentq(residual, lo, hi, xtol=1e-6, rtol=1e-12)
+    return float(brentq(residual, lo, hi, xtol=1e-6, rtol=1e-12))
 
 
 def static_point(model: ValveModel, duty: float, x: float, supply_pressure: float | None = None) -> StaticPoint:

@@ -152,7 +152,7 @@ class DeviceNode(Node):
             elif srv.srv_name.endswith("/set_parameters_atomically"):
                 srv.callback = self._on_set_parameters_atomically
 
-    def _set_checked(self, parameters: list[Parameter]) -> SetParametersResult:
+    def _set_checked(self, parameters: list[Any]) -> SetParametersResult:   # rclpy Parameters (generic from kilted on)
         parameters = [Parameter(p.name, value=numeric_text(p.value)) if p.name in self._float_names else p
                       for p in parameters]
         unknown = [p.name for p in parameters if not self.has_parameter(p.name)]

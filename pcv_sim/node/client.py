@@ -78,11 +78,16 @@ class EmulatorClient:
         self.pub_duty = self.node.create_publisher(Float64, DUTY_CYCLE, cmd)
         self.pub_load_flow = self.node.create_publisher(Float64, LOAD_FLOW, cmd)
         self.pub_supply = self.node.create_publisher(FluidPressure, SUPPLY_PRESSURE, cmd)
+        # Callbacks of (message, MessageInfo): rclpy passes the info to a two-argument callback
+        # (jazzy's annotation names only the one-argument form).
+        with_info: Any
         if PRESSURE in outputs:
-            self.node.create_subscription(FluidPressure, PRESSURE, self._pressure, qos)
+            with_info = self._pressure
+            self.node.create_subscription(FluidPressure, PRESSURE, with_info, qos)
         for name in (CURRENT, SPOOL_POSITION):
             if name in outputs:
-                self.node.create_subscription(Float64, name, self._scalar(name), qos)
+                with_info = self._scalar(name)
+                self.node.create_subscription(Float64, name, with_info, qos)
         self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
         self.reset_client: Any = self.node.create_client(Trigger, RESET)
         self.param_client: Any = self.node.create_client(SetParameters, f"{self.emulator_name}/set_parameters")

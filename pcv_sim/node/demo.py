@@ -24,7 +24,7 @@ from typing import Any, TextIO
 import numpy as np
 import rclpy
 from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
+from rclpy.utilities import remove_ros_args, try_shutdown
 
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.node.client import EmulatorClient, PressureSample
@@ -152,7 +152,7 @@ def main(args: list[str] | None = None) -> int:
     finally:
         if client is not None:
             client.close()
-        rclpy.try_shutdown()
+        try_shutdown()
 
 
 if __name__ == "__main__":

@@ -76,6 +76,7 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
     the stop (`node.run(stop)`), then destroyed and rclpy shut down, whatever happened."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
 
     from pcv_sim.errors import ParameterError
 
@@ -99,4 +100,4 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()

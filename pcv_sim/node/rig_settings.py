@@ -34,7 +34,7 @@ from pcv_sim.device.settings import (
     real_time_factor,
 )
 from pcv_sim.errors import ParameterError
-from pcv_sim.params import check_value, setting
+from pcv_sim.params import check_value, int_range, setting
 from pcv_sim.rig.faults import Fault, FaultError, parse_fault
 from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.clock import steps_per
@@ -43,8 +43,7 @@ __all__ = ["RIG_PARAMETERS", "FaultCommand", "RigNodeSettings", "check_rig_value
            "rig_settings_with", "settings_from"]
 
 
-def _seed(v: int) -> str | None:
-    return None if 0 <= v < 2**32 else "an integer 0 .. 2^32 - 1"
+_seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """A scenario whose controller is a ROS 2 node: the runner hosts the rig node in lockstep.
 
-`pcv_sim.rig.scenario.run_scenario` comes here for `controller: {ros: {namespace, command, wait}}`.
+`pcv-sim scenario run` and `pcv_sim.testing` come here for `controller: {ros: {namespace, command, wait}}`
+(`pcv_sim.rig.scenario.run_scenario` runs callables and refuses these).
 The rig is the real rig node (`RigNode`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
 this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes it a scenario:
 
@@ -32,19 +33,21 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pcv_sim.errors import PcvSimError
+from pcv_sim.io.topics import CONTROLLER_FLAGS, SETPOINT
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.scenario import RosController, Scenario, ScenarioResult, scenario_result, schedule_timeline
 
 __all__ = ["FLAGS_TOPIC", "SETPOINT_TOPIC", "run_ros_scenario"]
 
-SETPOINT_TOPIC = "setpoint"
-FLAGS_TOPIC = "controller/flags"
+SETPOINT_TOPIC = SETPOINT
+FLAGS_TOPIC = CONTROLLER_FLAGS
 _STOP_GRACE = 10.0          # s a started controller has to exit after SIGINT
 _OPTIONAL_MATCH = 2.0       # s more for the setpoint's subscriber and the flags' publisher
 _SETTLE = 0.1               # s after the matching, before the first sample
@@ -212,7 +215,7 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
     names = node.rig.valve_names
     duty = [(node.resolve_topic_name(f"{v}/duty_cycle"), sub) for v, (sub, _h) in zip(names, node._inputs)]
     joint = node._pub_joint
-    optional = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
+    optional: list[tuple[str, Callable[[], bool]]] = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
     if host.setpoint is not None:
         optional.append((host._pub_sp.topic_name, lambda: host._pub_sp.get_subscription_count() > 0))
     end = time.monotonic() + spec.wait
@@ -241,9 +244,11 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     """Run `scenario` (its controller a ROS node) over DDS; see the module docstring."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
 
     from pcv_sim.node.rig_node import RigNode
 
@@ -252,7 +257,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     path = str(scenario.path) if scenario.path else ""
     if domain is not None:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"     # the runner's own domain: this machine only
-    context = rclpy.Context()
+    context = Context()
     rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     proc = None
     node = None
@@ -290,7 +295,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         if node is not None:
             node.hook = None
             node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
         if host is not None and host.failure is not None:
             host.failure += _log_tail(log_path)
         log_dir.cleanup()

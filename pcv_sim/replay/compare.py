@@ -32,11 +32,12 @@ import numpy.typing as npt
 
 from pcv_sim.analysis.in_force import InForce, in_force
 from pcv_sim.analysis.metrics import FitMetrics, StepMetrics, fit_metrics, step_metrics
-from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, SPOOL_POSITION
+from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, ROLE_UNITS, SPOOL_POSITION
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Gap, Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
+from pcv_sim.units import MM_PER_M, PA_PER_BAR
 
 __all__ = [
     "DISPLAY",
@@ -70,9 +71,9 @@ class Display:
 
 #: Display units per output role; metric keys carry them (``pressure_rmse_bar``).
 DISPLAY: Mapping[str, Display] = {
-    PRESSURE: Display("pressure", "bar", "bar", 1e-5, 0.5e5),
+    PRESSURE: Display("pressure", "bar", "bar", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR),
     CURRENT: Display("current", "A", "a", 1.0, 0.005),
-    SPOOL_POSITION: Display("spool position", "mm", "mm", 1e3, 0.002e-3),
+    SPOOL_POSITION: Display("spool position", "mm", "mm", MM_PER_M, 0.002e-3),
 }
 
 
@@ -244,7 +245,7 @@ class ReplayResult:
                 for sc in self.steps
             ],
             "metrics": self.scalar_metrics(),
-            "units": {"pressure": "Pa", "current": "A", "spool_position": "m", "times": "s",
+            "units": {**{role: ROLE_UNITS[role] for role in OUTPUT_ROLES}, "times": "s",
                       "metrics": "as named: bar, a (A), mm, ms, percent"},
             "warnings": list(self.warnings),
             "notes": list(self.notes),

@@ -40,6 +40,7 @@ import numpy as np
 from pcv_sim.errors import PcvSimError
 from pcv_sim.keys import closest, unknown_message
 from pcv_sim.rig.lockstep import RigRun
+from pcv_sim.rig.rig import signal_kind
 from pcv_sim.units import quantity
 
 __all__ = ["ASSERTION_TYPES", "EVENTS", "Outcome", "check_assertions", "outcomes", "signal_kind"]
@@ -65,15 +66,6 @@ _EPS = 1e-12
 
 class AssertionSpecError(PcvSimError, ValueError):
     """An assertion that cannot be checked as written (the scenario loader names its path)."""
-
-
-def signal_kind(signal: str) -> str:
-    """The physical kind of a signal (`pcv_sim.units.KINDS`)."""
-    if signal.startswith("controller."):
-        return "number"
-    tail = signal.rsplit(".", 1)[-1]
-    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
-            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length"}.get(tail, "number")
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,18 @@ from typing import Any
 import yaml
 
 from pcv_sim.errors import ParameterError
-from pcv_sim.params import ValveParams, load_params
-from pcv_sim.plant.params import CylinderParams, ranged, section_from_mapping
+from pcv_sim.params import (
+    ValveParams,
+    fraction,
+    load_params,
+    one_of,
+    parameter,
+    plausible_range,
+    section_from_mapping,
+)
+from pcv_sim.plant.params import CylinderParams
 
-__all__ = ["DEFAULT_RIG", "RigParams", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping"]
+__all__ = ["DEFAULT_RIG", "RigParams", "SlotSettings", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping"]
 
 DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "rig.yaml"
 CHAMBERS = ("a", "b")
@@ -34,10 +42,22 @@ NO_CHAMBER = "none"
 
 @dataclass(frozen=True)
 class TimingParams:
-    time_step: float = ranged("s", 1e-6, 1e-3, "the fixed integration step of the whole rig (valves + cylinder)")
-    control_period: float = ranged("s", 1e-4, 1.0, "samples to the controller and its commands, every period")
-    watchdog_timeout: float = ranged("s", 0.0, 60.0, "model time without a valid duty command -> safe_duty; 0 = off")
-    safe_duty: float = ranged("-", 0.0, 1.0, "duty of a valve whose watchdog fired (fraction)")
+    time_step: float = parameter("s", "the fixed integration step of the whole rig (valves + cylinder)",
+                                 plausible_range(1e-6, 1e-3))
+    control_period: float = parameter("s", "samples to the controller and its commands, every period", plausible_range(1e-4, 1.0))
+    watchdog_timeout: float = parameter("s", "model time without a valid duty command -> safe_duty; 0 = off",
+                                        plausible_range(0.0, 60.0))
+    safe_duty: float = parameter("-", "duty of a valve whose watchdog fired (fraction)", plausible_range(0.0, 1.0))
+
+
+@dataclass(frozen=True, kw_only=True)
+class SlotSettings:
+    """One entry of `valves:` as written in the rig YAML."""
+
+    config: str = parameter("-", "valve YAML, relative to the rig file ('' = the shipped one)", kind="str", default="")
+    chamber: str = parameter("-", "the cylinder chamber its load port feeds; none: its own dead-ended load volume",
+                             one_of(*CHAMBERS, NO_CHAMBER), kind="str")
+    initial_duty: float = parameter("-", "duty fraction at the start", fraction, default=0.0)
 
 
 @dataclass(frozen=True)
@@ -68,36 +88,19 @@ class RigParams:
         raise ParameterError(f"no valve {name!r} in the rig; valves: {', '.join(v.name for v in self.valves)}")
 
 
-_SLOT_KEYS = ("config", "chamber", "initial_duty")
-
-
 def _slot(name: Any, raw: Any, base: Path, params: ValveParams | None = None) -> ValveSlot:
     path = f"valves.{name}"
     if not isinstance(name, str) or not name.isidentifier():
         raise ParameterError(f"valves: name {name!r}; accepted is an identifier (letters, digits, _), "
                              "the valve's namespace (left, right)")
-    if not isinstance(raw, Mapping):
-        raise ParameterError(f"{path}: got {raw!r}; accepted is a mapping with {', '.join(_SLOT_KEYS)}")
-    unknown = sorted(str(k) for k in raw if k not in _SLOT_KEYS)
-    if unknown:
-        raise ParameterError(f"{path}: unknown key(s) {', '.join(f'{path}.{k}' for k in unknown)}; "
-                             f"accepted: {', '.join(_SLOT_KEYS)}")
-    config = raw.get("config", "")
-    if not isinstance(config, str):
-        raise ParameterError(f"{path}.config: got {config!r}; accepted is a path to a valve YAML ('' = shipped)")
+    slot = section_from_mapping(SlotSettings, raw, path, defaults=True)
+    config = slot.config
     if params is None:
         params = load_params(base / config if config else None)
     if params.command.duty_fall_rate_limit is not None:
         raise ParameterError(f"{path}.config: {config or 'the valve YAML'} sets command.duty_fall_rate_limit; "
                              "the rig applies each duty command at its step: accepted is null")
-    chamber = raw.get("chamber")
-    if chamber not in (*CHAMBERS, NO_CHAMBER):
-        raise ParameterError(f"{path}.chamber: got {chamber!r}; accepted is 'a' or 'b' (the cylinder chamber "
-                             "its load port feeds) or 'none' (its own dead-ended load volume)")
-    duty = raw.get("initial_duty", 0.0)
-    if isinstance(duty, bool) or not isinstance(duty, (int, float)) or not 0.0 <= duty <= 1.0:
-        raise ParameterError(f"{path}.initial_duty: got {duty!r}; accepted is a fraction 0..1")
-    return ValveSlot(name, params, chamber, float(duty), config)
+    return ValveSlot(name, params, slot.chamber, slot.initial_duty, config)
 
 
 def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None,

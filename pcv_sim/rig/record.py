@@ -28,6 +28,19 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
+from pcv_sim.io.topics import (
+    CURRENT,
+    DUTY_CYCLE,
+    JOINT_STATES,
+    PRESSURE,
+    ROLE_TYPES,
+    SETPOINT,
+    SPOOL_POSITION,
+    bag_topic,
+    chamber_topic,
+    cylinder_topic,
+    valve_topic,
+)
 from pcv_sim.rig.lockstep import RigRun
 
 __all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", "write_csv"]
@@ -35,6 +48,8 @@ __all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 _NS = 1_000_000_000
+JOINTS = bag_topic(cylinder_topic(JOINT_STATES))
+EVENTS = "/rig/events"          # the run's log and refused commands (offline bags only)
 
 
 def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None = None) -> Path:
@@ -42,15 +57,15 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
     chambers = chambers or {}
     topics: dict[str, str] = {}
     for v in run.valves:
-        topics.update({f"/{v}/duty_cycle": FLOAT64, f"/{v}/pressure": FLUID_PRESSURE, f"/{v}/current": FLOAT64,
-                       f"/{v}/spool_position": FLOAT64})
+        topics.update({bag_topic(valve_topic(v, role)): ROLE_TYPES[role]
+                       for role in (DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION)})
         if v in chambers:
-            topics[f"/cylinder/pressure_{chambers[v]}"] = FLUID_PRESSURE
-    topics["/cylinder/joint_states"] = JOINT_STATE
-    topics["/rig/events"] = STRING
+            topics[bag_topic(chamber_topic(chambers[v]))] = FLUID_PRESSURE
+    topics[JOINTS] = JOINT_STATE
+    topics[EVENTS] = STRING
     has_sp = bool(np.any(np.isfinite(run.setpoint)))
     if has_sp:
-        topics["/setpoint"] = FLOAT64
+        topics[bag_topic(SETPOINT)] = FLOAT64
     for flag in run.flags:
         topics[f"/controller/{flag.removeprefix('controller.')}"] = FLOAT64
     t_ns = np.round(run.times * _NS).astype(np.int64)
@@ -63,15 +78,15 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
 
     with BagWriter(path, topics=topics, flush_thread=False) as w:
         for k, v in enumerate(run.valves):
-            column(f"/{v}/duty_cycle", run.duties[:, k], w)
+            column(bag_topic(valve_topic(v, DUTY_CYCLE)), run.duties[:, k], w)
             p = m[:, run.signals.index(f"{v}.pressure")]
-            column(f"/{v}/pressure", p, w, "load_port")
+            column(bag_topic(valve_topic(v, PRESSURE)), p, w, "load_port")
             if v in chambers:
-                column(f"/cylinder/pressure_{chambers[v]}", p, w, f"chamber_{chambers[v]}")
-            column(f"/{v}/current", m[:, run.signals.index(f"{v}.current")], w)
-            column(f"/{v}/spool_position", m[:, run.signals.index(f"{v}.spool_position")], w)
+                column(bag_topic(chamber_topic(chambers[v])), p, w, f"chamber_{chambers[v]}")
+            column(bag_topic(valve_topic(v, CURRENT)), m[:, run.signals.index(f"{v}.current")], w)
+            column(bag_topic(valve_topic(v, SPOOL_POSITION)), m[:, run.signals.index(f"{v}.spool_position")], w)
         if has_sp:
-            column("/setpoint", run.setpoint, w)
+            column(bag_topic(SETPOINT), run.setpoint, w)
         for flag, values in run.flags.items():
             column(f"/controller/{flag.removeprefix('controller.')}", values, w)
         pos, vel, eff = (m[:, run.signals.index(f"cylinder.{s}")] for s in ("position", "velocity", "effort"))
@@ -79,19 +94,19 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
             # A dropped signal is left out of the message (JointState allows empty arrays per field).
             fields = [(a[j],) if math.isfinite(a[j]) else () for a in (pos, vel, eff)]
             sec, nsec = divmod(int(t_ns[j]), _NS)
-            w.write("/cylinder/joint_states", int(t_ns[j]), {
+            w.write(JOINTS, int(t_ns[j]), {
                 "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"},
                 "name": ["steering"],
                 "position": np.array(fields[0], dtype=np.float64), "velocity": np.array(fields[1], dtype=np.float64),
                 "effort": np.array(fields[2], dtype=np.float64)})
         for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
-            w.write("/rig/events", round(t * _NS), {"data": text})
+            w.write(EVENTS, round(t * _NS), {"data": text})
     return Path(path)
 
 
 def signal_unit(signal: str) -> str:
     """The SI unit of a run's signal (its column header in a CSV)."""
-    from pcv_sim.rig.assertions import signal_kind
+    from pcv_sim.rig.rig import signal_kind
     from pcv_sim.units import KINDS
 
     return KINDS[signal_kind(signal)].si
@@ -131,7 +146,7 @@ def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     import re
 
     from pcv_sim.errors import BagError
-    from pcv_sim.rig.assertions import signal_kind
+    from pcv_sim.rig.rig import signal_kind
     from pcv_sim.units import quantity
 
     p = Path(path)

@@ -70,7 +70,7 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
              extra: Mapping[str, np.ndarray] | None = None, title: str = "") -> bytes:
     """A PNG of the run in engineering units with the assertions' limits, bands and violations and
     the numbered events drawn (see the module docstring)."""
-    from pcv_sim.commands.common import pyplot
+    from pcv_sim.plotting import pyplot
 
     plt = pyplot()
     extra = dict(extra or {})

@@ -22,7 +22,7 @@ inputs at the same steps give the same numbers bit for bit.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,10 +52,28 @@ __all__ = [
     "RigError",
     "RigStatus",
     "check_external_force",
+    "signal_kind",
+    "signal_names",
 ]
 
 VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
+
+
+def signal_names(valve_names: Sequence[str]) -> tuple[str, ...]:
+    """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve, then `cylinder.<...>`."""
+    return tuple(f"{n}.{s}" for n in valve_names for s in VALVE_SIGNALS) + tuple(f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+
+
+def signal_kind(signal: str) -> str:
+    """The physical kind of a rig signal, a duty, the setpoint or a controller flag (`pcv_sim.units.KINDS`)."""
+    if signal.startswith("controller."):
+        return "number"
+    tail = signal.rsplit(".", 1)[-1]
+    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
+            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length"}.get(tail, "number")
+
+
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.
 MAX_EXTERNAL_FORCE = 1.0e6
 #: The input name of the external force in `Rig.on_input` (valve inputs are `<valve>.duty_cycle`,
@@ -118,8 +136,7 @@ class Rig:
         #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
         self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
                              v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
-        self.signals = tuple(f"{n}.{s}" for n in self.valve_names for s in VALVE_SIGNALS) + tuple(
-            f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+        self.signals = signal_names(self.valve_names)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
         #: per valve: the output its load volume is wired from (the chamber's), or -1 (its own, constant)
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
@@ -239,7 +256,7 @@ class Rig:
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
         self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
-        return y[self._signal_i]
+        return np.asarray(y[self._signal_i])
 
     def load_volumes(self) -> list[float]:
         """Each valve's load volume at the last `sample()` (not updated by `advance_sample`'s fused

@@ -83,7 +83,7 @@ from pcv_sim.rig.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fau
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
-from pcv_sim.rig.rig import MAX_EXTERNAL_FORCE, Rig, RigError
+from pcv_sim.rig.rig import MAX_EXTERNAL_FORCE, Rig, RigError, signal_names
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
@@ -250,10 +250,8 @@ def _unknown(where: str, v: Mapping[str, Any], keys: tuple[str, ...]) -> None:
 
 
 def _signals(rig: RigParams) -> tuple[str, ...]:
-    out = []
-    for v in rig.valves:
-        out += [f"{v.name}.pressure", f"{v.name}.current", f"{v.name}.spool_position", f"{v.name}.duty"]
-    return (*out, "cylinder.position", "cylinder.velocity", "cylinder.effort", "setpoint")
+    names = [v.name for v in rig.valves]
+    return (*signal_names(names), *(f"{n}.duty" for n in names), "setpoint")
 
 
 def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, lo: float, hi: float, what: str,
@@ -529,7 +527,8 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
             raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
     if not callable(obj):
         raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
-    return obj
+    controller: Controller = obj
+    return controller
 
 
 # --- running ---------------------------------------------------------------------------------------
@@ -607,16 +606,15 @@ def _supply(rig: Rig, valve: str, pressure: float) -> None:
         del rig.log[n:]          # a profile's next value: the events list shows the profile once
 
 
-def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None,
-                 domain: int | None = None) -> ScenarioResult:
+def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None) -> ScenarioResult:
     """Run `scenario` in lockstep (with `controller`, or the one the file names) and check its
     assertions. A run whose model runs away fails with the reason (no exception). A ROS
-    controller (`scenario.ros`, no `controller` given) runs over DDS in ROS domain `domain`
-    (None: $ROS_DOMAIN_ID), the rig hosted as the rig node (`pcv_sim.node.scenario_host`)."""
+    controller (`scenario.ros`) runs over DDS with the rig node as host: that is
+    `pcv_sim.node.scenario_host.run_ros_scenario`, a layer above this one."""
     if controller is None and scenario.ros is not None:
-        from pcv_sim.node.scenario_host import run_ros_scenario
-
-        return run_ros_scenario(scenario, domain=domain)
+        raise ScenarioError(f"{scenario.name}: the controller is a ROS node; run it with "
+                            "pcv_sim.node.scenario_host.run_ros_scenario (as `pcv-sim scenario run` does), "
+                            "or pass a callable controller")
     if controller is None and scenario.controller is not None:
         controller = resolve_controller(scenario.controller, scenario.controller_params,
                                         scenario.path.parent if scenario.path else None)

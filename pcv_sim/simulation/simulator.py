@@ -89,7 +89,7 @@ class Simulator:
         norm = self._advance_sample(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
                                     s1, s2, s3, s4, xt, e, a, b, select, out, after)
         self.steps += n + after
-        return norm
+        return float(norm)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
         """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:

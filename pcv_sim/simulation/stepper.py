@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from pcv_sim.errors import CommandError
+from pcv_sim.model.kernel import INPUTS
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.compile import INTEGRATORS
@@ -22,13 +23,17 @@ from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
 from pcv_sim.simulation.valve import KINDS, valve_system
+from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR, bar
 
 __all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure"]
 
 # Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
-MAX_LOAD_FLOW = 100.0 / 60000.0        # m^3/s, 100 L/min (the valve passes ~50 L/min fully open)
-MAX_SUPPLY_PRESSURE = 400.0e5          # Pa
-MIN_SUPPLY_PRESSURE = 1.0e5            # Pa: below 1 bar a value is far more likely bar than Pa
+MAX_LOAD_FLOW = 100.0 * M3S_PER_LPM     # the valve passes ~50 L/min fully open
+MAX_SUPPLY_PRESSURE = 400.0 * PA_PER_BAR
+MIN_SUPPLY_PRESSURE = 1.0 * PA_PER_BAR   # below 1 bar a value is far more likely bar than Pa
+#: Where the valve's inputs sit in `Simulator.u` (the model's input order).
+DUTY, LOAD_FLOW, SUPPLY_PRESSURE, LOAD_VOLUME = (
+    INPUTS.index(name) for name in ("duty_cycle", "load_flow", "supply_pressure", "load_volume"))
 
 
 def check_load_flow(value: float) -> float:
@@ -36,8 +41,8 @@ def check_load_flow(value: float) -> float:
         raise CommandError(f"load flow {value!r}: accepted is a finite number in m^3/s")
     if abs(value) > MAX_LOAD_FLOW:
         # Name L/min only when the number read as L/min is a flow this valve can see.
-        looks_lpm = abs(value) / 60000.0 <= MAX_LOAD_FLOW
-        hint = f"; the unit is m^3/s, not L/min: {value:g} L/min is {value / 60000.0:.4g} m^3/s" if looks_lpm else ""
+        looks_lpm = abs(value) * M3S_PER_LPM <= MAX_LOAD_FLOW
+        hint = f"; the unit is m^3/s, not L/min: {value:g} L/min is {value * M3S_PER_LPM:.4g} m^3/s" if looks_lpm else ""
         raise CommandError(
             f"load flow {value:g} m^3/s is beyond +-{MAX_LOAD_FLOW:.4g} m^3/s (100 L/min){hint}"
         )
@@ -49,11 +54,11 @@ def check_supply_pressure(value: float) -> float:
         raise CommandError(f"supply pressure {value!r}: accepted is a finite number in Pa")
     if not MIN_SUPPLY_PRESSURE <= value <= MAX_SUPPLY_PRESSURE:
         # Name bar only when the number read as bar is in range (200 -> 200 bar), not for 5e8.
-        looks_bar = MIN_SUPPLY_PRESSURE <= value * 1e5 <= MAX_SUPPLY_PRESSURE
-        hint = f" (the unit is Pa, not bar: {value:g} bar is {value * 1e5:.4g} Pa)" if looks_bar else ""
+        looks_bar = MIN_SUPPLY_PRESSURE <= value * PA_PER_BAR <= MAX_SUPPLY_PRESSURE
+        hint = f" (the unit is Pa, not bar: {value:g} bar is {value * PA_PER_BAR:.4g} Pa)" if looks_bar else ""
         raise CommandError(
             f"supply pressure {value:g} Pa: accepted is {MIN_SUPPLY_PRESSURE:.4g} .. {MAX_SUPPLY_PRESSURE:.4g} Pa "
-            f"({MIN_SUPPLY_PRESSURE / 1e5:g} .. {MAX_SUPPLY_PRESSURE / 1e5:g} bar){hint}"
+            f"({bar(MIN_SUPPLY_PRESSURE):g} .. {bar(MAX_SUPPLY_PRESSURE):g} bar){hint}"
         )
     return float(value)
 
@@ -110,8 +115,8 @@ class RealTimeStepper:
 
     def _inputs(self) -> None:
         u = self.sim.u
-        u[0], u[1], u[2] = self.duty, self.load_flow, self.supply_pressure
-        u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
+        u[DUTY], u[LOAD_FLOW], u[SUPPLY_PRESSURE] = self.duty, self.load_flow, self.supply_pressure
+        u[LOAD_VOLUME] = self.params.circuit.load_volume          # a single valve: the configured load volume
 
     @property
     def steps(self) -> int:
@@ -158,17 +163,17 @@ class RealTimeStepper:
         changes at once, so outputs at the present time already see the new coil voltage."""
         self.command = check_duty(duty, self.params.command.duty_range)
         self.duty = self.limiter.peek(self.command, self.dt)
-        self.sim.u[0] = self.duty
+        self.sim.u[DUTY] = self.duty
         self._current_step = -1
 
     def set_load_flow(self, q: float) -> None:
         self.load_flow = check_load_flow(q)
-        self.sim.u[1] = self.load_flow
+        self.sim.u[LOAD_FLOW] = self.load_flow
         self._current_step = -1
 
     def set_supply_pressure(self, p: float) -> None:
         self.supply_pressure = check_supply_pressure(p)
-        self.sim.u[2] = self.supply_pressure
+        self.sim.u[SUPPLY_PRESSURE] = self.supply_pressure
         self._current_step = -1
 
     # --- stepping ----------------------------------------------------------------------------
@@ -191,7 +196,7 @@ class RealTimeStepper:
             n -= 1
             limiter.value = self.duty
             self.duty = limiter.peek(self.command, self.dt)
-            sim.u[0] = self.duty
+            sim.u[DUTY] = self.duty
 
     def advance_finite(self, n: int) -> bool:
         """`advance(n)`; True while the state is finite (`finite()`). While the fall-rate limiter is

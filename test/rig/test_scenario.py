@@ -194,6 +194,19 @@ def test_every_example_scenario_loads():
     assert "__ns:=/steering" in ros.argv("py")
 
 
+def test_a_ros_controller_is_refused_below_the_node_layer():
+    """rig.scenario.run_scenario runs callables; a ROS controller needs the node layer's host."""
+    from pcv_sim.rig.scenario import run_scenario
+
+    data = _step()
+    data["controller"] = {"ros": {"namespace": "/x", "wait": 1.0}}
+    sc = scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
+    assert sc.ros is not None
+    with pytest.raises(ScenarioError, match=r"the controller is a ROS node; run it with "
+                                            r"pcv_sim\.node\.scenario_host\.run_ros_scenario"):
+        run_scenario(sc)
+
+
 def test_the_readme_example_works_for_a_controller_without_flags(rig_scenario):
     """The README's pytest example, run as written with a controller that reports no flags."""
     import re as _re

@@ -18,7 +18,7 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal, cast
+from typing import Any, Final, Literal
 
 import yaml
 
@@ -203,7 +203,7 @@ def metadata_document(
 
 def dump_yaml(data: object) -> str:
     """Block-style YAML in rosbag2's key order; wide lines keep RIHS01 hashes on one line."""
-    return cast(str, yaml.safe_dump(data, default_flow_style=False, sort_keys=False, width=4096))
+    return yaml.safe_dump(data, default_flow_style=False, sort_keys=False, width=4096)
 
 
 def load_metadata(path: Path) -> dict[str, Any]:

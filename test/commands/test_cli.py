@@ -268,7 +268,7 @@ def test_version_as_a_module() -> None:
     # docs/ros_wheels.md: a child must not inherit the ros_wheels_bootstrapper mark.
     env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
     proc = subprocess.run([sys.executable, "-m", "pcv_sim", "--version"], env=env, capture_output=True,
-                          text=True, timeout=60, cwd=Path(__file__).resolve().parent.parent)
+                          text=True, timeout=60, cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == f"pcv_sim {__version__}"
 
@@ -347,7 +347,7 @@ def test_step_short_duration_warns_and_uses_the_static_solution(capsys: pytest.C
 
 
 def test_replay_states_damping_and_calibration(capsys: pytest.CaptureFixture[str]) -> None:
-    bag = str(Path(__file__).resolve().parent.parent / "bags" / "pcv_step_levels")
+    bag = str(Path(__file__).resolve().parents[2] / "bags" / "pcv_step_levels")
     assert main(["replay", bag, "--model", "simplified", "--solver", "fast"]) == 0
     assert "damping: equivalent (B + A_cc^2/K_d, R20)" in capsys.readouterr().out
     data = run_json(capsys, "replay", bag, "--model", "simplified", "--solver", "fast")

@@ -8,8 +8,9 @@ import pytest
 import yaml
 
 from pcv_sim.errors import ParameterError
+from pcv_sim.params import section_from_mapping
 from pcv_sim.plant import cylinder as cyl
-from pcv_sim.plant.params import CylinderParams, section_from_mapping
+from pcv_sim.plant.params import CylinderParams
 from pcv_sim.rig.params import DEFAULT_RIG, load_rig, rig_from_mapping
 
 
@@ -34,7 +35,7 @@ def test_shipped_rig_loads():
     (lambda d: d["rig"].update(control_period=1.5e-4), r"rig\.control_period=0\.00015 s: accepted is a whole number"),
     (lambda d: d["rig"].update(timestep=1e-4), r"unknown key\(s\) rig\.timestep"),
     (lambda d: d["valves"]["right"].update(chamber="a"), r"chamber a is fed by \['left', 'right'\]; accepted is exactly one"),
-    (lambda d: d["valves"]["left"].update(chamber="c"), r"valves\.left\.chamber: got 'c'; accepted is 'a' or 'b'"),
+    (lambda d: d["valves"]["left"].update(chamber="c"), r"valves\.left\.chamber: got 'c'; accepted is one of 'a', 'b', 'none'"),
     (lambda d: d["valves"]["left"].update(initial_duty=50), r"valves\.left\.initial_duty: got 50; accepted is a fraction"),
     (lambda d: d["valves"]["left"].update(config="nosuch.yaml"), r"cannot read parameter file .*nosuch\.yaml"),
     (lambda d: d.update(plant={}), r"unknown section\(s\) \['plant'\]"),
