@@ -17,3 +17,14 @@ def bar(p_pa: float) -> float:
 
 def lpm(q_m3s: float) -> float:
     return q_m3s / M3S_PER_LPM
+
+
+KELVIN_AT_0C = 273.15   # temperatures are kelvin inside; the YAML and reports give degC (keys *_c)
+
+
+def kelvin(celsius: float) -> float:
+    """degC (the YAML's *_c keys, scenario profiles) -> K (inside the model)."""
+    return celsius + KELVIN_AT_0C
+
+
+CST_PER_M2S = 1.0e6     # kinematic viscosity: 1 cSt = 1 mm^2/s (oil grades, Walther's relation)

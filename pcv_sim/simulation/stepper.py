@@ -20,9 +20,10 @@ from pcv_sim.simulation.duty import DutyProfile, FallRateLimiter, check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
-from pcv_sim.simulation.valve import KINDS, valve_system
+from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_system
+from pcv_sim.units import KELVIN_AT_0C
 
-__all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure"]
+__all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure", "check_temperature"]
 
 # Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
 MAX_LOAD_FLOW = 100.0 / 60000.0        # m^3/s, 100 L/min (the valve passes ~50 L/min fully open)
@@ -54,6 +55,21 @@ def check_supply_pressure(value: float) -> float:
             f"supply pressure {value:g} Pa: accepted is {MIN_SUPPLY_PRESSURE:.4g} .. {MAX_SUPPLY_PRESSURE:.4g} Pa "
             f"({MIN_SUPPLY_PRESSURE / 1e5:g} .. {MAX_SUPPLY_PRESSURE / 1e5:g} bar){hint}"
         )
+    return float(value)
+
+
+MIN_TEMPERATURE, MAX_TEMPERATURE = 213.15, 473.15    # K: -60 .. 200 degC, what a valve in a vehicle sees
+
+
+def check_temperature(what: str, value: float) -> float:
+    """A temperature input (K): refused beyond -60 .. 200 degC, with a hint when it reads as degC."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CommandError(f"{what} {value!r}: accepted is a finite number in K")
+    if not MIN_TEMPERATURE <= value <= MAX_TEMPERATURE:
+        looks_c = MIN_TEMPERATURE <= value + KELVIN_AT_0C <= MAX_TEMPERATURE
+        hint = f" (the unit is K, not degC: {value:g} degC is {value + KELVIN_AT_0C:.5g} K)" if looks_c else ""
+        raise CommandError(f"{what} {value:g} K: accepted is {MIN_TEMPERATURE:g} .. {MAX_TEMPERATURE:g} K "
+                           f"(-60 .. 200 degC){hint}")
     return float(value)
 
 
@@ -101,9 +117,8 @@ class RealTimeStepper:
         self._inputs()
 
     def _inputs(self) -> None:
-        u = self.sim.u
-        u[0], u[1], u[2] = self.duty, self.load_flow, self.supply_pressure
-        u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
+        # A single valve: the configured load volume (and temperatures, with the options on).
+        self.sim.u[:] = valve_inputs(self.params, self.duty, self.load_flow, self.supply_pressure)
 
     @property
     def steps(self) -> int:
@@ -157,6 +172,20 @@ class RealTimeStepper:
     def set_supply_pressure(self, p: float) -> None:
         self.supply_pressure = check_supply_pressure(p)
         self.sim.u[2] = self.supply_pressure
+
+    def set_input(self, name: str, value: float) -> None:
+        """An option's input by its name (`ambient_temperature`, `oil_temperature`, K) from the
+        present step on; CommandError for an input this valve's layout does not have."""
+        inputs = self.sim.plant.inputs
+        if f"valve.{name}" not in inputs or name in ("duty_cycle", "load_flow", "supply_pressure", "load_volume"):
+            extra = [i.partition(".")[2] for i in inputs[4:]]
+            raise CommandError(f"input {name!r}: accepted are {', '.join(extra) or 'none'} (the valve YAML's "
+                               "options bring them: solenoid.coil_thermal, fluid.oil_temperature_model)")
+        self.sim.u[inputs.index(f"valve.{name}")] = check_temperature(name.replace("_", " "), value)
+
+    def output(self, name: str) -> float:
+        """An output by its name at the present state (e.g. coil_temperature, core_position)."""
+        return float(self.sim.outputs()[self.sim.plant.index("output", f"valve.{name}")])
 
     # --- stepping ----------------------------------------------------------------------------
 
