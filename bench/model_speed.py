@@ -48,8 +48,8 @@ def _with_options(kind: str) -> object:
     from pcv_sim.params import load_params, replace_param
 
     p = load_params()
-    for key, value in (("solenoid.coil_thermal", True), ("fluid.oil_temperature_model", True),
-                       ("fluid.oil_temperature_c", 0.0 if kind == "full" else 20.0), ("spool.core_separation", True)):
+    for key, value in (("solenoid.coil_temperature", "lumped"), ("fluid.temperature", "input"),
+                       ("fluid.oil_temperature_c", 0.0 if kind == "full" else 20.0), ("spool.core", "separate")):
         p = replace_param(p, key, value)
     return p
 

@@ -140,10 +140,15 @@ class SolenoidParams:
     supply_voltage: float = _param("V", "Sec. 3.1", _range(1.0, 60.0))
     pwm: str = _param("-", "R15", _one_of("averaged", "switched"), kind="str")
     pwm_frequency: float = _param("Hz", "Sec. 3", _range(10.0, 1e5))
-    # Coil heating (not in the paper, whose coil was pre-heated: docs/model.md R33). Off: the coil
-    # keeps `coil_resistance` (the paper's bench). On: a coil temperature state, R(T) =
+
+    @property
+    def coil_thermal(self) -> bool:
+        """True when the coil heats (R33): a coil temperature state, R(T)."""
+        return self.coil_temperature == "lumped"
+    # Coil heating (not in the paper, whose coil was pre-heated: docs/model.md R33). fixed: the coil
+    # keeps `coil_resistance` (the paper's bench). lumped: a coil temperature state, R(T) =
     # R_ref (1 + alpha (T - T_ref)) with R_ref = coil_resistance at coil_reference_temperature_c.
-    coil_thermal: bool = _param("-", "R33", kind="bool", default=False)
+    coil_temperature: str = _param("-", "R33", _one_of("fixed", "lumped"), kind="str", default="fixed")
     coil_reference_temperature_c: float = _param("degC", "R33", _range(-60.0, 250.0), default=20.0)
     coil_temperature_coefficient: float = _param("1/K", "R33, IEC 60028 copper", _range(0.0, 1e-2),
                                                  default=3.93e-3)
@@ -166,13 +171,18 @@ class SpoolParams:
     viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _range(1e-3, 1e5), kind="float_or_equivalent")
     stroke_min_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
     stroke_max_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
-    # Core-spool separation (Sec. 3.2 names it, the model leaves it out: docs/model.md R35). Off:
-    # core and spool one body of `mass`. On: the magnet core a body of core_mass on its own side
+    # Core-spool separation (Sec. 3.2 names it, the model leaves it out: docs/model.md R35).
+    # attached: core and spool one body of `mass`. separate: the magnet core a body of core_mass on its own side
     # of a unilateral contact, with core_damping of the moving parts' damping on it.
-    core_separation: bool = _param("-", "R35", kind="bool", default=False)
+    core: str = _param("-", "R35", _one_of("attached", "separate"), kind="str", default="attached")
     core_mass: float = _param("kg", "R35, assumption", _range(1e-4, 1.0), default=0.024)
     core_damping: float = _param("Ns/m", "R35, assumption", _range(0.0, 1e5), default=2.0)
     core_stroke_min_mm: float = _param("mm", "R35, R2", _range(-10.0, 10.0), default=-0.7)
+
+    @property
+    def core_separation(self) -> bool:
+        """True when the magnet core is its own body (R35)."""
+        return self.core == "separate"
 
 
 @dataclass(frozen=True)
@@ -218,11 +228,11 @@ class FluidParams:
     # Not in the paper (its valve never sees it): the gauge pressure at which the oil cavitates
     # (gas release), the floor of the load pressure (reading R32). Optional, for older files.
     cavitation_pressure: float = _param("Pa", "R32", _range(-1.0e5, -1.0e4), default=-0.9e5)
-    # Oil temperature (not in the paper, whose oil was at 37-42 degC: docs/model.md R34). Off: the
-    # values above. On: the oil temperature an input; density, bulk modulus and kinematic_viscosity
+    # Oil temperature (not in the paper, whose oil was at 37-42 degC: docs/model.md R34). fixed: the
+    # values above. input: the oil temperature an input; density, bulk modulus and kinematic_viscosity
     # hold at reference_temperature_c, the viscosity follows Walther (ASTM D341) through them and
     # the second point; laminar conductances and viscous damping scale with the dynamic viscosity.
-    oil_temperature_model: bool = _param("-", "R34", kind="bool", default=False)
+    temperature: str = _param("-", "R34", _one_of("fixed", "input"), kind="str", default="fixed")
     reference_temperature_c: float = _param("degC", "R34, the paper's 40 degC", _range(-40.0, 150.0),
                                             default=40.0)
     second_viscosity: float = _param("m^2/s", "R34, ISO VG 46 VI ~100", _range(1e-7, 1e-2), default=6.8e-6)
@@ -232,6 +242,11 @@ class FluidParams:
                                                          default=4.0e-3)
     oil_temperature_c: float = _param("degC", "R34: the oil input's default", _range(-40.0, 150.0),
                                       default=40.0)
+
+    @property
+    def oil_temperature_model(self) -> bool:
+        """True when the oil temperature is an input (R34)."""
+        return self.temperature == "input"
 
 
 @dataclass(frozen=True)

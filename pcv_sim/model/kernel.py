@@ -121,7 +121,10 @@ def layout(params: ValveParams, kind: str) -> Layout:
     """States, inputs and outputs of the valve `kind` with the options `params` switches on."""
     if kind not in STATES:
         raise ValueError(f"model kind {kind!r}: accepted are 'simplified' and 'full'")
-    states, inputs, outputs, state_outputs = STATES[kind], INPUTS, OUTPUTS, STATE_OUTPUTS
+    states: tuple[str, ...] = STATES[kind]
+    inputs: tuple[str, ...] = INPUTS
+    outputs: tuple[str, ...] = OUTPUTS
+    state_outputs: tuple[str, ...] = STATE_OUTPUTS
     if params.solenoid.coil_thermal:
         states += ("coil_temperature",)
         inputs += ("ambient_temperature",)

@@ -180,7 +180,7 @@ class RealTimeStepper:
         if f"valve.{name}" not in inputs or name in ("duty_cycle", "load_flow", "supply_pressure", "load_volume"):
             extra = [i.partition(".")[2] for i in inputs[4:]]
             raise CommandError(f"input {name!r}: accepted are {', '.join(extra) or 'none'} (the valve YAML's "
-                               "options bring them: solenoid.coil_thermal, fluid.oil_temperature_model)")
+                               "options bring them: solenoid.coil_temperature: lumped, fluid.temperature: input)")
         self.sim.u[inputs.index(f"valve.{name}")] = check_temperature(name.replace("_", " "), value)
 
     def output(self, name: str) -> float:
