@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from pcv_sim.errors import CommandError
+from pcv_sim.model import kernel
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.compile import INTEGRATORS
@@ -21,7 +22,7 @@ from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
 from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_system
-from pcv_sim.units import KELVIN_AT_0C
+from pcv_sim.units import KELVIN_AT_0C, kelvin
 
 __all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure", "check_temperature"]
 
@@ -95,6 +96,8 @@ class RealTimeStepper:
             raise ValueError(f"integrator {name!r}: accepted are {', '.join(INTEGRATORS)}")
         self.integrator = name
         self.sim = Simulator(valve_system(params, self.kind), self.dt, name)
+        if params.fluid.oil_temperature_model:
+            self._check_oil(kelvin(params.fluid.oil_temperature_c))
         self.reset(duty, load_flow, supply_pressure)
 
     # --- state -------------------------------------------------------------------------------
@@ -181,7 +184,27 @@ class RealTimeStepper:
             extra = [i.partition(".")[2] for i in inputs[4:]]
             raise CommandError(f"input {name!r}: accepted are {', '.join(extra) or 'none'} (the valve YAML's "
                                "options bring them: solenoid.coil_temperature: lumped, fluid.temperature: input)")
-        self.sim.u[inputs.index(f"valve.{name}")] = check_temperature(name.replace("_", " "), value)
+        value = check_temperature(name.replace("_", " "), value)
+        if name == "oil_temperature":
+            self._check_oil(value)
+        self.sim.u[inputs.index(f"valve.{name}")] = value
+
+    def _check_oil(self, temperature: float) -> None:
+        """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
+        outgrows the explicit step (Heun's and erk2's bound on the real axis is h lambda = 2).
+        Refused with what would run it, rather than integrated into a diverging state."""
+        p = self.sim.P[: kernel.N_PARAMS]
+        mu_ratio = float(kernel.oil_properties(temperature, p)[3])
+        sp = self.params.spool
+        mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
+        z = self.params.equivalent_damping * mu_ratio / mass * self.dt
+        if z > 2.0:
+            limit = self.dt * 2.0 / z
+            raise CommandError(
+                f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
+                f"reference's) makes the spool's damping pole {z / self.dt:.3g} 1/s, beyond what the "
+                f"{self.dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, or "
+                f"simulation.time_step <= {limit:.2g} s for this temperature")
 
     def output(self, name: str) -> float:
         """An output by its name at the present state (e.g. coil_temperature, core_position)."""
