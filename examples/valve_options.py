@@ -9,8 +9,8 @@
   current and the pressure fall) and with a PI controller closing the loop on pressure (the
   duty rises to hold it);
 - fast release with core-spool separation: 100 % -> 0 % -> 60 %, without and with the paper's
-  fall-rate limit (2 /s): without it the spool stops on its end stop, the core flies on and the
-  pressure returns late; with it core and spool stay together.
+  fall-rate limit (2 /s): without it the spool stops on its end stop and the core flies on
+  (the gap); the solenoid brings it back at once when the duty returns.
 """
 
 from __future__ import annotations

@@ -149,8 +149,11 @@ def test_cold_oil_slows_the_full_model():
 
 
 def test_too_cold_oil_for_the_step_is_refused():
-    with pytest.raises(CommandError, match=r"oil temperature 0.0 degC: .* simulation.time_step <= 2e-05 s"):
+    with pytest.raises(CommandError, match=r"oil temperature 0.0 degC: .* simulation.time_step <= \S+ s") as err:
         RealTimeStepper(options(fluid__oil_temperature_c=0.0, spool__core="attached"), duty=0.5)
+    step = float(str(err.value).rsplit("<= ", 1)[1].split(" ")[0])
+    assert 1e-5 < step < 1e-4                       # 13x the viscosity: about a tenth of the step
+    RealTimeStepper(options(fluid__oil_temperature_c=0.0, spool__core="attached", simulation__time_step=step), duty=0.5)
     st = RealTimeStepper(options(), duty=0.5)
     with pytest.raises(CommandError, match=r"beyond what the 0\.0001 s step integrates"):
         st.set_input("oil_temperature", kelvin(-20.0))
@@ -213,23 +216,6 @@ def test_no_separation_at_the_papers_rate_limit(kind):
     for _ in range(60):                             # 0.6 s: the ramp to 0 and beyond
         st.advance(100)
         assert st.output("core_position") == st.spool_position
-
-
-def test_separation_delays_the_return():
-    """After a release to 0 % the core lies apart from the spool: a new command acts only once the
-    core is back, so the pressure rises later than with core and spool as one body."""
-    rise = {}
-    for separation in (False, True):
-        st = RealTimeStepper(options(spool__core="separate" if separation else "attached"), duty=1.0)
-        st.set_duty(0.0)
-        st.advance(1000)                            # 100 ms: the spool on its stop, the core on its way
-        st.set_duty(0.7)
-        for k in range(2000):
-            st.advance(1)
-            if st.pressure > 50e5:
-                rise[separation] = k
-                break
-    assert rise[True] > rise[False]
 
 
 def test_core_parameters_are_checked():
