@@ -199,7 +199,9 @@ class RealTimeStepper:
         mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
         z = self.params.equivalent_damping * mu_ratio / mass * self.dt
         if z > 2.0:
-            limit = self.dt * 2.0 / z
+            exact = self.dt * 2.0 / z
+            scale = 10.0 ** (math.floor(math.log10(exact)) - 1)
+            limit = math.floor(exact / scale) * scale        # two digits, rounded down: a step that runs
             raise CommandError(
                 f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
                 f"reference's) makes the spool's damping pole {z / self.dt:.3g} 1/s, beyond what the "
