@@ -86,7 +86,7 @@ def main() -> int:
             print("no emulator samples", file=sys.stderr)
             return 1
         client.spin_for(2.0)                                  # warm-up
-        first_diag = client.wait_for_diagnostics(timeout=5)
+        first_diag = client.wait_for_diagnostics(timeout=20)
         cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
         n0, d0 = len(client.samples), len(client.diagnostics)
         rng = random.Random(1)
@@ -102,7 +102,7 @@ def main() -> int:
                 next_cmd = now + opts.spacing + rng.uniform(0.0, 0.05)
             client.executor.spin_once(timeout_sec=0.005)
         cpu1, wall1 = _cpu_seconds(proc.pid), time.monotonic()
-        last_diag = client.wait_for_diagnostics(timeout=5)
+        last_diag = client.wait_for_diagnostics(timeout=20)
         client.spin_for(0.2)
     finally:
         for h in hogs:

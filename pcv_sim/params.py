@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ from typing import Any
 import yaml
 
 from pcv_sim.errors import ParameterError
+from pcv_sim.units import quantity, si_kind
 
 __all__ = [
     "DEFAULT_CONFIG",
@@ -444,6 +446,10 @@ def validate_section_value(section: str, key: str, value: Any, *, prefix: str = 
     return check_value(f"{prefix}{section}.{key}", fields[key].metadata, value)
 
 
+#: A number followed by a unit ("200 bar", "0.1 ms"); a bare number in quotes ("1e9") is not one.
+_WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[^\d\s.+eE-]")
+
+
 def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     """Convert and check one value of a declared parameter (its field's metadata: kind, unit, check,
     convert); ParameterError naming `path` and what is accepted."""
@@ -451,6 +457,9 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     in_unit = f" in {unit}" if unit not in ("", "-") else ""
     if meta.get("convert") is not None:
         return meta["convert"](path, value)
+    if isinstance(value, str) and kind.startswith("float") and si_kind(unit) is not None \
+            and _WITH_UNIT.match(value):
+        value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
     if kind == "float":
         out: Any = _number(path, value, f"a number{in_unit}")
     elif kind == "int":

@@ -292,7 +292,7 @@ def test_common_options_after_the_subcommand(capsys: pytest.CaptureFixture[str],
 
     required = {"replay": ["bag"], "import-csv": ["in.csv", "out"], "step": ["--from", "0.5", "--to", "0.7"],
                 "calibrate": ["bag", "--fit", "spool.spring_preload", "-o", "out.yaml"],
-                "scenario": ["run", "s.yaml"]}
+                "scenario": ["run", "s.yaml"], "campaign": ["run", "c.yaml"]}
     parser = build_parser()
     names = [sys.modules[m].NAME for m in COMMANDS]
     for name in names:                      # every subcommand takes --config after its name

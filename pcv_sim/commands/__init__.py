@@ -12,4 +12,5 @@ COMMANDS = [
     "pcv_sim.commands.reference_bags",
     "pcv_sim.commands.calibrate",
     "pcv_sim.commands.scenario",
+    "pcv_sim.commands.campaign",
 ]

@@ -5,7 +5,9 @@ and faults, a controller (`module:callable`) and assertions. The run is determin
 as the machine allows. Exit status: 0 every assertion held, 1 one failed (or the model ran away,
 or a ROS controller did not answer within its `wait`, or its command exited), 2 a bad file (the
 message names the key). A directory runs each *.yaml in it in parallel processes and prints one
-summary; --bag and --report then name directories (one entry per scenario).
+summary; --bag and --report then name directories (one entry per scenario; the reports get an
+index.html). --junit FILE writes JUnit XML (one test case per scenario) for CI; --csv DIR every
+signal of each run as DIR/<scenario>.csv.
 
 A ROS controller (`controller: {ros: ...}` in the file, or `--ros NAMESPACE` for any scenario):
 the rig node runs here, over DDS. A controller the scenario starts (`command`) runs in a ROS
@@ -39,6 +41,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     run.add_argument("--json", action="store_true", help="print every assertion's outcome and the real-time factor as JSON")
     run.add_argument("--report", type=Path, metavar="OUT.html", help="write an HTML report with plots (a directory for DIR)")
     run.add_argument("--bag", type=Path, metavar="BAG_DIR", help="write the run as a rosbag2/MCAP bag (a directory for DIR)")
+    run.add_argument("--junit", type=Path, metavar="FILE.xml",
+                     help="write JUnit XML: one test case per scenario, its assertions as properties (for CI)")
+    run.add_argument("--csv", type=Path, metavar="DIR",
+                     help="write every signal of each run as DIR/<scenario>.csv (time + columns, units in the header)")
     run.add_argument("--jobs", type=int, default=0, metavar="N",
                      help="parallel processes for a directory (default: the number of CPUs)")
     run.add_argument("--ros", metavar="NAMESPACE", default=None,
@@ -79,11 +85,12 @@ def _load(path: Path, ros: str | None, wait: float) -> Any:
 
 
 def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = None, wait: float = 30.0,
-         domain: int | None = None) -> dict[str, Any]:
+         domain: int | None = None, csv: Path | None = None) -> dict[str, Any]:
     """Load, run, record one scenario; a dict (picklable) with `status` 0/1/2. A controller the
     scenario starts runs in ROS domain `domain` (None: this worker's, or one from the pid)."""
     from pcv_sim.errors import PcvSimError
-    from pcv_sim.rig.record import render_html, write_bag
+    from pcv_sim.rig.record import write_bag, write_csv
+    from pcv_sim.rig.report import render_html
     from pcv_sim.rig.scenario import run_scenario
 
     try:
@@ -102,6 +109,8 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
         chambers = {v.name: v.chamber for v in scenario.rig.valves}
         write_bag(result.run, bag, chambers=chambers)
         out["bag"] = str(bag)
+    if result.run is not None and csv is not None:
+        out["csv"] = str(write_csv(result.run, csv / f"{path.stem}.csv"))
     if report is not None:
         report.parent.mkdir(parents=True, exist_ok=True)
         report.write_text(render_html(result), encoding="utf-8")
@@ -109,9 +118,10 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
     return out
 
 
-def _group(items: list[tuple[Path, Path | None, Path | None]], ros: str | None, wait: float) -> list[dict[str, Any]]:
+def _group(items: list[tuple[Path, Path | None, Path | None]], ros: str | None, wait: float,
+           csv: Path | None = None) -> list[dict[str, Any]]:
     """Scenarios one after the other (they share a controller node the user started)."""
-    return [_one(path, bag, report, ros, wait) for path, bag, report in items]
+    return [_one(path, bag, report, ros, wait, csv=csv) for path, bag, report in items]
 
 
 def _groups(files: list[Path], ros: str | None, wait: float) -> list[list[int]]:
@@ -146,6 +156,20 @@ def _text(r: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _outputs(args: argparse.Namespace, results: list[dict[str, Any]], folder: Path | None) -> None:
+    """The JUnit file, and a folder's report index."""
+    if getattr(args, "junit", None) is not None:
+        from pcv_sim.rig.junit import write_junit
+
+        write_junit(results, args.junit)
+    if folder is not None and args.report is not None:
+        from pcv_sim.rig.report import render_index
+
+        args.report.mkdir(parents=True, exist_ok=True)
+        (args.report / "index.html").write_text(render_index(results, title=str(folder), base=args.report),
+                                                encoding="utf-8")
+
+
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "config", None) is not None:
         raise UsageError("--config: a scenario takes each valve's YAML from its rig file (valves.<name>.config); "
@@ -177,11 +201,12 @@ def run(args: argparse.Namespace) -> int:
         with ProcessPoolExecutor(max_workers=min(jobs, len(groups), len(DOMAINS)), initializer=_init_worker,
                                  initargs=(counter, os.getpid())) as pool:
             done = pool.map(_group, [[(files[k], bags[k], reports[k]) for k in g] for g in groups],
-                            [args.ros] * len(groups), [args.wait] * len(groups))
+                            [args.ros] * len(groups), [args.wait] * len(groups), [args.csv] * len(groups))
             for g, rs in zip(groups, done):
                 for k, r in zip(g, rs):
                     results[k] = r
         status = max(r["status"] for r in results)
+        _outputs(args, results, path)
         if args.json:
             emit_json({"passed": status == 0, "scenarios": results})
         else:
@@ -195,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{path}: no such scenario file or directory")
     if args.bag is not None and args.bag.exists():
         raise UsageError(f"--bag {args.bag}: exists; accepted is a path that does not exist yet")
-    r = _one(path, args.bag, args.report, args.ros, args.wait)
+    r = _one(path, args.bag, args.report, args.ros, args.wait, csv=args.csv)
+    _outputs(args, [r], None)
     if args.json:
         emit_json(r)
     else:

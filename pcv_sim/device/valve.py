@@ -29,6 +29,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
@@ -155,6 +157,10 @@ class ValveDevice:
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
+        # Every kernel the stepping uses is loaded (or compiled) now: compiled on first use in a
+        # loop's first wake it would hold the loop (and its stop check) for seconds, a minute
+        # on a busy machine with an empty kernel cache.
+        self.stepper.warm_up()
         self.last_good = self.sample()
 
     # --- configuration -----------------------------------------------------------------------
@@ -289,7 +295,7 @@ class ValveDevice:
     def _next_event(self, end: int) -> int:
         s = self.steps
         stop = min(end, s + self.sample_every - s % self.sample_every)
-        if self.recorder is not None:
+        if self.recorder is not None and (not self._traced() or self.stepper.ramping):
             stop = min(stop, s + self.record_every - s % self.record_every)
         if self._pending:
             stop = min(stop, self._pending[0][0])
@@ -321,9 +327,21 @@ class ValveDevice:
         while self.steps < end:
             stop = self._next_event(end)
             if self.fault is None:
+                first = self.steps + 1
                 try:
-                    self.stepper.advance(stop - self.steps)
-                    problem = self._state_problem()
+                    if stop - self.steps > 1 and self._traced() and not self.stepper.ramping:
+                        # A recorder of every step takes the steps before `stop` as one block of
+                        # outputs (inputs unchanged within it): one compiled call for the stretch.
+                        rows = self.stepper.advance_traced(stop - first)
+                        bad, problem = self._rows_problem(rows)
+                        if problem is not None:
+                            self.steps = first + bad
+                            self._model_fault(problem)
+                            continue
+                        self.recorder.record_block(self.stamp_ns(first), self.dt_ns, rows)  # type: ignore[union-attr]
+                        problem = self._state_problem(self.stepper.advance_finite(1))
+                    else:
+                        problem = self._state_problem(self.stepper.advance_finite(stop - self.steps))
                 except MODEL_FAILURES as err:
                     problem = f"model step failed ({type(err).__name__}: {err})"
                 if problem is not None:
@@ -357,9 +375,26 @@ class ValveDevice:
                     self.recorder(self.stamp_ns(stop), signals)
         return out
 
-    def _state_problem(self) -> str | None:
+    def _traced(self) -> bool:
+        """The recorder takes stretches of steps (`record_block(t0_ns, dt_ns, rows)`, rows of
+        pressure, current, spool position at every step): see pcv_sim.io.recorder.BagRecorder."""
+        return self.record_every == 1 and hasattr(self.recorder, "record_block")
+
+    def _rows_problem(self, rows: np.ndarray) -> tuple[int, str | None]:
+        """The first row (step) no valve can show, and why; (0, None) when all are fine."""
+        lim = self.limits
+        p, i = rows[:, 0], rows[:, 1]
+        # The usual case in four reductions (a NaN fails every comparison); the row only when not.
+        if lim.pressure_min <= p.min() and p.max() <= lim.pressure_max and -lim.current_max <= i.min() \
+                and i.max() <= lim.current_max:
+            return 0, None
+        ok = np.isfinite(rows).all(axis=1) & (p >= lim.pressure_min) & (p <= lim.pressure_max) & (np.abs(i) <= lim.current_max)
+        k = int(np.argmin(ok))
+        return k, lim.problem(float(p[k]), float(i[k])) or "model state went non-finite"
+
+    def _state_problem(self, finite: bool) -> str | None:
         """A cheap check after every stretch of steps (state only; the current is checked on output)."""
-        if not self.stepper.finite():
+        if not finite:
             return "model state went non-finite"
         p = self.stepper.pressure
         lim = self.limits

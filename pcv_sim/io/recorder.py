@@ -25,33 +25,41 @@ What is written, and when (log time = model sample time, one clock for inputs an
   (:data:`ROLE_QOS`: outputs best effort keep last 5, inputs reliable keep last 10), so that
   ``ros2 bag play`` republishes each topic as the node does (docs/interface.md).
 
-Timing. The model loop must not wait for the disk. By default (``threaded=True``) a call only
-appends a tuple to a ``collections.deque`` (~1 µs per step with all signals); a writer thread
-takes the queue every ``batch_period`` s, serialises the output samples as whole numpy arrays
-(``BagWriter.write_samples``, ~0.2 µs per message) and lets the BagWriter compress and flush its
-chunks (zstd, CRC, write and fsync run without the interpreter lock). Python threads share one
-interpreter lock, so what counts is how long the writer holds it: serialising message by message
-(~5 µs each, 30 000 messages per second at the full rate) in the writer thread made 10-16 % of
-the steps late, the bulk path about as few as no recording; ``threaded=False`` (all of it inside
-the call, every ~5-8 ms chunk flush landing on a model step) 4 %. BENCHMARKS.md ("Recording") has
-the figures. A node that records sets the interpreter's switch interval to :data:`SWITCH_INTERVAL`
-(1 ms, the wake period; default 5 ms): it bounds how long a woken loop can wait for the lock
-whenever the writer does have longer work (a backlog, a burst of input changes).
+Timing. The model loop must not wait for the disk, nor for the interpreter lock. Where the disk
+work runs is the ``writer`` argument:
 
-Durability: a SIGKILL or a power cut (chunks are fsync'ed) loses at most what was queued
-(``batch_period``) plus what the BagWriter had not flushed (``0.8 * flush_period_s`` at most,
-plus one flush), under one second with the defaults; ``close()`` (SIGINT/SIGTERM in the node)
-finalizes the bag. Nothing is dropped silently: when the writer cannot keep up (more than ``max_queue_s`` of data waiting) or
-writing failed (disk full), later messages are counted in :attr:`RecorderStatus.dropped` and
-the failure is kept in :attr:`RecorderStatus.error`; the device keeps running either way.
+- ``process`` (what the nodes use): a call appends a tuple to a list (~1 µs per step with all
+  signals); every ``batch_period`` s (or 4096 items) the loop pickles the list into a
+  shared-memory ring (~25 µs for 200 items) and a writer process (:mod:`pcv_sim.io.writer_process`)
+  does the rest with this same class's writing side. The node's interpreter lock is then the
+  loop's alone.
+- ``thread``: the same queue taken by a writer thread every ``batch_period`` s, serialising the
+  output samples as whole numpy arrays (``BagWriter.write_samples``, ~0.2 µs per message). Python
+  threads share one interpreter lock: the loop waits whenever it wakes while the writer holds it,
+  and on a busy machine the writer can be preempted *holding* it, which stalls the loop for a
+  scheduler slice although the loop has a core (BENCHMARKS.md, "Recording", has what this
+  costs next to the device's own per-step work).
+- ``inline``: everything inside the call (every ~5-8 ms chunk flush landing on a model step).
+
+Durability: a SIGKILL of the node or a power cut (chunks are fsync'ed) loses at most what was
+not yet handed over (``batch_period``) plus what the BagWriter had not flushed
+(``0.8 * flush_period_s`` at most, plus one flush), under one second with the defaults. With
+``writer="process"`` a SIGKILL of the node alone loses only the batch in progress: the writer
+process sees the node gone, writes what it had and finalizes the bag. ``close()`` (SIGINT/SIGTERM
+in the node) finalizes the bag with everything recorded. Nothing is dropped silently: when the
+writer cannot keep up (more than ``max_queue_s`` of data waiting) or writing failed (disk full, a
+writer process that died), later messages are counted in :attr:`RecorderStatus.dropped` and the
+failure is kept in :attr:`RecorderStatus.error`; the device keeps running either way.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import math
 import os
+import pickle
 import re
 import struct
 import threading
@@ -80,6 +88,7 @@ from pcv_sim.io.topics import (
     bag_topic,
     role_of,
 )
+from pcv_sim.io.writer_process import WriterProcess
 
 __all__ = [
     "RECORDABLE",
@@ -99,6 +108,8 @@ ROLE_QOS: Final[Mapping[str, Qos]] = {
     **{r: COMMAND_QOS for r in INPUT_ROLES},
 }
 
+#: Where a recorder's disk work runs (see BagRecorder's `writer`).
+Writer = Literal["process", "thread", "inline"]
 #: Signals a recorder can write, by role (the device's topic names).
 RECORDABLE: Final = ROLES
 #: Interpreter switch interval (s) a node sets while a threaded recorder runs: the longest a
@@ -116,7 +127,9 @@ _SOURCE: Final = {
 }
 _IN: Final = 0     # queue item (_IN, role index, t_ns, value)
 _OUT: Final = 1    # queue item (_OUT, t_ns, pressure, current, spool_position)
+_BLOCK: Final = 4  # queue item (_BLOCK, t0_ns, dt_ns, rows of pressure, current, spool_position)
 _SLICE: Final = 1024   # output samples per write_samples call (~130 kB with all three outputs)
+_SHIP_ITEMS: Final = 4096   # items per batch to the writer process at most (besides batch_period)
 _NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -177,14 +190,19 @@ class _QueuedBag:
         qos: Mapping[str, Qos],
         max_items: int,
         split_size_bytes: int | None,
-        threaded: bool,
+        writer: Writer,
         batch_period: float,
         flush_period_s: float,
         chunk_size: int,
         fsync: bool,
         when_full: Literal["drop", "wait"],
         ros_distro: str | None,
+        build: Mapping[str, Any],
+        item_bytes: int,
     ) -> None:
+        if writer not in ("process", "thread", "inline"):
+            msg = f"writer {writer!r}: accepted are 'process', 'thread' and 'inline'"
+            raise BagError(msg)
         if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
             msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
             raise BagError(msg)
@@ -205,6 +223,31 @@ class _QueuedBag:
         except OSError as exc:
             msg = f"cannot create the recording directory {str(directory)!r}: {exc.strerror}"
             raise BagError(msg) from exc
+        self._max_items = max_items
+        self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
+        self._dropped = 0
+        self._error = ""
+        self._closed = False
+        self._lock = threading.Lock()          # writer side only: drain vs close
+        self.writer = writer
+        self.threaded = writer == "thread"
+        self.when_full = when_full
+        self.batch_period = batch_period
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._proc: WriterProcess | None = None
+        self._final: RecorderStatus | None = None
+        if writer == "process":
+            self._local: list[tuple[Any, ...]] = []
+            self._ship_due = time.monotonic() + batch_period
+            self._proc = WriterProcess(
+                (type(self).__module__, type(self).__qualname__,
+                 {**build, "directory": directory, "name": name, "split_size_bytes": split_size_bytes,
+                  "batch_period": batch_period, "flush_period_s": flush_period_s, "chunk_size": chunk_size,
+                  "fsync": fsync, "ros_distro": ros_distro}),
+                capacity=max_items * item_bytes, batch_period=batch_period)
+            self._writer: BagWriter | None = None
+            return
         self._writer = BagWriter(
             self.path,
             topics=topics,
@@ -215,24 +258,19 @@ class _QueuedBag:
             chunk_size=chunk_size,
             fsync=fsync,
         )
-        self._max_items = max_items
-        self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
-        self._dropped = 0
-        self._error = ""
-        self._closed = False
-        self._lock = threading.Lock()          # writer side only: drain vs close
-        self.threaded = threaded
-        self.when_full = when_full
-        self.batch_period = batch_period
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        if threaded:
+        if writer == "thread":
             self._thread = threading.Thread(target=self._run, name=f"{type(self).__name__}:{name}", daemon=True)
             self._thread.start()
 
     # --- the model loop's side ----------------------------------------------------------------
 
     def _put(self, item: tuple[Any, ...]) -> None:
+        if self._proc is not None:
+            local = self._local
+            local.append(item)
+            if len(local) >= _SHIP_ITEMS or time.monotonic() >= self._ship_due:
+                self._ship()
+            return
         if self.threaded:
             q = self._queue
             if len(q) >= self._max_items and self.when_full == "wait":
@@ -248,11 +286,37 @@ class _QueuedBag:
             with self._lock:
                 self._write_batch([item])
 
+    def _ship(self, wait: bool = False) -> None:
+        """The items gathered since the last batch into the writer process's ring (one pickle)."""
+        proc = self._proc
+        assert proc is not None
+        local, self._local = self._local, []
+        self._ship_due = time.monotonic() + self.batch_period
+        if not local:
+            return
+        if not self._error:
+            self._error = proc.failure()
+        if self._error or self._closed:
+            self._dropped += sum(map(self._count, local))
+            return
+        payload = pickle.dumps(local, pickle.HIGHEST_PROTOCOL)
+        count = sum(map(self._count, local))
+        while not proc.put(payload, len(local), count):
+            if not (wait or self.when_full == "wait") or proc.failure():
+                self._dropped += count
+                return
+            time.sleep(self.batch_period / 4)
+
     # --- the writer's side ------------------------------------------------------------------
 
     def _count(self, item: tuple[Any, ...]) -> int:
         """Messages `item` makes."""
         raise NotImplementedError
+
+    def write_items(self, items: list[tuple[Any, ...]]) -> None:
+        """Write items the loop side queued (the writer process's call)."""
+        with self._lock:
+            self._write_batch(items)
 
     def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
         """Write `items` (under the lock); a failure goes to `_fail`, what it lost to `_dropped`."""
@@ -265,6 +329,14 @@ class _QueuedBag:
             items = [q.popleft() for _ in range(len(q))]
             if items:
                 self._write_batch(items)
+
+    @property
+    def _bag(self) -> BagWriter:
+        """The BagWriter (writer side; with writer="process" it lives in the writer process)."""
+        if self._writer is None:
+            msg = f"bag {str(self.path)!r} is written by its writer process, not here"
+            raise BagError(msg)
+        return self._writer
 
     def _fail(self, exc: BaseException) -> None:
         if not self._error:
@@ -282,6 +354,11 @@ class _QueuedBag:
         return self._error
 
     def status(self) -> RecorderStatus:
+        if self._final is not None:
+            return self._final
+        if self._proc is not None:
+            return self._process_status()
+        assert self._writer is not None
         files = self._writer.files
         size = 0
         for f in files:
@@ -292,8 +369,38 @@ class _QueuedBag:
         return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
                               len(self._queue), self._dropped, self._error)
 
+    def _process_status(self) -> RecorderStatus:
+        proc = self._proc
+        assert proc is not None
+        if not self._error:
+            self._error = proc.failure()
+        if self._local and (self._error or time.monotonic() >= self._ship_due) and not self._closed:
+            self._ship()                         # the loop may be idle (a fault): the batch still goes
+        # A writer that failed loses what it had not written: handed over, neither written nor dropped there.
+        lost = max(0, proc.shipped_messages - proc.messages - proc.dropped) if self._error else 0
+        files = sorted(self.path.glob("*.mcap"))
+        size = 0
+        for f in files:
+            with contextlib.suppress(OSError):
+                size += f.stat().st_size
+        state: Literal["recording", "failed", "closed"] = (
+            "failed" if self._error else "closed" if self._closed else "recording")
+        queued = 0 if self._error else len(self._local) + proc.shipped - proc.taken
+        return RecorderStatus(state, self.path, len(files), proc.messages, size, queued,
+                              self._dropped + proc.dropped + lost, self._error)
+
     def close(self) -> RecorderStatus:
         """Write what is queued and finalize the bag (summary, footer, metadata.yaml). Idempotent."""
+        if self._proc is not None:
+            if not self._closed:
+                self._ship(wait=True)
+                self._closed = True
+                self._proc.close()
+                self._error = self._error or self._proc.failure()
+                self._final = self._process_status()
+                self._proc.ring.close()
+            assert self._final is not None
+            return self._final
         if self._thread is not None:
             self._stop.set()
             self._thread.join()
@@ -302,6 +409,7 @@ class _QueuedBag:
             self._drain()
             self._closed = True
             try:
+                assert self._writer is not None
                 self._writer.close()
             except (BagError, OSError) as exc:
                 self._fail(exc)
@@ -327,13 +435,15 @@ class BagRecorder(_QueuedBag):
         namespace: The node's namespace, for the topic names (:func:`bag_topic`).
         frame_id: ``header.frame_id`` of the FluidPressure messages.
         split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
-        threaded: Write from a writer thread (default) or inside each call.
-        batch_period: s between the writer thread's turns.
+        writer: Where the disk work runs: ``process`` (a writer process fed through shared
+            memory, :mod:`pcv_sim.io.writer_process`: what the nodes use), ``thread`` (a writer
+            thread, default) or ``inline`` (inside each call).
+        batch_period: s between the writer's turns.
         max_queue_s: Longest backlog (in model time) the queue holds before dropping.
         flush_period_s: The BagWriter's flush period (durability bound, wall clock).
         chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
         fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
-            the writer thread when threaded; inline it lands on a model step).
+            the writer; inline it lands on a model step).
         ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
             (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
         when_full: What a call does when ``max_queue_s`` of data is waiting: ``drop`` (real
@@ -352,7 +462,7 @@ class BagRecorder(_QueuedBag):
         namespace: str = "/",
         frame_id: str = "",
         split_size_bytes: int | None = None,
-        threaded: bool = True,
+        writer: Writer = "thread",
         batch_period: float = 0.02,
         max_queue_s: float = 10.0,
         flush_period_s: float = 0.9,
@@ -393,9 +503,11 @@ class BagRecorder(_QueuedBag):
             directory, name,
             topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
             qos={self.topics[r]: ROLE_QOS[r] for r in self.signals},
-            max_items=max_items, split_size_bytes=split_size_bytes, threaded=threaded, batch_period=batch_period,
+            max_items=max_items, split_size_bytes=split_size_bytes, writer=writer, batch_period=batch_period,
             flush_period_s=flush_period_s, chunk_size=chunk_size, fsync=fsync, when_full=when_full,
-            ros_distro=ros_distro)
+            ros_distro=ros_distro, item_bytes=48,
+            build={"signals": self.signals, "every": every, "dt_ns": dt_ns, "namespace": namespace,
+                   "frame_id": frame_id, "max_queue_s": max_queue_s})
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -424,13 +536,37 @@ class BagRecorder(_QueuedBag):
         if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
             self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
 
+    def record_block(self, t0_ns: int, dt_ns: int, rows: np.ndarray) -> None:
+        """Steps t0_ns, t0_ns + dt_ns, ... with their outputs (rows: pressure, current,
+        spool_position) and the inputs of the last call unchanged: the device's stretch of steps
+        in one call (`ValveDevice` uses it when the recorder is called at every step); the
+        outputs on the grid are written as `__call__` would."""
+        if not self._outputs or not len(rows):
+            return
+        if self._origin is None:                  # no start(): the grid starts here
+            self._origin = t0_ns
+        every = self._every_ns // dt_ns if self._every_ns % dt_ns == 0 else 0
+        if every == 1:
+            self._put((_BLOCK, t0_ns, dt_ns, rows))
+        elif every > 1:                           # the rows on the output grid: every `every`-th
+            j = -((t0_ns - self._origin) // dt_ns) % every
+            if j < len(rows):
+                self._put((_BLOCK, t0_ns + j * dt_ns, every * dt_ns, rows[j::every]))
+        else:                                     # a grid that is not a whole number of steps
+            t = t0_ns + dt_ns * np.arange(len(rows), dtype=np.int64)
+            on = (t - self._origin) % self._every_ns == 0
+            for k in np.flatnonzero(on):
+                self._put((_OUT, int(t[k]), float(rows[k, 0]), float(rows[k, 1]), float(rows[k, 2])))
+
     # --- the writer's side ------------------------------------------------------------------
 
-    def _count(self, item: tuple[float, ...]) -> int:
+    def _count(self, item: tuple[Any, ...]) -> int:
+        if item[0] == _BLOCK:
+            return len(item[3]) * self._per_output
         return 1 if item[0] == _IN else self._per_output
 
     def _write(self, item: tuple[float, ...]) -> None:
-        w = self._writer
+        w = self._bag
         if item[0] == _OUT:
             _, t, p, i, x = item
             t = int(t)
@@ -456,6 +592,9 @@ class BagRecorder(_QueuedBag):
         for item in items:
             if item[0] == _OUT:
                 outputs.append(item)
+            elif item[0] == _BLOCK:
+                _, t0, dt, rows = item
+                outputs.extend(zip(itertools.repeat(_OUT), range(t0, t0 + dt * len(rows), dt), *rows.T.tolist()))
             elif self._error:
                 self._dropped += 1
             else:
@@ -478,7 +617,7 @@ class BagRecorder(_QueuedBag):
             columns = {topic: values for topic, values in ((self._p_topic, p), (self._i_topic, i),
                                                            (self._x_topic, x)) if topic is not None}
             try:
-                self._writer.write_samples(np.array(t, dtype=np.int64), columns, frame_id=self.frame_id)
+                self._bag.write_samples(np.array(t, dtype=np.int64), columns, frame_id=self.frame_id)
             except (BagError, OSError) as exc:
                 self._fail(exc)
                 self._dropped += len(part) * self._per_output
@@ -536,7 +675,7 @@ class RigRecorder(_QueuedBag):
         name: str | None = None,
         namespace: str = "/",
         split_size_bytes: int | None = None,
-        threaded: bool = True,
+        writer: Writer = "thread",
         batch_period: float = 0.02,
         max_items: int = 100_000,
         flush_period_s: float = 0.9,
@@ -594,8 +733,9 @@ class RigRecorder(_QueuedBag):
         self._per_row = 3 * len(self.valves) + len(self._chambers) + 1
         super().__init__(
             directory, name, topics=topics, qos=qos, max_items=max_items, split_size_bytes=split_size_bytes,
-            threaded=threaded, batch_period=batch_period, flush_period_s=flush_period_s, chunk_size=chunk_size,
-            fsync=fsync, when_full=when_full, ros_distro=ros_distro)
+            writer=writer, batch_period=batch_period, flush_period_s=flush_period_s, chunk_size=chunk_size,
+            fsync=fsync, when_full=when_full, ros_distro=ros_distro, item_bytes=9 * len(self.signals) + 48,
+            build={"valves": self.valves, "signals": self.signals, "namespace": namespace, "max_items": max_items})
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -651,7 +791,7 @@ class RigRecorder(_QueuedBag):
     def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
         """Inputs and texts message by message; the samples per topic as arrays
         (``BagWriter.write_samples``), the joint states message by message."""
-        w = self._writer
+        w = self._bag
         rows = []
         for item in items:
             if item[0] == _ROW:
@@ -685,7 +825,7 @@ class RigRecorder(_QueuedBag):
             self._dropped += len(rows) * self._per_row
 
     def _write_rows(self, rows: list[tuple[Any, ...]]) -> None:
-        w = self._writer
+        w = self._bag
         t = np.array([r[1] for r in rows], dtype=np.int64)
         y = np.array([r[2] for r in rows], dtype=np.float64).reshape(len(rows), len(self.signals))
 

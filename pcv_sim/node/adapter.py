@@ -43,8 +43,8 @@ Recorder hook: `EmulatorNode.set_recorder(recorder, every)` makes the device cal
 
 Recording (`record.enabled`): a `pcv_sim.io.recorder.BagRecorder` on that hook, called at every
 model step from the start (the device at rest; stamps are the samples' model time, in simulated
-time from 0), finalized by SIGINT/SIGTERM; a writer thread does the disk work, so the loop only
-queues samples. Its state is in the diagnostics (`recording*` keys).
+time from 0), finalized by SIGINT/SIGTERM; a writer process does the disk work, so the loop only
+queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`recording*` keys).
 """
 
 from __future__ import annotations
@@ -402,6 +402,7 @@ class EmulatorNode(Node):
                 every=s.record_every(dev.dt), dt_ns=dev.dt_ns, namespace=self.get_namespace(),
                 frame_id=s.frame_id,
                 split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
                 when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
         except BagError as err:
             raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None

@@ -4,6 +4,13 @@ the rclpy lifetime of one node.
 Only the standard library is imported at the top: `main_process` installs SIGINT/SIGTERM
 handling as the first thing a process does, before rclpy, numpy and the model are imported
 (~1 s), so a signal at any moment is a clean stop (exit 0). Invalid parameters exit 2.
+
+Two phases. While the process starts (imports, rclpy, the node's construction: kernels loaded
+or compiled, rest states solved, which takes a minute on a busy machine with an empty kernel
+cache) a signal *interrupts* that work at once (`StartInterrupted`, raised by the handler) and
+the process exits 0: a flag alone would only be looked at once the start-up is done. From
+`node.run` on, the signal only sets the flag, which the loop checks at every wake: it finishes
+the wake and closes the bag with everything up to the stop.
 """
 
 from __future__ import annotations
@@ -14,22 +21,31 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main_process", "serve"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "StartInterrupted", "Stop", "main_process", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
 
 
+class StartInterrupted(BaseException):  # not an Exception: the stop the user asked for
+    """A signal arrived while the process was starting (see the module docstring)."""
+
+
 class Stop:
-    """Set by SIGINT/SIGTERM; the node's loop checks it at every wake."""
+    """Set by SIGINT/SIGTERM; the node's loop checks it at every wake. While `starting`, the
+    handler also raises StartInterrupted (once) to abandon the start-up."""
 
     def __init__(self) -> None:
         self.requested = False
         self.signal: int | None = None
+        self.starting = True
 
     def __call__(self, signum: int, _frame: Any) -> None:
         self.requested = True
         self.signal = signum
+        if self.starting:
+            self.starting = False
+            raise StartInterrupted
 
     @property
     def name(self) -> str:
@@ -44,7 +60,12 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
     for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports is a clean stop
         previous[sig] = signal.signal(sig, stop)
     try:
-        return run(list(sys.argv if args is None else args), stop)
+        try:
+            return run(list(sys.argv if args is None else args), stop)
+        except StartInterrupted:
+            stop.starting = False
+            print(f"stopped on {stop.name} while starting", file=sys.stderr)
+            return EXIT_OK
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -66,8 +87,9 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
         except ParameterError as err:
             print(f"{prog}: invalid parameters: {err}", file=sys.stderr)
             return EXIT_INVALID_PARAMETERS
+        stop.starting = False       # from here a signal is a flag the loop checks
         try:
-            node.run(stop)          # returns at once if a signal came during the start (and closes a bag)
+            node.run(stop)          # returns at once if a signal came and was swallowed during the start
         except ParameterError as err:           # found while running (e.g. a second /clock at start)
             node.get_logger().error(f"invalid parameters: {err}")
             print(f"{prog}: invalid parameters: {err}", file=sys.stderr)

@@ -49,7 +49,7 @@ at the present step in simulated time and with an external clock (the next sampl
 real time at the step an input received at the request would act at.
 
 Recording (`record.enabled`): a `pcv_sim.io.recorder.RigRecorder` (the emulator's BagRecorder
-machinery: writer thread, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
+machinery: writer process, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
 (the rig at rest) on: each valve's topics under `<namespace>/<valve>/` as the emulator records
 them (inputs duty_cycle, supply_pressure on change, stamped at the step they act; load_flow the
 chamber's mean flow over each control period, stamped at its start; outputs pressure, current,
@@ -724,6 +724,7 @@ class RigNode(Node):
                 valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals,
                 namespace=self.get_namespace(),
                 split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
                 when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
         except BagError as err:
             raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None

@@ -34,19 +34,57 @@ unless one came with that sample). Exit status as the rig:
 
 from __future__ import annotations
 
+import statistics
 import sys
 from collections.abc import Mapping
 from typing import Any
 
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
 
-__all__ = ["FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "main"]
+__all__ = ["FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "PeriodCheck", "main"]
 
 NODE_NAME = "steering_controller"
 FLAGS_TOPIC = "controller/flags"
 SETPOINT_TOPIC = "setpoint"
 STATUS_NAME = "steering_controller"
 VALVES = ("left", "right")        # the valves PositionController drives (chambers a and b)
+
+
+class PeriodCheck:
+    """Do the samples come at the controller's period? Judged once, from the median of the first
+    `intervals` intervals between sample stamps, against `tolerance` (relative) of the period.
+
+    One interval says little: stamps in real time are epoch seconds, which a float64 resolves to
+    ~0.24 µs (an exact 1 ms reads as 0.9998-1.0004 ms), and a sample the rig skipped doubles an
+    interval. A wrong period (the rig's control period 2 ms, the controller's 1 ms) moves the
+    median by 100 %."""
+
+    def __init__(self, period: float, *, intervals: int = 50, tolerance: float = 0.01) -> None:
+        self.period = period
+        self.intervals = intervals
+        self.tolerance = tolerance
+        self._last: float | None = None
+        self._seen: list[float] = []
+        self.done = False
+
+    def restart(self) -> None:
+        """A new run of samples (the rig started again): the next interval is not across the restart."""
+        self._last = None
+
+    def __call__(self, t: float) -> str | None:
+        """The sample stamped `t` (s); the warning text once the median shows another period."""
+        last, self._last = self._last, t
+        if self.done or last is None:
+            return None
+        self._seen.append(t - last)
+        if len(self._seen) < self.intervals:
+            return None
+        self.done = True
+        median = statistics.median(self._seen)
+        if abs(median - self.period) <= self.tolerance * self.period:
+            return None
+        return (f"samples {median * 1e3:.4g} ms apart (median of {len(self._seen)}), the controller's period is "
+                f"{self.period * 1e3:g} ms: set -p period:={median:.4g} (the rig's control_period)")
 
 
 def _parameters() -> dict[str, float]:
@@ -98,8 +136,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             if self.get_parameter("use_sim_time").value and clock_sub is not None:
                 # No executor: the TimeSource's own /clock subscription is taken by the polling.
                 self.client.add_input(clock_sub, lambda msg, _info: ts.clock_callback(msg))  # type: ignore[union-attr]
-            self._last_t: float | None = None
-            self._warned = False
+            self._period_check = PeriodCheck(self.gains["period"])
             self.get_logger().info(
                 f"steering controller: valves {', '.join(VALVES)}, period {self.gains['period'] * 1e3:g} ms, "
                 + ", ".join(f"{k} {v:g}" for k, v in self.gains.items() if k != "period")
@@ -127,20 +164,16 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self._setpoint_fresh = False
             if self.setpoint is not None:
                 m["setpoint"] = self.setpoint
-            last, self._last_t = self._last_t, t
-            period = self.gains["period"]
-            if last is not None and not self._warned and abs(t - last - period) > 1e-7:
-                self._warned = True
-                self.get_logger().warning(f"samples {(t - last) * 1e3:g} ms apart, the controller's period is "
-                                          f"{period * 1e3:g} ms: set -p period:={t - last:g} (the rig's "
-                                          "control_period)")
+            wrong = self._period_check(t)
+            if wrong is not None:
+                self.get_logger().warning(wrong)
             return self.law(t, m)
 
         def _rewind(self) -> Any:
             self.get_logger().info("a sample before the last one answered: the rig started again; a fresh "
                                    "controller")
             self.law = PositionController(**self.gains)
-            self._last_t = None
+            self._period_check.restart()
             if not self._setpoint_fresh:       # the new run sent none before its first sample: it has none
                 self.setpoint = None
             return self._control

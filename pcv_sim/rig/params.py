@@ -71,7 +71,7 @@ class RigParams:
 _SLOT_KEYS = ("config", "chamber", "initial_duty")
 
 
-def _slot(name: Any, raw: Any, base: Path) -> ValveSlot:
+def _slot(name: Any, raw: Any, base: Path, params: ValveParams | None = None) -> ValveSlot:
     path = f"valves.{name}"
     if not isinstance(name, str) or not name.isidentifier():
         raise ParameterError(f"valves: name {name!r}; accepted is an identifier (letters, digits, _), "
@@ -85,7 +85,8 @@ def _slot(name: Any, raw: Any, base: Path) -> ValveSlot:
     config = raw.get("config", "")
     if not isinstance(config, str):
         raise ParameterError(f"{path}.config: got {config!r}; accepted is a path to a valve YAML ('' = shipped)")
-    params = load_params(base / config if config else None)
+    if params is None:
+        params = load_params(base / config if config else None)
     if params.command.duty_fall_rate_limit is not None:
         raise ParameterError(f"{path}.config: {config or 'the valve YAML'} sets command.duty_fall_rate_limit; "
                              "the rig applies each duty command at its step: accepted is null")
@@ -99,8 +100,11 @@ def _slot(name: Any, raw: Any, base: Path) -> ValveSlot:
     return ValveSlot(name, params, chamber, float(duty), config)
 
 
-def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None) -> RigParams:
-    """Build RigParams from a nested mapping (as loaded from YAML); valve configs relative to `base`."""
+def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None,
+                     valve_params: Mapping[str, ValveParams] | None = None) -> RigParams:
+    """Build RigParams from a nested mapping (as loaded from YAML); valve configs relative to `base`.
+    `valve_params` (valve name -> parameters) stand in for those valves' config files, checked
+    against the rig like a loaded file (a campaign's variant of a valve)."""
     base = base or DEFAULT_RIG.parent
     sections = ("rig", "valves", "cylinder")
     try:
@@ -121,7 +125,7 @@ def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None
         if not isinstance(raw_valves, Mapping) or not raw_valves:
             raise ParameterError(f"valves: got {raw_valves!r}; accepted is a mapping name -> "
                                  "{config, chamber, initial_duty}")
-        valves = tuple(_slot(k, v, base) for k, v in raw_valves.items())
+        valves = tuple(_slot(k, v, base, (valve_params or {}).get(k)) for k, v in raw_valves.items())
         for chamber in CHAMBERS:
             feeding = [v.name for v in valves if v.chamber == chamber]
             if len(feeding) != 1:

@@ -1,4 +1,4 @@
-"""A lockstep run as a bag and as an HTML report. Rendering only: every number is the run's.
+"""A lockstep run as a bag and as CSV (the HTML report: `pcv_sim.rig.report`). Every number is the run's.
 
 Bag topics (what the devices publish: the measured values, sensor faults included; a dropped
 sample has no message), one namespace per valve, SI units:
@@ -12,13 +12,15 @@ sample has no message), one namespace per valve, SI units:
     /cylinder/pressure_a|b    sensor_msgs/FluidPressure  Pa, the chambers (= their valves')
     /setpoint                 std_msgs/Float64        m (when the scenario has one)
     /rig/events               std_msgs/String         faults, clears, watchdog, rejected commands
+    /controller/<flag>        std_msgs/Float64        each flag the controller reported (`controller.<flag>`)
+
+`write_csv` writes every signal of a run as one CSV (time + columns, `name [unit]` headers, SI;
+`<signal> measured` columns where a sensor fault made the measurement differ); `read_signals`
+reads a bag or such a CSV back (a baseline run for `pcv_sim.rig.assertions`).
 """
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -28,7 +30,7 @@ import numpy as np
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.rig.lockstep import RigRun
 
-__all__ = ["JOINT_STATE", "STRING", "plot_run", "render_html", "write_bag"]
+__all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", "write_csv"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
@@ -49,6 +51,8 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
     has_sp = bool(np.any(np.isfinite(run.setpoint)))
     if has_sp:
         topics["/setpoint"] = FLOAT64
+    for flag in run.flags:
+        topics[f"/controller/{flag.removeprefix('controller.')}"] = FLOAT64
     t_ns = np.round(run.times * _NS).astype(np.int64)
     m = run.measured
 
@@ -68,6 +72,8 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
             column(f"/{v}/spool_position", m[:, run.signals.index(f"{v}.spool_position")], w)
         if has_sp:
             column("/setpoint", run.setpoint, w)
+        for flag, values in run.flags.items():
+            column(f"/controller/{flag.removeprefix('controller.')}", values, w)
         pos, vel, eff = (m[:, run.signals.index(f"cylinder.{s}")] for s in ("position", "velocity", "effort"))
         for j in range(len(t_ns)):
             # A dropped signal is left out of the message (JointState allows empty arrays per field).
@@ -83,64 +89,98 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
     return Path(path)
 
 
-def plot_run(run: RigRun, path: str | Path | None = None, *, title: str = "") -> bytes:
-    """A PNG of the run: position vs setpoint, chamber pressures, duties, currents (bytes; also
-    written to `path` when given)."""
-    from pcv_sim.commands.common import pyplot
+def signal_unit(signal: str) -> str:
+    """The SI unit of a run's signal (its column header in a CSV)."""
+    from pcv_sim.rig.assertions import signal_kind
+    from pcv_sim.units import KINDS
 
-    plt = pyplot()
-    fig, ax = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
-    t = run.times
-    ax[0].plot(t, run.signal("cylinder.position") * 1e3, label="position")
+    return KINDS[signal_kind(signal)].si
+
+
+def _columns(run: RigRun) -> list[tuple[str, np.ndarray]]:
+    cols = [(s, run.signal(s)) for s in run.signals]
+    cols += [(f"{v}.duty", run.duties[:, k]) for k, v in enumerate(run.valves)]
     if np.any(np.isfinite(run.setpoint)):
-        ax[0].plot(t, run.setpoint * 1e3, "--", label="setpoint")
-    ax[0].set_ylabel("piston [mm]")
-    for v in run.valves:
-        ax[1].plot(t, run.signal(f"{v}.pressure") / 1e5, label=v)
-        ax[2].plot(t, run.signal(f"{v}.duty"), label=v)
-        ax[3].plot(t, run.signal(f"{v}.current"), label=v)
-    ax[1].set_ylabel("pressure [bar]")
-    ax[2].set_ylabel("duty [-]")
-    ax[3].set_ylabel("current [A]")
-    ax[3].set_xlabel("time [s]")
-    for a in ax:
-        a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
-    for t_ev, _text in run.log:
-        for a in ax:
-            a.axvline(t_ev, color="0.6", lw=0.8, ls=":")
-    if title:
-        ax[0].set_title(title)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    data = buf.getvalue()
-    if path is not None:
-        Path(path).write_bytes(data)
-    return data
+        cols.append(("setpoint", run.setpoint))
+    cols += list(run.flags.items())
+    for s in run.signals:
+        m = run.signal(s, measured=True)
+        if not np.array_equal(m, run.signal(s), equal_nan=True):
+            cols.append((f"{s} measured", m))
+    return cols
 
 
-def render_html(result: Any) -> str:
-    """An HTML report of a `ScenarioResult`: verdict, assertions, events, plots."""
-    esc = html.escape
-    rows = "".join(
-        f"<tr><td>{esc(o.name)}</td><td style='color:{'green' if o.passed else 'red'}'>"
-        f"{'pass' if o.passed else 'FAIL'}</td><td>{esc(o.detail)}</td></tr>" for o in result.outcomes)
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(result.name)}</title></head><body>",
-             f"<h1>Scenario {esc(result.name)}: {'passed' if result.passed else 'FAILED'}</h1>",
-             f"<p>{esc(result.path)}; real-time factor {result.real_time_factor:.1f}x "
-             f"({result.wall_time:.3f} s wall)</p>"]
-    if result.error:
-        parts.append(f"<p style='color:red'>{esc(result.error)}</p>")
-    parts.append("<table border='1' cellpadding='4'><tr><th>assertion</th><th>result</th><th>found</th></tr>"
-                 f"{rows}</table>")
-    run = result.run
-    if run is not None:
-        events = "".join(f"<li>{t:.4f} s: {esc(text)}</li>" for t, text in run.log)
-        rejected = len(run.rejected)
-        parts.append(f"<h2>Events</h2><ul>{events or '<li>none</li>'}</ul><p>rejected commands: {rejected}</p>")
-        png = base64.b64encode(plot_run(run, title=result.name)).decode()
-        parts.append(f"<h2>Run</h2><img alt='run' src='data:image/png;base64,{png}'>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
+def write_csv(run: RigRun, path: str | Path) -> Path:
+    """Every signal of `run` as CSV at `path` (SI; an empty cell where a sample is missing)."""
+    cols = _columns(run)
+    header = ["time [s]"] + [f"{name} [{signal_unit(name.split(' ')[0])}]" for name, _ in cols]
+    data = np.column_stack([run.times] + [c for _, c in cols])
+    lines = [",".join(header)]
+    for row in data:
+        lines.append(",".join("" if not math.isfinite(x) else repr(float(x)) for x in row))
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return p
+
+
+def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The signals of an earlier run: `signal -> (times s, values SI)` from a bag (as `write_bag`
+    writes it: the measured values) or a CSV of `write_csv` (a file, or a directory with one)."""
+    import csv
+    import re
+
+    from pcv_sim.errors import BagError
+    from pcv_sim.rig.assertions import signal_kind
+    from pcv_sim.units import quantity
+
+    p = Path(path)
+    if p.is_dir() and not (p / "metadata.yaml").exists() and not list(p.glob("*.mcap")):
+        found = sorted(p.glob("*.csv"))
+        if len(found) != 1:
+            raise BagError(f"{p}: neither a bag nor a directory with one CSV ({len(found)} found)")
+        p = found[0]
+    if p.suffix == ".csv":
+        with p.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+        head = [re.match(r"^(.*?)\s*\[(.*)\]$", h) for h in rows[0]]
+        data = np.array([[float(x) if x else math.nan for x in r] for r in rows[1:]])
+        out = {}
+        for j, m in enumerate(head[1:], start=1):
+            if m is None or m.group(1).endswith(" measured"):
+                continue
+            name = m.group(1)
+            out[name] = (data[:, 0], data[:, j] * quantity(f"1 {m.group(2)}", signal_kind(name), p.name)
+                         if m.group(2) != "-" else data[:, j])
+        return out
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    series: dict[str, tuple[list[float], list[float]]] = {}
+
+    def add(name: str, t: float, v: float) -> None:
+        ts, vs = series.setdefault(name, ([], []))
+        ts.append(t)
+        vs.append(v)
+    with AnyReader([p], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, t_ns, raw in reader.messages():
+            topic, t = conn.topic, t_ns * 1e-9
+            if topic == "/rig/events" or topic.startswith("/cylinder/pressure_"):
+                continue
+            msg = reader.deserialize(raw, conn.msgtype)
+            if topic == "/cylinder/joint_states":
+                for field in ("position", "velocity", "effort"):
+                    vals = getattr(msg, field)
+                    if len(vals):
+                        add(f"cylinder.{field}", t, float(vals[0]))
+                continue
+            decoded: Any = msg
+            value = float(decoded.fluid_pressure) if conn.msgtype == FLUID_PRESSURE else float(decoded.data)
+            parts = topic.strip("/").split("/")
+            if parts[0] == "controller":
+                add(f"controller.{parts[1]}", t, value)
+            elif parts == ["setpoint"]:
+                add("setpoint", t, value)
+            elif len(parts) == 2:
+                add(f"{parts[0]}.{'duty' if parts[1] == 'duty_cycle' else parts[1]}", t, value)
+    return {k: (np.array(ts), np.array(vs)) for k, (ts, vs) in series.items()}

@@ -13,20 +13,35 @@
     # this file's folder; `{namespace}` and `{python}` are replaced) and stopped after the run
     # controller: {ros: {namespace: /rig, wait: 30,
     #                    command: ["{python}", -m, pcv_sim.node.steering_controller, --ros-args, -r, "__ns:={namespace}"]}}
-    setpoint:                        # optional, m: each segment holds from its t until the next one's
-      - {t: 0.0, value: 0.0}
-      - {t: 0.5, value: 0.02}
-      - {t: 1.0, sine: {amplitude: 0.02, frequency: 1.0, offset: 0.0}}   # m, Hz, m; phase from t
-    timeline:                        # at the first step at or after t (s)
-      - {t: 0.1, duty: {left: 0.7}}                     # duty command(s), fraction
-      - {t: 0.2, force: 500.0}                          # external force on the rod, N (+ extends)
-      - {t: 0.5, fault: supply_drop, target: left, pressure: 8.0e+6}   # values of the fault (SI)
+    setpoint:                        # optional: each segment holds from its t until the next one's
+      - {t: 0.0, value: 0 mm}
+      - {t: 0.5, ramp: {to: 20 mm, duration: 200 ms}}                  # from the value before
+      - {t: 1.0, sine: {amplitude: 20 mm, frequency: 1 Hz, offset: 0}}  # phase from t
+      - {t: 3.0, chirp: {amplitude: 2 mm, from: 0.5 Hz, to: 10 Hz, duration: 5 s}}
+      - {t: 8.0, table: [[0, 0 mm], [0.5 s, 5 mm], [1 s, 0 mm]]}         # times from t
+      - {t: 9.0, file: {path: profile.csv, column: position, unit: mm}}
+    timeline:                        # at the first step at or after t; each value a profile as above
+      - {t: 0.1, duty: {left: 70 %}}                    # duty command(s), fraction
+      - {t: 0.2, force: -1 kN}                          # external force on the rod, N (+ extends)
+      - {t: 0.3, force: {ramp: {to: 500 N, duration: 100 ms}}}
+      - {t: 0.4, supply: {right: {ramp: {to: 150 bar, duration: 50 ms}}}}   # supply pressure
+      - {t: 0.5, fault: supply_drop, target: left, pressure: 80 bar}     # values of the fault
       - {t: 0.8, clear: supply_drop, target: left}
-    assertions:                      # SI units, times in s; `measured: true` checks what the controller saw
-      - {type: max_error, signal: cylinder.position, reference: setpoint, max: 0.002, after: 0.5}
-      - {type: never_above, signal: left.pressure, max: 1.5e+7}
-      - {type: never_below, signal: left.pressure, min: 0.0}
-      - {type: flag_within, signal: controller.fault_detected, at: 0.5, within: 0.05}
+    assertions:                      # pcv_sim.rig.assertions: every kind and key
+      - {type: max_error, signal: cylinder.position, reference: setpoint, max: 2 mm, after: 0.5}
+      - {type: never_above, signal: left.pressure, max: 150 bar}
+      - {type: flag_within, signal: controller.fault_detected, at: {event: supply_drop}, within: 50 ms}
+      - {type: step_response, at: 0.5, rise_time: 150 ms, overshoot: 10 %, settling_time: 400 ms}
+      - {type: within_band, signal: cylinder.position, reference: setpoint, tolerance: 1 mm,
+         after: {event: clear, delay: 0.2}}
+
+Values take units (`pcv_sim.units`: `100 bar`, `5 mm`, `20 ms`, `-1 kN`, `12 L/min`, `70 %`); a
+bare number is SI, and one whose size says another unit was meant (a supply pressure of 100) is
+refused with the likely meaning. A misspelt key anywhere is named with its path and the closest
+accepted key. Profiles on the rig (force, supply, duty) are applied at each control instant
+(held over the period); a supply profile acts as the supply_drop fault (the configured
+pressure: none). Timeline events after `duration` (a run shortened from the file's) are dropped
+with a note in the result.
 
 With a ROS controller the setpoint is published each period on `<namespace>/setpoint`
 (std_msgs/Float64, m) before the period's samples, and the node's flags are taken from
@@ -42,10 +57,13 @@ naming the key and what is accepted (the CLI exits 2).
 
 from __future__ import annotations
 
+import datetime
 import functools
+import hashlib
 import importlib
 import importlib.util
 import inspect
+import json
 import math
 import re
 import sys
@@ -59,10 +77,14 @@ import numpy as np
 import yaml
 
 from pcv_sim.errors import CommandError, PcvSimError
-from pcv_sim.rig.faults import FaultError, parse_fault
+from pcv_sim.keys import closest, missing_message, unknown_message
+from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
+from pcv_sim.rig.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
-from pcv_sim.rig.rig import Rig, RigError
+from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
+from pcv_sim.rig.rig import MAX_EXTERNAL_FORCE, Rig, RigError
+from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -73,14 +95,17 @@ __all__ = [
     "ScenarioResult",
     "load_scenario",
     "run_scenario",
+    "scenario_from_mapping",
     "scenario_result",
 ]
 
-ASSERTION_TYPES = ("max_error", "never_above", "never_below", "flag_within")
 _TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions")
 _MAX_DURATION = 3600.0
 _ROS_KEYS = ("namespace", "command", "wait")
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
+_ACTIONS = ("duty", "force", "supply", "fault", "clear")
+#: The unit words of `pcv_sim.rig.faults`' tables -> the kind of `pcv_sim.units`.
+_FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
 
 
 class ScenarioError(PcvSimError, ValueError):
@@ -103,6 +128,8 @@ class RosController:
 
 @dataclass(frozen=True)
 class Scenario:
+    """A validated scenario: every value in SI, profiles as `Segment`s, event times resolved."""
+
     name: str
     path: Path | None
     rig: RigParams
@@ -110,43 +137,55 @@ class Scenario:
     seed: int
     controller: str | None
     controller_params: Mapping[str, Any] | None
-    setpoint: tuple[Mapping[str, Any], ...]
+    setpoint: tuple[Segment, ...]
     timeline: tuple[Mapping[str, Any], ...]
     assertions: tuple[Mapping[str, Any], ...]
     ros: RosController | None = None       # the controller is a ROS node (then `controller` is None)
     rig_file: Path | None = None            # the rig YAML (None: the shipped one), for the rig node
+    notes: tuple[str, ...] = ()             # what the loader changed (timeline events after the duration)
+    config_hash: str = ""                   # sha256 of the scenario as loaded (and its rig), for reports
 
     def setpoint_function(self) -> Callable[[float], float] | None:
         """The setpoint (m) as a function of time, or None when the scenario has none."""
-        segs = self.setpoint
-        if not segs:
+        if not self.setpoint:
             return None
-        starts = [float(s["t"]) for s in segs]
+        return Profile(self.setpoint, initial=self.setpoint[0].at(0.0, 0.0))
 
-        def value(t: float) -> float:
-            k = 0
-            for j, t0 in enumerate(starts):
-                if t0 <= t + 1e-12:
-                    k = j
-            s = segs[k]
-            if "value" in s:
-                return float(s["value"])
-            sine = s["sine"]
-            return float(sine.get("offset", 0.0) + sine["amplitude"] * math.sin(
-                2.0 * math.pi * sine["frequency"] * (t - starts[k])))
+    def next_setpoint_change(self, t: float) -> float:
+        """The start of the first setpoint segment after t (the duration when none)."""
+        return next((s.t for s in self.setpoint if s.t > t + 1e-12), self.duration + 1.0)
 
-        return value
+    def inputs(self, times: np.ndarray) -> dict[str, np.ndarray]:
+        """The external force (N) the timeline applies, at `times` (none without force entries)."""
+        segs = [e["force"] for e in self.timeline if "force" in e]
+        if not segs:
+            return {}
+        profile = Profile(sorted(segs, key=lambda s: s.t), initial=0.0)
+        return {"external force": np.array([profile(float(t)) for t in times])}
 
-
-@dataclass(frozen=True)
-class Outcome:
-    """One assertion's result: `value` is what was found, `limit` what was asked (SI)."""
-
-    name: str
-    passed: bool
-    value: float
-    limit: float
-    detail: str
+    def events(self) -> list[tuple[float, str]]:
+        """The timeline in words, in time order (SI values shown in engineering units)."""
+        out = []
+        for e in self.timeline:
+            t = float(e["t"])
+            if "duty" in e:
+                out += [(t, f"duty {v}: {seg.describe()}") for v, seg in e["duty"].items()]
+            elif "supply" in e:
+                out += [(t, f"supply {v}: {seg.describe('bar', 1e-5)}") for v, seg in e["supply"].items()]
+            elif "force" in e:
+                out.append((t, f"external force: {e['force'].describe('N')}"))
+            elif "fault" in e:
+                kind = signal_kind(str(e["target"])) if e["fault"] in SENSOR_FAULTS else ""
+                vals = [f"{k} {fmt(v, kind or _FAULT_UNITS.get(_fault_unit(e['fault'], k), 'number'))}"
+                        + ("/s" if k == "rate" else "") if k != "delay" else f"{k} {fmt(v, 'time')}"
+                        for k, v in e.items() if k not in ("t", "fault", "target")]
+                out.append((t, f"fault {e['fault']} on {e['target']}" + (f": {', '.join(vals)}" if vals else "")))
+            else:
+                out.append((t, f"clear {e['clear']} on {e['target']}"))
+        for k, seg in enumerate(self.setpoint):
+            if (k or seg.t > 0.0) and seg.t <= self.duration:
+                out.append((seg.t, f"setpoint: {seg.describe('mm', 1e3)}"))
+        return sorted(out, key=lambda x: x[0])
 
 
 @dataclass
@@ -159,29 +198,43 @@ class ScenarioResult:
     wall_time: float
     error: str | None = None
     run: RigRun | None = field(default=None, repr=False)
+    events: list[tuple[float, str]] = field(default_factory=list)     # the timeline, in words
+    notes: list[str] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)                # version, seed, config hash, date
+    inputs: dict[str, np.ndarray] = field(default_factory=dict, repr=False)   # inputs not among the signals (SI)
 
     def summary(self) -> str:
         """One line per assertion, for a test's failure message."""
         lines = [f"{self.name}: {'passed' if self.passed else 'FAILED'}"]
         if self.error:
             lines.append(self.error)
+        lines += [f"note: {n}" for n in self.notes]
         lines += [f"{'ok  ' if o.passed else 'FAIL'} {o.name}: {o.detail}" for o in self.outcomes]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
+        def clean(o: Outcome) -> dict[str, Any]:
+            d = {k: v for k, v in o.__dict__.items() if k != "draw"}
+            return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
         return {"name": self.name, "path": self.path, "passed": self.passed, "error": self.error,
                 "real_time_factor": self.real_time_factor, "wall_time_s": self.wall_time,
-                "assertions": [o.__dict__ for o in self.outcomes]}
+                "assertions": [clean(o) for o in self.outcomes], "notes": list(self.notes), "meta": dict(self.meta)}
 
 
 # --- loading and validation ------------------------------------------------------------------------
 
 
-def _num(where: str, v: Any, *, lo: float = -math.inf, hi: float = math.inf, what: str = "a finite number") -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+def _num(where: str, v: Any, *, lo: float = -math.inf, hi: float = math.inf, what: str = "a finite number",
+         kind: str = "number", role: str = "") -> float:
+    """`v` (a bare SI number or a value with a unit of `kind`) in SI, within lo .. hi."""
+    try:
+        x = quantity(v, kind, where, role=role)
+    except UnitError as err:
+        raise ScenarioError(str(err)) from None
+    if not lo <= x <= hi:
         rng = "" if (lo, hi) == (-math.inf, math.inf) else f" in {lo:g} .. {hi:g}"
         raise ScenarioError(f"{where}: got {v!r}; accepted is {what}{rng}")
-    return float(v)
+    return x
 
 
 def _mapping(where: str, v: Any, keys: tuple[str, ...]) -> Mapping[str, Any]:
@@ -191,9 +244,9 @@ def _mapping(where: str, v: Any, keys: tuple[str, ...]) -> Mapping[str, Any]:
 
 
 def _unknown(where: str, v: Mapping[str, Any], keys: tuple[str, ...]) -> None:
-    bad = sorted(str(k) for k in v if k not in keys)
-    if bad:
-        raise ScenarioError(f"{where}: unknown key(s) {', '.join(bad)}; accepted: {', '.join(keys)}")
+    msg = unknown_message(where, v, keys)
+    if msg:
+        raise ScenarioError(msg)
 
 
 def _signals(rig: RigParams) -> tuple[str, ...]:
@@ -203,116 +256,158 @@ def _signals(rig: RigParams) -> tuple[str, ...]:
     return (*out, "cylinder.position", "cylinder.velocity", "cylinder.effort", "setpoint")
 
 
-def _check_setpoint(raw: Any) -> tuple[Mapping[str, Any], ...]:
+def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, lo: float, hi: float, what: str,
+             role: str = "") -> Segment:
+    def check(w: str, v: float) -> None:
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{w}: {v:g} {KINDS[kind].si}; accepted is {what} in {lo:g} .. {hi:g}")
+    try:
+        if not isinstance(raw, Mapping):       # a plain value: its own hint for a unit slip
+            return Segment(t, "value", value=_num(where, raw, lo=lo, hi=hi, what=what, kind=kind, role=role))
+        return parse_segment(where, t, raw, kind, base=base, check=check)
+    except (UnitError, ProfileError) as err:
+        raise ScenarioError(str(err)) from None
+
+
+def _check_setpoint(raw: Any, base: Path | None) -> tuple[Segment, ...]:
     if raw is None:
         return ()
     if not isinstance(raw, list) or not raw:
-        raise ScenarioError("setpoint: accepted is a list of {t, value} or {t, sine: {amplitude, frequency, offset}}")
+        raise ScenarioError(f"setpoint: accepted is a list of {{t, {' | '.join(SHAPES)}}}")
     last = -math.inf
+    out = []
     for k, seg in enumerate(raw):
         where = f"setpoint[{k}]"
-        _mapping(where, seg, ("t", "value", "sine"))
-        _unknown(where, seg, ("t", "value", "sine"))
-        t = _num(f"{where}.t", seg.get("t"), lo=0.0, what="a time in s")
+        _mapping(where, seg, ("t", *SHAPES))
+        _unknown(where, seg, ("t", *SHAPES))
+        t = _num(f"{where}.t", seg.get("t"), lo=0.0, what="a time in s", kind="time")
         if t <= last:
             raise ScenarioError(f"{where}.t: {t:g} s; accepted is a time after the previous segment's ({last:g} s)")
         last = t
-        if ("value" in seg) == ("sine" in seg):
-            raise ScenarioError(f"{where}: accepted is exactly one of value (m) or sine")
-        if "value" in seg:
-            _num(f"{where}.value", seg["value"], lo=-1.0, hi=1.0, what="a position in m")
+        shape = {k: v for k, v in seg.items() if k != "t"}
+        out.append(_segment(where, t, shape, "length", base, -1.0, 1.0, "a position in m"))
+    return tuple(out)
+
+
+def _fault_unit(kind: str, key: str) -> str:
+    spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
+    return spec[key][2] if key in spec else ""
+
+
+def _fault_values(where: str, e: Mapping[str, Any], kind: Any, target: Any) -> dict[str, Any]:
+    """The fault's values in SI (their unit from the fault's table, a sensor fault's from its signal)."""
+    spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
+    out: dict[str, Any] = {}
+    for key, v in e.items():
+        if key in ("t", "fault", "clear", "target"):
+            continue
+        if key not in spec:
+            out[str(key)] = v                 # parse_fault names it with what is accepted
+            continue
+        unit = spec[key][2]
+        rate = False
+        if kind in SENSOR_FAULTS and key != "delay":
+            k = signal_kind(str(target))
+            rate = key == "rate"
         else:
-            sine = _mapping(f"{where}.sine", seg["sine"], ("amplitude", "frequency", "offset"))
-            _unknown(f"{where}.sine", sine, ("amplitude", "frequency", "offset"))
-            _num(f"{where}.sine.amplitude", sine.get("amplitude"), lo=0.0, hi=1.0, what="an amplitude in m")
-            _num(f"{where}.sine.frequency", sine.get("frequency"), lo=0.0, hi=1000.0, what="a frequency in Hz")
-            _num(f"{where}.sine.offset", sine.get("offset", 0.0), lo=-1.0, hi=1.0, what="an offset in m")
-    return tuple(raw)
+            k = _FAULT_UNITS.get(unit, "number")
+        role = "supply pressure" if kind == "supply_drop" else ""
+        try:
+            out[str(key)] = quantity(v, k, f"{where}.{key}", rate=rate, role=role)
+        except UnitError as err:
+            raise ScenarioError(str(err)) from None
+    return out
 
 
-def _check_timeline(raw: Any, rig: RigParams, duration: float) -> tuple[Mapping[str, Any], ...]:
+def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
+                    ) -> tuple[tuple[Mapping[str, Any], ...], list[str]]:
+    """The timeline normalized (SI, profiles as segments) and notes on events dropped (after the
+    duration: a run shortened from the file's)."""
     if raw is None:
-        return ()
+        return (), []
     if not isinstance(raw, list):
-        raise ScenarioError("timeline: accepted is a list of entries {t, duty | force | fault | clear, ...}")
+        raise ScenarioError(f"timeline: accepted is a list of entries {{t, {' | '.join(_ACTIONS)}, ...}}")
     valves = tuple(v.name for v in rig.valves)
     signals = tuple(f"{v}.{s}" for v in valves for s in ("pressure", "current", "spool_position")) + tuple(
         f"cylinder.{s}" for s in ("position", "velocity", "effort"))
+    supply = {v.name: v.params.circuit.supply_pressure for v in rig.valves}
+    out: list[Mapping[str, Any]] = []
+    notes: list[str] = []
     for k, e in enumerate(raw):
         where = f"timeline[{k}]"
         _mapping(where, e, ("t",))
-        _num(f"{where}.t", e.get("t"), lo=0.0, hi=duration, what="a time in s within the duration")
-        actions = [a for a in ("duty", "force", "fault", "clear") if a in e]
+        t = _num(f"{where}.t", e.get("t"), lo=0.0, what="a time in s", kind="time")
+        actions = [a for a in _ACTIONS if a in e]
         if len(actions) != 1:
-            raise ScenarioError(f"{where}: accepted is exactly one of duty, force, fault, clear (got {actions or 'none'})")
+            if not actions:
+                raise ScenarioError(missing_message(where, e, _ACTIONS))
+            raise ScenarioError(f"{where}: accepted is exactly one of {', '.join(_ACTIONS)} (got {', '.join(actions)})")
         a = actions[0]
-        if a == "duty":
-            _unknown(where, e, ("t", "duty"))
-            duties = _mapping(f"{where}.duty", e["duty"], valves)
-            _unknown(f"{where}.duty", duties, valves)
-            for v, d in duties.items():
-                _num(f"{where}.duty.{v}", d, lo=0.0, hi=1.0, what="a duty fraction")
+        entry: dict[str, Any] = {"t": t}
+        if a in ("duty", "supply"):
+            _unknown(where, e, ("t", a))
+            per = _mapping(f"{where}.{a}", e[a], valves)
+            _unknown(f"{where}.{a}", per, valves)
+            entry[a] = {
+                str(v): _segment(f"{where}.{a}.{v}", t, d, "fraction", base, 0.0, 1.0, "a duty fraction")
+                if a == "duty" else
+                _segment(f"{where}.{a}.{v}", t, d, "pressure", base, 0.0, supply[str(v)],
+                         "a supply pressure (Pa) up to the configured one", role="supply pressure")
+                for v, d in per.items()}
         elif a == "force":
             _unknown(where, e, ("t", "force"))
-            _num(f"{where}.force", e["force"], lo=-1e6, hi=1e6, what="a force in N")
+            entry["force"] = _segment(f"{where}.force", t, e["force"], "force", base, -MAX_EXTERNAL_FORCE,
+                                      MAX_EXTERNAL_FORCE, "a force in N")
         else:
-            values = {str(key): v for key, v in e.items() if key not in ("t", a, "target")}
+            values = _fault_values(where, e, e[a], e.get("target"))
             try:
-                parse_fault(e[a], e.get("target"), values if a == "fault" else None, valves=valves, signals=signals,
-                            where=f"{where}.{a}")
+                # a clear names the fault by kind and target: its values are the fault's own
+                check = values if a == "fault" else {
+                    k: (lo + 1.0 if math.isfinite(lo) else 0.0) if hi > lo + 1.0 else (lo + hi) / 2.0
+                    for k, (lo, hi, _u, _o) in (VALVE_FAULTS | CYLINDER_FAULTS | SENSOR_FAULTS).get(e[a], {}).items()}
+                parse_fault(e[a], e.get("target"), check, valves=valves, signals=signals, where=f"{where}.{a}")
             except FaultError as err:
-                raise ScenarioError(str(err)) from None
+                kinds = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
+                near = closest(e[a], kinds) if e[a] not in kinds else None
+                raise ScenarioError(f"{err}{f' (did you mean {near!r}?)' if near else ''}") from None
             if a == "clear" and values:
                 raise ScenarioError(f"{where}: clear takes t, clear, target; unknown: {', '.join(values)}")
-    return tuple(raw)
+            entry.update({a: e[a], "target": e.get("target"), **values})
+        if t > duration + 1e-12:
+            notes.append(f"{where} ({a} at {t:g} s) is after the run's end ({duration:g} s): dropped")
+            continue
+        out.append(entry)
+    return tuple(out), notes
 
 
-def _check_assertions(raw: Any, rig: RigParams, has_setpoint: bool) -> tuple[Mapping[str, Any], ...]:
+def _timeline_events(timeline: tuple[Mapping[str, Any], ...]) -> list[tuple[float, str, str]]:
+    ev = []
+    for e in timeline:
+        a = next(x for x in _ACTIONS if x in e)
+        ev.append((float(e["t"]), a, str(e[a]) if a in ("fault", "clear") else ""))
+    return sorted(ev, key=lambda x: x[0])
+
+
+def _check_assertions(raw: Any, rig: RigParams, has_setpoint: bool, timeline: tuple[Mapping[str, Any], ...],
+                      base: Path | None) -> tuple[Mapping[str, Any], ...]:
     if raw is None:
         return ()
     if not isinstance(raw, list):
         raise ScenarioError(f"assertions: accepted is a list of {{type: {' | '.join(ASSERTION_TYPES)}, ...}}")
-    known = _signals(rig)
-    keys = {
-        "max_error": ("type", "name", "signal", "reference", "max", "after", "before", "measured"),
-        "never_above": ("type", "name", "signal", "max", "after", "before", "measured"),
-        "never_below": ("type", "name", "signal", "min", "after", "before", "measured"),
-        "flag_within": ("type", "name", "signal", "at", "within"),
-    }
+    events = _timeline_events(timeline)
+    out = []
     for k, a in enumerate(raw):
-        where = f"assertions[{k}]"
-        _mapping(where, a, ("type",))
-        kind = a.get("type")
-        if kind not in keys:
-            raise ScenarioError(f"{where}.type: got {kind!r}; accepted are {', '.join(ASSERTION_TYPES)}")
-        _unknown(where, a, keys[kind])
-        sig = a.get("signal")
-        ok = isinstance(sig, str) and (sig in known or sig.startswith("controller."))
-        if not ok:
-            raise ScenarioError(f"{where}.signal: got {sig!r}; accepted are {', '.join(known)} and, for flag_within, "
-                                "controller.<flag>")
-        if sig == "setpoint" and not has_setpoint:
-            raise ScenarioError(f"{where}.signal: the scenario has no setpoint")
-        for key in ("max", "min", "after", "before", "at", "within"):
-            if key in a:
-                _num(f"{where}.{key}", a[key])
-        need = {"max_error": ("reference", "max"), "never_above": ("max",), "never_below": ("min",),
-                "flag_within": ("at", "within")}[kind]
-        for key in need:
-            if key not in a:
-                raise ScenarioError(f"{where}: {kind} needs {key}")
-        if kind == "max_error":
-            ref = a["reference"]
-            if not (ref in known and (ref != "setpoint" or has_setpoint)) and not isinstance(ref, (int, float)):
-                raise ScenarioError(f"{where}.reference: got {ref!r}; accepted is a number or a signal "
-                                    f"({', '.join(known if has_setpoint else known[:-1])})")
-        if "measured" in a and not isinstance(a["measured"], bool):
-            raise ScenarioError(f"{where}.measured: got {a['measured']!r}; accepted is true or false")
-    return tuple(raw)
+        try:
+            out.append(normalize(f"assertions[{k}]", a, signals=_signals(rig), has_setpoint=has_setpoint,
+                                 events=events, base=base))
+        except (AssertionSpecError, UnitError) as err:
+            raise ScenarioError(str(err)) from None
+    return tuple(out)
 
 
-def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
-    """A validated Scenario (ScenarioError naming the key otherwise)."""
+def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: RigParams | None = None) -> Scenario:
+    """A validated Scenario (ScenarioError naming the key otherwise). `rig_params`, when given,
+    stand in for the parameters of the file that `rig` names (a campaign's variant of the rig)."""
     origin = str(path) if path else "scenario"
     try:
         if not isinstance(data, Mapping):
@@ -323,13 +418,13 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
         if rig_file is not None and not isinstance(rig_file, str):
             raise ScenarioError(f"rig: got {rig_file!r}; accepted is the path of a rig YAML (relative to the scenario)")
         try:
-            rig = load_rig(base / rig_file if rig_file else None)
+            rig = rig_params if rig_params is not None else load_rig(base / rig_file if rig_file else None)
         except PcvSimError as err:
             raise ScenarioError(f"rig: {err}") from None
         if "duration" not in data:
             raise ScenarioError("duration: missing; accepted is the run's length in s")
         duration = _num("duration", data["duration"], lo=rig.timing.control_period, hi=_MAX_DURATION,
-                        what="a duration in s")
+                        what="a duration in s", kind="time")
         seed = data.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ScenarioError(f"seed: got {seed!r}; accepted is an integer >= 0")
@@ -349,16 +444,17 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None) -> Scenario:
                                 "(in its command: --ros-args -p name:=value)")
         if params is not None and ctrl is None:
             raise ScenarioError("controller_params: given without a controller")
-        setpoint = _check_setpoint(data.get("setpoint"))
-        timeline = _check_timeline(data.get("timeline"), rig, duration)
-        assertions = _check_assertions(data.get("assertions"), rig, bool(setpoint))
+        setpoint = _check_setpoint(data.get("setpoint"), base)
+        timeline, notes = _check_timeline(data.get("timeline"), rig, duration, base)
+        assertions = _check_assertions(data.get("assertions"), rig, bool(setpoint), timeline, base)
         name = data.get("name", path.stem if path else "scenario")
         if not isinstance(name, str) or not name:
             raise ScenarioError(f"name: got {name!r}; accepted is a non-empty string")
     except ScenarioError as err:
         raise ScenarioError(f"{origin}: {err}") from None
+    digest = hashlib.sha256(json.dumps([data, repr(rig)], sort_keys=True, default=str).encode()).hexdigest()
     return Scenario(name, path, rig, duration, seed, ctrl, params, setpoint, timeline, assertions, ros,
-                    (base / rig_file).resolve() if rig_file else None)
+                    (base / rig_file).resolve() if rig_file else None, tuple(notes), digest[:16])
 
 
 def ros_controller(raw: Any) -> RosController:
@@ -384,7 +480,8 @@ def ros_controller(raw: Any) -> RosController:
             except (KeyError, IndexError, ValueError) as err:
                 raise ScenarioError(f"controller.ros.command: {c!r}: {err!r}; accepted placeholders are {{namespace}} "
                                     "and {python}") from None
-    wait = _num("controller.ros.wait", spec.get("wait", 30.0), lo=0.1, hi=_MAX_DURATION, what="a time in s")
+    wait = _num("controller.ros.wait", spec.get("wait", 30.0), lo=0.1, hi=_MAX_DURATION, what="a time in s",
+                kind="time")
     return RosController("" if ns == "/" else ns, tuple(cmd) if cmd is not None else None, wait)
 
 
@@ -438,77 +535,76 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
 # --- running ---------------------------------------------------------------------------------------
 
 
+def _profile_updates(rig: Rig, t0: float, seg: Segment, before: float, until: float,
+                     apply: Callable[[float], None]) -> None:
+    """A segment on the rig: a value once at t0; any other shape at each control instant from
+    t0 until it is constant or the next segment starts (held over the period), then its end value."""
+    if seg.constant:
+        rig.schedule(t0, functools.partial(apply, seg.value))
+        return
+    T = rig.params.timing.control_period
+    stop = min(until, t0 + seg.end())
+    k = math.ceil(t0 / T - 1e-9)
+    while k * T < stop - 1e-12:
+        rig.schedule(k * T, functools.partial(apply, seg.at(k * T - t0, before)))
+        k += 1
+    if math.isfinite(stop) and stop < until:
+        rig.schedule(stop, functools.partial(apply, seg.at(stop - t0, before)))
+
+
 def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
+    """Put the scenario's timeline on the rig's schedule: events at their times, profiles as
+    values at each control instant (zero-order hold over the control period)."""
     signals = rig.signals
+    end = scenario.duration + rig.params.timing.control_period
+    channels: dict[tuple[str, str], list[Segment]] = {}
     for e in scenario.timeline:
         t = float(e["t"])
-        if "duty" in e:
-            for valve, d in e["duty"].items():
-                rig.schedule(t, functools.partial(rig.set_duty, valve, d))
+        if "duty" in e or "supply" in e:
+            a = "duty" if "duty" in e else "supply"
+            for valve, seg in e[a].items():
+                channels.setdefault((a, valve), []).append(seg)
         elif "force" in e:
-            rig.schedule(t, functools.partial(rig.set_external_force, e["force"]))
+            channels.setdefault(("force", ""), []).append(e["force"])
         elif "fault" in e:
             values = {str(k): v for k, v in e.items() if k not in ("t", "fault", "target")}
             f = parse_fault(e["fault"], e["target"], values, valves=rig.valve_names, signals=signals)
             rig.schedule(t, functools.partial(rig.inject, f))
         else:
             rig.schedule(t, functools.partial(rig.clear, e["target"], e["clear"]))
+    initial = {v.name: v for v in scenario.rig.valves}
+    for (a, valve), segs in channels.items():
+        if a == "duty":
+            apply: Callable[[float], None] = functools.partial(_duty, rig, valve)
+            x0 = initial[valve].initial_duty
+        elif a == "force":
+            apply, x0 = rig.set_external_force, 0.0
+        else:
+            apply = functools.partial(_supply, rig, valve)
+            x0 = initial[valve].params.circuit.supply_pressure
+        profile = Profile(sorted(segs, key=lambda s: s.t), initial=x0)
+        for k, seg in enumerate(profile.segments):
+            nxt = profile.segments[k + 1].t if k + 1 < len(profile.segments) else end
+            _profile_updates(rig, seg.t, seg, profile(seg.t - 1e-9) if k else x0, nxt, apply)
 
 
-def _window(run: RigRun, a: Mapping[str, Any]) -> np.ndarray:
-    t = run.times
-    mask = np.ones(len(t), bool)
-    if "after" in a:
-        mask &= t >= float(a["after"]) - 1e-12
-    if "before" in a:
-        mask &= t <= float(a["before"]) + 1e-12
-    return mask
+def _duty(rig: Rig, valve: str, duty: float) -> None:
+    rig.set_duty(valve, duty)
 
 
-def check_assertion(run: RigRun, a: Mapping[str, Any]) -> Outcome:
-    """One assertion on a run (see the module docstring)."""
-    kind, sig = a["type"], a["signal"]
-    measured = bool(a.get("measured", False))
-    name = a.get("name") or f"{kind} {sig}"
-    t = run.times
-    if kind == "flag_within":
-        flag = run.flags.get(sig)
-        at, within = float(a["at"]), float(a["within"])
-        if flag is None:
-            return Outcome(name, False, math.nan, within, f"the controller never reported {sig}")
-        raised = np.nan_to_num(flag, nan=0.0) != 0.0
-        early = raised & (t < at - 1e-12)
-        if np.any(early):
-            return Outcome(name, False, float(t[np.argmax(early)] - at), within,
-                           f"{sig} raised at {t[np.argmax(early)]:.4f} s, before the event at {at:g} s")
-        late = raised & (t >= at - 1e-12)
-        if not np.any(late):
-            return Outcome(name, False, math.inf, within, f"{sig} never raised after {at:g} s")
-        delay = float(t[np.argmax(late)] - at)
-        return Outcome(name, delay <= within + 1e-12, delay, within,
-                       f"{sig} raised {delay * 1e3:.1f} ms after {at:g} s (limit {within * 1e3:g} ms)")
-    try:
-        y = run.signal(sig, measured=measured)
-    except KeyError:
-        return Outcome(name, False, math.nan, math.nan, f"no signal {sig} in the run (a flag the controller never reported)")
-    mask = _window(run, a) & np.isfinite(y)
-    if not np.any(mask):
-        return Outcome(name, False, math.nan, math.nan, "no samples in the window")
-    if kind == "max_error":
-        ref = a["reference"]
-        r = np.full(len(t), float(ref)) if isinstance(ref, (int, float)) else run.signal(ref, measured=measured)
-        err = np.abs(y - r)[mask]
-        worst = float(np.max(err))
-        k = int(np.flatnonzero(mask)[np.argmax(err)])
-        return Outcome(name, worst <= float(a["max"]), worst, float(a["max"]),
-                       f"|{sig} - {ref}| at most {worst:.6g} (at {t[k]:.4f} s), limit {float(a['max']):g}")
-    if kind == "never_above":
-        worst = float(np.max(y[mask]))
-        return Outcome(name, worst <= float(a["max"]), worst, float(a["max"]),
-                       f"{sig} at most {worst:.6g}, limit {float(a['max']):g}")
-    worst = float(np.min(y[mask]))
-    return Outcome(name, worst >= float(a["min"]), worst, float(a["min"]),
-                   f"{sig} at least {worst:.6g}, limit {float(a['min']):g}")
+def _supply(rig: Rig, valve: str, pressure: float) -> None:
+    """The supply as the supply_drop fault with this pressure (the configured one: cleared); one
+    event in the log per profile change, not one per control period."""
+    nominal = next(v.params.circuit.supply_pressure for v in rig.params.valves if v.name == valve)
+    active = (valve, "supply_drop") in rig.faults
+    n = len(rig.log)
+    if pressure >= nominal:
+        if active:
+            rig.clear(valve, "supply_drop")
+    else:
+        rig.inject(Fault("supply_drop", valve, {"pressure": pressure}))
+    if active and len(rig.log) > n:
+        del rig.log[n:]          # a profile's next value: the events list shows the profile once
 
 
 def run_scenario(scenario: Scenario, controller: Controller | None = None, *, rig: Rig | None = None,
@@ -542,6 +638,20 @@ def run_scenario(scenario: Scenario, controller: Controller | None = None, *, ri
 
 def scenario_result(scenario: Scenario, run: RigRun) -> ScenarioResult:
     """The assertions of `scenario` checked on `run`."""
-    outcomes = [check_assertion(run, a) for a in scenario.assertions]
+    outcomes = check_assertions(run, scenario.assertions, next_change=scenario.next_setpoint_change)
     return ScenarioResult(scenario.name, str(scenario.path) if scenario.path else "", all(o.passed for o in outcomes),
-                          outcomes, run.real_time_factor, run.wall_time, None, run)
+                          outcomes, run.real_time_factor, run.wall_time, None, run, scenario.events(),
+                          list(scenario.notes), run_metadata(scenario), scenario.inputs(run.times))
+
+
+def run_metadata(scenario: Scenario) -> dict[str, Any]:
+    """What a report names the run by: package version, seed, the config's hash, date (UTC)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        pkg = version("pcv_sim")
+    except PackageNotFoundError:
+        pkg = "unknown"
+    return {"pcv_sim": pkg, "seed": scenario.seed, "config_hash": scenario.config_hash,
+            "duration_s": scenario.duration,
+            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")}

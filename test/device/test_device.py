@@ -222,7 +222,7 @@ def test_a_model_exception_is_a_fault_not_a_crash(monkeypatch):
     def broken(n):
         raise ArithmeticError('no coil current solves Eq. 2')
 
-    monkeypatch.setattr(dev.stepper, 'advance', broken)
+    monkeypatch.setattr(dev.stepper, 'advance_finite', broken)   # the device's stepping call
     assert dev.run(20) == []
     assert dev.fault.startswith('model step failed (ArithmeticError: no coil current solves Eq. 2) at t = 0.0010 s')
 

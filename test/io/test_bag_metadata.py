@@ -74,7 +74,7 @@ def _mcap_string(s: str) -> bytes:
 
 
 def test_recorder_writes_the_emulators_qos_and_distro(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="r", threaded=False, ros_distro="kilted")
+    rec = BagRecorder(tmp_path, name="r", writer="inline", ros_distro="kilted")
     rec.close()
     with Reader(tmp_path / "r") as r:
         assert r.ros_distro == "kilted"

@@ -17,7 +17,7 @@ import pytest
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import RECORDABLE, BagRecorder, bag_name, check_signals
+from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, bag_name, check_signals
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 
@@ -42,9 +42,9 @@ def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> Non
         rec(T0 + k * DT, signals(k, **inputs))
 
 
-@pytest.mark.parametrize("threaded", [True, False])
-def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, threaded: bool) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=10, threaded=threaded, frame_id="load_port")
+@pytest.mark.parametrize("writer", ["process", "thread", "inline"])
+def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, writer: Writer) -> None:
+    rec = BagRecorder(tmp_path, name="b", every=10, writer=writer, frame_id="load_port")
     record(rec, 1000, {100: {"duty": 0.7}, 250: {"q": 1e-5}, 400: {"duty": 0.3, "ps": 150e5}, 401: {"duty": 0.3}})
     st = rec.close()
     assert (st.state, st.dropped, st.queued, st.error) == ("closed", 0, 0, "")
@@ -107,7 +107,7 @@ def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path) -> None:
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
         BagRecorder(tmp_path, name="b")
     assert list((tmp_path / "b").iterdir()) == []
-    BagRecorder(tmp_path, name="c", threaded=False).close()
+    BagRecorder(tmp_path, name="c", writer="inline").close()
     with pytest.raises(BagError, match="exists already"):
         BagRecorder(tmp_path, name="c")
     assert read_bag(tmp_path / "c").closed_cleanly
@@ -157,9 +157,9 @@ def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
     assert len(read_bag(tmp_path / "b")["/pressure"]) == 9
 
 
-@pytest.mark.parametrize("threaded", [True, False])
-def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, threaded: bool) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], threaded=threaded)
+@pytest.mark.parametrize("writer", ["thread", "inline"])
+def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, writer: Writer) -> None:
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writer=writer)
     record(rec, 10, {})
     rec.close()                                             # drain what came before
     rec._closed = False
@@ -210,3 +210,32 @@ def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
 def test_when_full_is_checked(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
         BagRecorder(tmp_path, name="b", when_full="block")  # type: ignore[arg-type]
+
+
+def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path) -> None:
+    """ValveDevice hands a recorder of every step its stretches between events as one block
+    (`record_block`); a recorder without that method gets every step alone. Same bag, to the bit."""
+    from mcap.reader import make_reader
+
+    def run(rec, hook) -> None:
+        dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, sample_every=10)
+        dev.recorder, dev.record_every = hook, 1
+        rec.start(dev.stamp_ns(), dev.signals())
+        for at, duty in [(0.013, 0.8), (0.0551, 0.3), (0.08, 0.6)]:
+            dev.submit("duty_cycle", duty, at_step=round(at / dev.dt))
+        for _ in range(120):
+            dev.run(10)
+        assert rec.close().dropped == 0
+
+    blocks = BagRecorder(tmp_path, name="blocks", every=2, frame_id="load_port")
+    single = BagRecorder(tmp_path, name="single", every=2, frame_id="load_port")
+    run(blocks, blocks)
+    def single_steps(t_ns: int, s: dict[str, float]) -> None:   # no record_block: one step at a time
+        single(t_ns, s)
+
+    run(single, single_steps)
+    got = {}
+    for name in ("blocks", "single"):
+        with open(next((tmp_path / name).glob("*.mcap")), "rb") as f:
+            got[name] = sorted((c.topic, m.log_time, bytes(m.data)) for _s, c, m in make_reader(f).iter_messages())
+    assert len(got["blocks"]) > 3 * 600 and got["blocks"] == got["single"]

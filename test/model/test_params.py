@@ -287,3 +287,19 @@ def test_a_key_added_later_is_optional_with_its_default(tmp_path: Path, default_
     path = write_modified(tmp_path, default_mapping, lambda d: d["fluid"].pop("density"))
     with pytest.raises(ParameterError, match=r"missing parameter\(s\) fluid\.density"):
         load_params(path)
+
+
+def test_values_with_units_are_read_in_si(tmp_path: Path, default_mapping: dict) -> None:
+    data = copy.deepcopy(default_mapping)
+    data["circuit"]["supply_pressure"] = "200 bar"
+    data["simulation"]["time_step"] = "0.1 ms"
+    path = tmp_path / "valve.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    p = load_params(path)
+    assert p.circuit.supply_pressure == pytest.approx(200e5)
+    assert p.simulation.time_step == pytest.approx(1e-4)
+    data["circuit"]["supply_pressure"] = "200 mm"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ParameterError, match=r"circuit\.supply_pressure: unit 'mm' in '200 mm' \(mm is a unit of "
+                                             r"length\); accepted for a pressure are Pa, kPa, MPa, bar"):
+        load_params(path)

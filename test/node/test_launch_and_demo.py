@@ -110,3 +110,64 @@ def test_demo_without_an_emulator_says_so(ros):
                            '--timeout', '1'], capture_output=True, text=True, timeout=60, env=ros.env)
     assert proc.returncode == 1
     assert 'no emulator answering' in proc.stderr and 'make run' in proc.stderr
+
+
+def _samples(stamps_ns, pressure):
+    from pcv_sim.node.client import PressureSample
+
+    return [PressureSample(int(t), float(p), int(t), int(t)) for t, p in zip(stamps_ns, pressure)]
+
+
+def test_demo_measures_steps_by_stamp_and_says_what_it_could_not_measure():
+    """A lagging emulator: step 2's samples are all stamped before step 2 began (a burst of step
+    1's caught-up samples arrived during it), step 3 has none. Step 1 is measured from its samples
+    whatever their arrival; steps 2 and 3 say why not; the run measured something: exit 0."""
+    import io
+
+    import numpy as np
+
+    from pcv_sim.node.demo import exit_status, measure_steps
+
+    t0 = 1_795_628_971_000_000_000
+    t = t0 - 100_000_000 + np.arange(600) * 1_000_000               # 0.1 s before step 1 .. 0.5 s into it
+    p = np.where(t < t0, 10e5, 10e5 + 20e5 * (1 - np.exp(-(t - t0) / 20e6)))
+    steps = [(0.5, t0, t0 + 400_000_000), (0.7, t0 + 600_000_000, t0 + 1_000_000_000),
+             (0.5, t0 + 1_000_000_000, t0 + 1_400_000_000)]
+    rows = measure_steps(steps, _samples(t, p)[::-1])                 # order of arrival does not matter
+    assert rows[0]['samples'] == 400 and abs(rows[0]['settled_bar'] - 30.0) < 0.1 and 'reason' not in rows[0]
+    assert 30 < rows[0]['rise_time_ms'] < 60                          # 10-90 % of a 20 ms lag: 44 ms
+    for row in rows[1:]:
+        assert row['samples'] == 0 and 'emulator published none for it' in row['reason'], row
+    err = io.StringIO()
+    assert exit_status(rows, err) == 0 and 'step(s) 2, 3 not measured' in err.getvalue()
+    assert exit_status(rows[1:], err) == 1 and 'measured none of the 2 steps' in err.getvalue()
+
+
+def test_demo_against_an_emulator_that_stops_says_so(ros):
+    """The emulator stops (SIGSTOP: a process that gets no CPU) once the demo found it: the steps
+    after that have no sample and say so; exit 1 exactly when no step was measured."""
+    import signal
+    import time
+
+    emu = ros.start(params={'safe_duty': 0.3})
+    demo = subprocess.Popen(
+        [sys.executable, '-m', 'pcv_sim.node.demo', '--namespace', ros.ns(), '--duties', '0.5,0.7,0.5',
+         '--hold', '0.3', '--timeout', '60'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ros.env)
+    try:
+        first = demo.stdout.readline()
+        assert first.startswith('demo: emulator'), first + demo.stderr.read()
+        emu.proc.send_signal(signal.SIGSTOP)
+        out, err = demo.communicate(timeout=60)
+    finally:
+        emu.proc.send_signal(signal.SIGCONT)
+        if demo.poll() is None:
+            demo.kill()
+    time.sleep(0.1)
+    assert 'Traceback' not in err, err
+    rows = [line for line in out.splitlines() if re.match(r'\s+\d\s+0\.\d\d\s', line)]
+    assert len(rows) == 3, out
+    for row in rows[1:]:
+        assert 'not measured' in row and 'emulator published none for it' in row, out
+    measured_first = 'not measured' not in rows[0]
+    assert demo.returncode == (0 if measured_first else 1), (out, err)
+    assert ('step(s) 2, 3 not measured' if measured_first else 'measured none of the 3 steps') in err, err

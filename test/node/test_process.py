@@ -52,6 +52,33 @@ def test_a_signal_at_any_moment_of_the_start_stops_cleanly(ros, sig):
             assert not bag.warnings, (delay, bag.warnings)
 
 
+#: s from a signal to the exit, at any moment of the start-up (~1 s measured; 2-3 s under load).
+STOP_WITHIN = 8.0
+
+
+def test_a_signal_while_the_kernels_compile_or_in_the_first_wakes_stops_at_once(ros, cpu_load):
+    """Empty kernel caches (the first start after an install or an edit) and two CPU burners:
+    loading and compiling the kernels then takes 20-60 s. A signal during it, and one right
+    after the start line (the first wakes, where no kernel may be compiled any more), stops the
+    emulator within STOP_WITHIN s, exit 0: the start-up is abandoned, not finished first."""
+    for k, delay in enumerate((2.0, 6.0, 12.0, None)):
+        emu = ros.start(f'cold{k}', params={'watchdog_timeout': 0.0},
+                        env={**ros.env, 'PCV_SIM_CACHE': str(ros.tmp_path / f'cache{k}')})
+        end = time.monotonic() + 300
+        while not (_catches_sigterm(emu.proc.pid) if delay is not None else 'samples at' in emu.output()):
+            assert emu.proc.poll() is None and time.monotonic() < end, emu.output()
+            time.sleep(0.001)
+        if delay is not None:
+            time.sleep(delay)
+        sent = time.monotonic()
+        emu.proc.send_signal(signal.SIGINT)
+        rc = emu.wait(120)
+        took = time.monotonic() - sent
+        out = emu.output()
+        assert rc == 0 and 'Traceback' not in out, out
+        assert took < STOP_WITHIN, f'SIGINT {delay} s after main began: stopped after {took:.1f} s\n{out}'
+
+
 def test_the_entry_module_imports_nothing_heavy_before_main_installs_the_handlers():
     """`main` installs the handlers first; what it imports afterwards (rclpy, numpy, the model: ~1 s)
     is then covered. The module itself must import only the standard library."""

@@ -5,10 +5,10 @@ package (seeking reader with the summary; stream reader for an unclosed file) an
 pcv_sim.io.read_bag. The replay of such a bag is in test/replay/test_emulator_bag.py.
 """
 import itertools
+import os
 import signal
 
 import numpy as np
-from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
@@ -19,6 +19,8 @@ from pcv_sim.io import read_bag
 from pcv_sim.io.topics import ROLE_TYPES
 from pcv_sim.params import load_params
 from pcv_sim.simulation.stepper import RealTimeStepper
+
+from .conftest import wait_until
 
 PARAMS = load_params()
 START = 30.0                      # s: node start-up and discovery on a busy 2-core machine
@@ -45,6 +47,7 @@ def test_recorded_bag_reads_back_with_rosbags_mcap_and_pcv_sim(ros):
     assert diag['recording_path'] == str(bag_path) and diag['recording_dropped'] == '0'
     assert diag['recording_error'] == '' and int(diag['recording_bytes']) >= 0
     drive(c)
+    last_seen = c.samples[-1].stamp_ns
     assert emu.stop(signal.SIGINT) == 0
     out = emu.output()
     assert f'recording finished: bag {bag_path}' in out and 'dropped' not in out and 'Traceback' not in out, out
@@ -65,6 +68,7 @@ def test_recorded_bag_reads_back_with_rosbags_mcap_and_pcv_sim(ros):
     assert n == counts[f'{ns}/current'] == counts[f'{ns}/spool_position'] > 1.2 * 10_000   # > 1.2 s at 10 kHz
     t_p = np.array([t for t, _ in got[f'{ns}/pressure']])
     assert np.all(np.diff(t_p) == DT_NS)                               # every 0.1 ms step, none missing
+    assert t_p[-1] >= last_seen                                        # up to the stop
     assert all(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == t for t, m in got[f'{ns}/pressure'])
     assert all(m.header.frame_id == 'load_port' for _, m in got[f'{ns}/pressure'][:10])
     p = np.array([m.fluid_pressure for _, m in got[f'{ns}/pressure']])
@@ -102,7 +106,8 @@ def test_recorded_bag_reads_back_with_rosbags_mcap_and_pcv_sim(ros):
     assert np.array_equal(bag[f'{ns}/pressure'].value, p)
 
 
-def test_sigkill_leaves_a_readable_bag_missing_at_most_the_last_second(ros):
+def test_sigkill_of_the_node_leaves_a_finalized_bag_missing_at_most_the_last_second(ros):
+    """The writer process sees the node gone, writes what it had been handed and finalizes the bag."""
     emu = ros.start(params={**RECORD, 'record.directory': str(ros.tmp_path / 'bags')})
     c = ros.client()
     assert c.wait_for_emulator(START), emu.output()
@@ -112,24 +117,47 @@ def test_sigkill_leaves_a_readable_bag_missing_at_most_the_last_second(ros):
     emu.proc.kill()
     emu.wait()
     bag_path = ros.tmp_path / 'bags' / 'run'
+    assert wait_until(lambda: read_bag(bag_path).closed_cleanly, 60, 0.2), read_bag(bag_path).warnings
 
     bag = read_bag(bag_path)
-    assert not bag.closed_cleanly
-    assert any('not closed properly' in w for w in bag.warnings), bag.warnings
+    assert not bag.warnings, bag.warnings
     t_p = bag[f'{ros.ns()}/pressure'].t_ns
     assert len(t_p) > 10_000 and np.all(np.diff(t_p) == DT_NS)
     assert seen - t_p[-1] <= 1_000_000_000, f'lost {(seen - t_p[-1]) / 1e9:.3f} s'
 
-    # the mcap package's stream reader reads the same messages up to the cut
+    # the mcap package's stream reader reads the same messages, to the footer
     [mcap_file] = bag_path.glob('*.mcap')
     n = 0
     with open(mcap_file, 'rb') as f:
-        try:
-            for record in StreamReader(f, skip_magic=False).records:
-                n += isinstance(record, Message)
-        except (EndOfFile, McapError, ValueError):
-            pass                                      # the file ends without a footer
+        for record in StreamReader(f, skip_magic=False).records:
+            n += isinstance(record, Message)
     assert n == sum(len(s) for s in bag.topics.values())
+
+
+def test_a_writer_process_that_dies_is_an_error_in_the_diagnostics_and_the_node_runs_on(ros):
+    emu = ros.start(params={**RECORD, 'record.directory': str(ros.tmp_path / 'bags')})
+    c = ros.client()
+    assert c.wait_for_emulator(START), emu.output()
+    assert c.wait_for_diagnostics(lambda d: int(d.get('recording_messages', 0)) > 0) is not None, emu.output()
+    [writer] = _children(emu.proc.pid)
+    os.kill(writer, signal.SIGKILL)
+    diag = c.wait_for_diagnostics(lambda d: d.get('recording') == 'failed')
+    assert diag is not None, emu.output()
+    assert 'writer process exited unexpectedly' in diag['recording_error'], diag
+    n = len(c.samples)
+    c.spin_for(0.5)
+    assert len(c.samples) > n + 100                    # still publishing
+    assert emu.stop(signal.SIGINT) == 0
+    out = emu.output()
+    assert 'recording failed (the bag writer process exited unexpectedly' in out and 'Traceback' not in out, out
+
+
+def _children(pid):
+    out = []
+    for task in os.listdir(f'/proc/{pid}/task'):
+        with open(f'/proc/{pid}/task/{task}/children') as f:
+            out += [int(p) for p in f.read().split()]
+    return out
 
 
 def test_simulated_time_bag_uses_model_time_and_is_complete(ros):

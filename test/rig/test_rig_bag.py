@@ -27,7 +27,7 @@ def duties(t):
 def rig_bag(rig, tmp_path):
     """0.3 s of the rig, recorded at the 1 ms control period; returns (bag path, samples)."""
     rec = RigRecorder(tmp_path, name="b", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, namespace=NS, threaded=False)
+                      signals=rig.signals, namespace=NS, writer="inline")
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     samples = []
     for k in range(301):
@@ -103,7 +103,7 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     from pcv_sim.io.recorder import JOINT_STATE
 
     rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, threaded=False)
+                      signals=rig.signals, writer="inline")
     y = rig.sample()
     rec.start(0, rig.input_values())
     rec.sample(0, y, rig.load_volumes())

@@ -26,27 +26,47 @@ def _step():
 
 
 @pytest.mark.parametrize(("edit", "match"), [
-    (lambda d: d.update(durration=1.0), r"scenario: unknown key\(s\) durration; accepted: name, rig, duration"),
+    (lambda d: d.update(durration=1.0), r"scenario: unknown key 'durration' \(did you mean 'duration'\?\); accepted: name, rig, duration"),
     (lambda d: d.pop("duration"), r"duration: missing"),
     (lambda d: d.update(duration=-1), r"duration: got -1; accepted is a duration in s in 0\.001 \.\. 3600"),
     (lambda d: d.update(controller="steering.PositionController"), r"controller: .* accepted is 'module:callable'"),
     (lambda d: d["setpoint"].append({"t": 0.05, "value": 0.0}), r"setpoint\[2\]\.t: 0\.05 s; accepted is a time after"),
-    (lambda d: d["setpoint"].append({"t": 0.5, "value": 20}), r"setpoint\[2\]\.value: got 20; accepted is a position in m in -1 \.\. 1"),
+    (lambda d: d["setpoint"].append({"t": 0.5, "value": "2 cm"}), None),
+    (lambda d: d["setpoint"].append({"t": 0.5, "value": "2000 mm"}),
+     r"setpoint\[2\]\.value: 2 m; accepted is a position in m in -1 \.\. 1"),
     (lambda d: d.update(timeline=[{"t": 0.1, "fault": "coil_open", "target": "middle"}]),
      r"timeline\[0\]\.fault: target 'middle' for coil_open; accepted are left, right"),
-    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "supply_drop", "target": "left", "pressure": 200}]) or None,
-     None),
-    (lambda d: d.update(timeline=[{"t": 0.1, "duty": {"left": 70}}]), r"timeline\[0\]\.duty\.left: got 70; accepted is a duty"),
-    (lambda d: d.update(timeline=[{"t": 0.1, "force": 1.0, "duty": {"left": 0.5}}]), r"exactly one of duty, force, fault, clear"),
-    (lambda d: d.update(timeline=[{"t": 9.0, "force": 1.0}]), r"timeline\[0\]\.t: got 9\.0; accepted is a time in s within the duration"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "supply_drop", "target": "left", "pressure": 200}]),
+     r"timeline\[0\]\.pressure: 200 is 200 Pa, below any supply pressure; did you mean 200 bar\?"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "supply_drop", "target": "left", "pressure": "200 Pa"}]), None),
+    (lambda d: d.update(timeline=[{"t": 0.1, "forces": 500}]),
+     r"timeline\[0\]: accepted is exactly one of duty, force, supply, fault, clear; got 'forces' \(did you mean 'force'\?\)"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "bias", "target": "left.pressure", "value": 5}]),
+     r"timeline\[0\]\.value: 5 is 5 Pa, below any plausible pressure; did you mean 5 bar\?"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "fault": "coil_opne", "target": "left"}]), r"did you mean 'coil_open'\?"),
+    (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure", "max": 180}),
+     r"assertions\[3\]\.max: 180 is 180 Pa, below any plausible pressure; did you mean 180 bar\?"),
+    (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure", "max": "180 mm"}),
+     r"assertions\[3\]\.max: unit 'mm' in '180 mm' \(mm is a unit of length\); accepted for a pressure are Pa"),
+    (lambda d: d["assertions"].append({"type": "step_respons", "signal": "cylinder.position"}),
+     r"assertions\[3\]\.type: got 'step_respons' \(did you mean 'step_response'\?\)"),
+    (lambda d: d["assertions"].append({"type": "within_band", "signal": "cylinder.position", "reference": "setpoint",
+                                       "tolerance": "1 mm", "after": {"event": "fault"}}),
+     r"assertions\[3\]\.after\.event: 'fault' is not on the timeline"),
+    (lambda d: d["setpoint"].append({"t": 0.5, "ramp": {"to": "10 mm", "duraton": "0.2 s"}}),
+     r"setpoint\[2\]\.ramp: unknown key 'duraton' \(did you mean 'duration'\?\)"),
+    (lambda d: d["setpoint"].append({"t": 0.5, "value": 20}),
+     r"setpoint\[2\]\.value: 20 is 20 m, above any plausible length; did you mean 20 mm\?"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "duty": {"left": 70}}]), r"timeline\[0\]\.duty\.left: 70 is 70 \(a fraction\), above any plausible fraction; did you mean 70 %\?"),
+    (lambda d: d.update(timeline=[{"t": 0.1, "force": 1.0, "duty": {"left": 0.5}}]), r"exactly one of duty, force, supply, fault, clear \(got duty, force\)"),
     (lambda d: d["assertions"].append({"type": "always_fine", "signal": "left.pressure"}),
      r"assertions\[3\]\.type: got 'always_fine'; accepted are max_error"),
     (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.presure", "max": 1.0}),
-     r"assertions\[3\]\.signal: got 'left.presure'; accepted are left\.pressure"),
+     r"assertions\[3\]\.signal: got 'left.presure' \(did you mean 'left.pressure'\?\); accepted are left\.pressure"),
     (lambda d: d["assertions"].append({"type": "never_above", "signal": "left.pressure"}), r"never_above needs max"),
     (lambda d: d.update(rig="nosuch.yaml"), r"rig: cannot read rig file"),
     (lambda d: d.update(controller={"ros": {"namespace": "rig ns"}}), r"controller\.ros\.namespace: got 'rig ns'"),
-    (lambda d: d.update(controller={"ros": {"namespce": "/rig"}}), r"controller\.ros: unknown key\(s\) namespce"),
+    (lambda d: d.update(controller={"ros": {"namespce": "/rig"}}), r"controller\.ros: unknown key 'namespce' \(did you mean 'namespace'\?\)"),
     (lambda d: d.update(controller={"ros": {"command": "steering_controller"}}),
      r"controller\.ros\.command: got 'steering_controller'; accepted is a list"),
     (lambda d: d.update(controller={"ros": {"command": ["{pyhton}"]}}), r"accepted placeholders are \{namespace\}"),
@@ -59,7 +79,7 @@ def _step():
 def test_bad_scenarios_are_refused_naming_the_key(edit, match):
     data = _step()
     edit(data)
-    if match is None:           # a supply of 200 Pa is a valid (if harsh) fault, a full ROS spec: accepted
+    if match is None:           # a value written with its unit is taken at its word; a full ROS spec: accepted
         scenario_from_mapping(data, path=EXAMPLES / "step.yaml")
         return
     with pytest.raises(ScenarioError, match=match):
@@ -111,6 +131,9 @@ def test_command_json_bag_and_report(tmp_path, capsys):
     # 0.4 s at 1 kHz: 401 samples; the right current dropped out from 0.2 s on (no messages).
     assert len(bag["/left/pressure"]) == 401
     assert len(bag["/right/current"]) == 200
+    # the controller's flag, one message per answered period (the last instant has no answer)
+    assert bag.topic_types["/controller/fault_detected"] == "std_msgs/msg/Float64"
+    assert len(bag["/controller/fault_detected"]) == 400
     html = (tmp_path / "r.html").read_text()
     assert "FAILED" in html and "data:image/png;base64," in html
 
@@ -119,7 +142,7 @@ def test_command_bad_file_exits_2_naming_the_key(tmp_path, capsys):
     scen = tmp_path / "bad.yaml"
     scen.write_text("duration: 1.0\ncontroler: steering:PositionController\n")
     assert main(["scenario", "run", str(scen)]) == 2
-    assert "unknown key(s) controler" in capsys.readouterr().err
+    assert "unknown key 'controler' (did you mean 'controller'?)" in capsys.readouterr().err
 
 
 def test_command_runs_a_directory_in_parallel_with_one_summary(tmp_path, capsys):
@@ -160,7 +183,8 @@ def test_controller_module_beside_the_file_and_import_errors(tmp_path, capsys):
 def test_every_example_scenario_loads():
     from pcv_sim.rig.scenario import load_scenario
 
-    files = sorted(EXAMPLES.rglob("*.yaml"))
+    # examples/campaigns holds campaign files (test/campaign loads them)
+    files = sorted(f for f in EXAMPLES.rglob("*.yaml") if f.parent.name != "campaigns")
     assert EXAMPLES / "ros" / "step.yaml" in files
     for f in files:
         sc = load_scenario(f)
@@ -168,3 +192,34 @@ def test_every_example_scenario_loads():
     ros = load_scenario(EXAMPLES / "ros" / "step.yaml").ros
     assert ros.namespace == "/steering" and ros.argv("py")[:3] == ["py", "-m", "pcv_sim.node.steering_controller"]
     assert "__ns:=/steering" in ros.argv("py")
+
+
+def test_the_readme_example_works_for_a_controller_without_flags(rig_scenario):
+    """The README's pytest example, run as written with a controller that reports no flags."""
+    import re as _re
+
+    readme = (REPO / "README.md").read_text()
+    block = next(b for b in _re.findall(r"```python\n(.*?)```", readme, _re.S) if "def test_my_controller" in b)
+
+    class MyController:                 # the example's PI, without its flags
+        def __init__(self):
+            self.inner = PositionController()
+
+        def __call__(self, t, m):
+            out = dict(self.inner(t, m))
+            out.pop("flags", None)
+            return out
+
+    space = {"MyController": MyController}
+    exec(block.replace("examples/", str(EXAMPLES) + "/"), space)
+    space["test_my_controller"](rig_scenario)
+    result = rig_scenario(EXAMPLES / "step.yaml", controller=MyController(), duration=1.0)
+    assert not result.run.flags
+    assert [o.name for o in result.outcomes if not o.passed] == ["no false fault alarm"]
+
+
+def test_a_shorter_duration_drops_later_events_with_a_note(rig_scenario):
+    result = rig_scenario(EXAMPLES / "coil_open.yaml", controller=PositionController(), duration=0.8)
+    assert result.notes == ["timeline[1] (clear at 1 s) is after the run's end (0.8 s): dropped"]
+    assert "note: timeline[1]" in result.summary()
+    assert [text for _, text in result.events] == ["fault coil_open on left"]

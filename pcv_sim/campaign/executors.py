@@ -1,0 +1,110 @@
+"""Where a campaign's variants run: this process, local worker processes, or a Dask cluster.
+
+Every executor hands chunks of variant indices to `pcv_sim.campaign.runner.run_chunk` and passes
+each finished row to `on_row` as it arrives (the caller stores it at once, so an interrupted
+campaign keeps every finished variant). The rows do not depend on the executor, the number of
+workers or the chunking: a variant's values are a function of (campaign, index) alone.
+
+- `run_inline`: in this process (one worker; no start-up cost).
+- `run_local`: `workers` processes forked from this one after it prepared the campaign and
+  loaded the compiled kernels once (the children inherit them); Ctrl-C terminates the
+  workers and keeps what finished.
+- `run_dask`: a Dask distributed cluster (`dask scheduler` + `dask worker`s, on any machines
+  with this package installed and the scenario's files at the same paths): the campaign is
+  scattered once to every worker, the chunks are Dask tasks. Dask does the scheduling.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import signal
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from pcv_sim.campaign.runner import run_chunk, worker_for
+from pcv_sim.campaign.spec import Campaign
+from pcv_sim.errors import UsageError
+
+__all__ = ["chunks", "run_dask", "run_inline", "run_local"]
+
+Row = dict[str, Any]
+OnRow = Callable[[Row], None]
+
+
+def chunks(indices: Sequence[int], workers: int, *, most: int = 8) -> list[list[int]]:
+    """`indices` in chunks: small enough to share the work out evenly (about four per worker)
+    and to lose little at an interrupt, large enough that a task's overhead stays small."""
+    size = max(1, min(most, math.ceil(len(indices) / (4 * max(1, workers)))))
+    return [list(indices[i:i + size]) for i in range(0, len(indices), size)]
+
+
+def run_inline(campaign: Campaign, indices: Sequence[int], on_row: OnRow) -> None:
+    w = worker_for(campaign)
+    for k in indices:
+        on_row(w.run(k))
+
+
+_CAMPAIGN: Campaign | None = None
+
+
+def _init_worker() -> None:
+    # Ctrl-C reaches the whole process group: the parent alone decides, the workers go on
+    # until it terminates them.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _chunk(indices: list[int]) -> list[Row]:
+    assert _CAMPAIGN is not None
+    return run_chunk(_CAMPAIGN, indices)
+
+
+def run_local(campaign: Campaign, indices: Sequence[int], workers: int, on_row: OnRow) -> None:
+    """`workers` forked processes (1: this process)."""
+    if workers <= 1 or len(indices) <= 1:
+        run_inline(campaign, indices, on_row)
+        return
+    global _CAMPAIGN
+    _CAMPAIGN = campaign
+    # Prepared here, before the fork: the children inherit the imports, the variant table and
+    # the compiled kernels of the first variant's rig instead of loading them each.
+    w = worker_for(campaign)
+    w.rig(w.scenario(w.variants[indices[0]]))
+    ctx = multiprocessing.get_context("fork")
+    pool = ctx.Pool(workers, initializer=_init_worker)
+    try:
+        for rows in pool.imap_unordered(_chunk, chunks(indices, workers)):
+            for row in rows:
+                on_row(row)
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
+        _CAMPAIGN = None
+
+
+def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: OnRow, *,
+             timeout: float = 10.0) -> None:
+    """On the Dask cluster whose scheduler is at `address` (tcp://HOST:PORT)."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError as err:   # pragma: no cover - pinned in requirements/common.txt
+        raise UsageError(f"--scheduler: dask.distributed is not installed ({err})") from None
+    try:
+        client = Client(address, timeout=timeout)
+    except (OSError, TimeoutError) as err:
+        raise UsageError(f"--scheduler {address}: no Dask scheduler answered ({err}); accepted is the address "
+                         "of a running `dask scheduler`, e.g. tcp://127.0.0.1:8786") from None
+    with client:
+        n = max(1, len(client.nthreads()))
+        shared = client.scatter(campaign, broadcast=True)
+        futures = [client.submit(run_chunk, shared, c, pure=False) for c in chunks(indices, n)]
+        try:
+            for future in as_completed(futures):
+                for row in future.result():
+                    on_row(row)
+        except BaseException:
+            client.cancel(futures)
+            raise

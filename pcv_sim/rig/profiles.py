@@ -1,0 +1,302 @@
+"""Profiles: a quantity as a function of time, in segments that each start at a time `t`.
+
+A segment is one of (values with units, `pcv_sim.units`; times relative to the segment's `t`):
+
+    value: X                                      X from t on (a step)
+    ramp: {to: X, duration: D, from: X0}          linear X0 -> X over D, then X; `from` defaults
+                                                  to the value just before t
+    table: [[0, X0], [0.2 s, X1], ...]            piecewise linear through (time, value); the last
+                                                  value held after the last time
+    sine: {amplitude: A, frequency: F, offset: O} O + A sin(2 pi F tau)
+    chirp: {amplitude: A, from: F0, to: F1,       O + A sin(phi), phi = 2 pi (F0 tau + (F1 - F0)
+            duration: D, offset: O}               tau^2 / (2 D)) up to D, then at F1 (phase continuous)
+    file: {path: profile.csv, column: NAME,       a table from a CSV column (header row; a header
+           unit: U, time: NAME, time_unit: U}     `name [unit]` gives the unit); times counted from
+                                                  the file's first row; `time` defaults to the
+                                                  first column
+
+with tau = time - t. Each segment holds until the next one's t.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pcv_sim.errors import ParameterError
+from pcv_sim.keys import missing_message, unknown_message
+from pcv_sim.units import quantity
+
+__all__ = ["SHAPES", "Profile", "ProfileError", "Segment", "parse_segment"]
+
+SHAPES = ("value", "ramp", "table", "sine", "chirp", "file")
+_KEYS = {
+    "ramp": ("to", "duration", "from"),
+    "sine": ("amplitude", "frequency", "offset"),
+    "chirp": ("amplitude", "from", "to", "duration", "offset"),
+    "file": ("path", "column", "unit", "time", "time_unit"),
+}
+_HEADER = re.compile(r"^\s*(.*?)\s*\[(.*)\]\s*$")
+
+
+class ProfileError(ParameterError):
+    """A profile segment that cannot be evaluated as written."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One segment from `t` (s): `shape` and its numbers in SI (`start` None: a ramp from the
+    value before t)."""
+
+    t: float
+    shape: str
+    value: float = 0.0                      # value: X; ramp: to; sine/chirp: offset
+    start: float | None = None              # ramp: from
+    duration: float = 0.0                   # ramp, chirp
+    amplitude: float = 0.0
+    f0: float = 0.0                         # sine: frequency; chirp: from
+    f1: float = 0.0                         # chirp: to
+    times: tuple[float, ...] = ()           # table, file (from 0)
+    values: tuple[float, ...] = ()
+    source: str = field(default="", compare=False)    # a file's path, for the events
+
+    @property
+    def constant(self) -> bool:
+        return self.shape == "value"
+
+    def end(self) -> float:
+        """The tau after which the segment is constant (inf: never)."""
+        if self.shape == "value":
+            return 0.0
+        if self.shape == "ramp":
+            return self.duration
+        if self.shape in ("table", "file"):
+            return self.times[-1]
+        return math.inf
+
+    def at(self, tau: float, before: float) -> float:
+        """The value at tau = time - t >= 0; `before` is the profile's value just before t."""
+        s = self.shape
+        if s == "value":
+            return self.value
+        if s == "ramp":
+            x0 = before if self.start is None else self.start
+            if self.duration <= 0.0 or tau >= self.duration:
+                return self.value
+            return x0 + (self.value - x0) * tau / self.duration
+        if s in ("table", "file"):
+            return float(np.interp(tau, self.times, self.values))
+        if s == "sine":
+            return self.value + self.amplitude * math.sin(2.0 * math.pi * self.f0 * tau)
+        # chirp: the frequency sweeps linearly F0 -> F1 over D; the phase is its integral
+        d = self.duration
+        if tau <= d:
+            phase = self.f0 * tau + (self.f1 - self.f0) * tau * tau / (2.0 * d)
+        else:
+            phase = self.f0 * d + (self.f1 - self.f0) * d / 2.0 + self.f1 * (tau - d)
+        return self.value + self.amplitude * math.sin(2.0 * math.pi * phase)
+
+    def describe(self, unit: str = "", scale: float = 1.0) -> str:
+        """The segment in words for the events list (values in `unit`, SI x `scale`)."""
+        u = f" {unit}" if unit else ""
+
+        def q(x: float) -> str:
+            return f"{x * scale:.4g}{u}"
+        s = self.shape
+        if s == "value":
+            return q(self.value)
+        if s == "ramp":
+            fr = "the value before" if self.start is None else q(self.start)
+            return f"ramp from {fr} to {q(self.value)} over {self.duration * 1e3:g} ms"
+        if s == "sine":
+            return f"sine {q(self.amplitude)} at {self.f0:g} Hz about {q(self.value)}"
+        if s == "chirp":
+            return (f"chirp {q(self.amplitude)} from {self.f0:g} to {self.f1:g} Hz over {self.duration:g} s "
+                    f"about {q(self.value)}")
+        if s == "file":
+            return f"{self.source}: {len(self.times)} points over {self.times[-1]:g} s"
+        return f"table of {len(self.times)} points over {self.times[-1]:g} s"
+
+
+class Profile:
+    """Segments in time order; `initial` before the first one."""
+
+    def __init__(self, segments: Sequence[Segment], initial: float = 0.0) -> None:
+        self.segments = tuple(segments)
+        self.initial = initial
+        self._before: list[float] = []
+        prev = initial
+        for k, seg in enumerate(self.segments):
+            self._before.append(prev)
+            nxt = self.segments[k + 1].t if k + 1 < len(self.segments) else math.inf
+            if math.isfinite(nxt):
+                prev = seg.at(nxt - seg.t, prev)
+        self._starts = [s.t for s in self.segments]
+
+    def index(self, t: float) -> int:
+        """The segment in force at t (-1: before the first)."""
+        k = -1
+        for j, t0 in enumerate(self._starts):
+            if t0 <= t + 1e-12:
+                k = j
+            else:
+                break
+        return k
+
+    def __call__(self, t: float) -> float:
+        k = self.index(t)
+        if k < 0:
+            return self.initial
+        seg = self.segments[k]
+        return seg.at(max(0.0, t - seg.t), self._before[k])
+
+
+def _mapping(where: str, raw: Any, keys: tuple[str, ...]) -> Mapping[str, Any]:
+    if not isinstance(raw, Mapping):
+        raise ProfileError(f"{where}: got {raw!r}; accepted is a mapping with {', '.join(keys)}")
+    msg = unknown_message(where, raw, keys)
+    if msg:
+        raise ProfileError(msg)
+    return raw
+
+
+def _need(where: str, raw: Mapping[str, Any], key: str, what: str) -> Any:
+    if key not in raw:
+        raise ProfileError(f"{where}: needs {key} ({what})")
+    return raw[key]
+
+
+def _table(where: str, raw: Any, kind: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if not isinstance(raw, list) or len(raw) < 2:
+        raise ProfileError(f"{where}: got {raw!r}; accepted is a list of at least two [time, value] pairs")
+    times, values = [], []
+    for k, row in enumerate(raw):
+        if not isinstance(row, (list, tuple)) or len(row) != 2:
+            raise ProfileError(f"{where}[{k}]: got {row!r}; accepted is a pair [time, value]")
+        times.append(quantity(row[0], "time", f"{where}[{k}][0]"))
+        values.append(quantity(row[1], kind, f"{where}[{k}][1]"))
+    _check_times(where, times)
+    return tuple(times), tuple(values)
+
+
+def _check_times(where: str, times: Sequence[float]) -> None:
+    if times[0] < 0.0 or any(b <= a for a, b in itertools.pairwise(times)):
+        raise ProfileError(f"{where}: times {list(times)[:6]}...; accepted are increasing times >= 0 s")
+
+
+def _csv(where: str, spec: Mapping[str, Any], kind: str, base: Path | None) -> tuple[
+        tuple[float, ...], tuple[float, ...], str]:
+    path = _need(where, spec, "path", "a CSV file, relative to the scenario")
+    column = _need(where, spec, "column", "the column's name in the header row")
+    p = (base / str(path)) if base is not None else Path(str(path))
+    try:
+        with p.open(newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    except OSError as err:
+        raise ProfileError(f"{where}.path: cannot read {p}: {err.strerror}") from None
+    if len(rows) < 3:
+        raise ProfileError(f"{where}.path: {p} has {len(rows)} rows; accepted is a header row and at least two rows")
+    names, units = [], []
+    for h in rows[0]:
+        m = _HEADER.match(h)
+        names.append(m.group(1) if m else h.strip())
+        units.append(m.group(2).strip() if m else None)
+    tcol = spec.get("time", names[0])
+    for key, col in (("column", column), ("time", tcol)):
+        if col not in names:
+            from pcv_sim.keys import closest
+
+            near = closest(col, names)
+            raise ProfileError(f"{where}.{key}: no column {col!r} in {p}{f' (did you mean {near!r}?)' if near else ''};"
+                               f" columns: {', '.join(names)}")
+    jt, jv = names.index(tcol), names.index(column)
+    unit = spec.get("unit", units[jv])
+    tunit = spec.get("time_unit", units[jt] or "s")
+    times, values = [], []
+    for r, row in enumerate(rows[1:], start=2):
+        try:
+            t = float(row[jt]) * quantity(f"1 {tunit}", "time", f"{where}.time_unit")
+            v = quantity(f"{row[jv]} {unit}" if unit else float(row[jv]), kind, f"{p}:{r} {column}")
+        except (ValueError, IndexError):
+            raise ProfileError(f"{p}:{r}: {row!r}; accepted are numbers in columns {tcol} and {column}") from None
+        times.append(t)
+        values.append(v)
+    t0 = times[0]
+    times = [t - t0 for t in times]
+    _check_times(f"{where} ({p})", times)
+    return tuple(times), tuple(values), str(path)
+
+
+def parse_segment(where: str, t: float, raw: Any, kind: str, *, base: Path | None = None,
+                  check: Callable[[str, float], None] | None = None) -> Segment:
+    """One segment at `t` from the file's `raw` (a bare value, or a mapping with one of SHAPES).
+    `kind` is the quantity's kind (`pcv_sim.units.KINDS`); `check(where, value)` range-checks each
+    value the profile can reach (ProfileError, or the caller's error)."""
+    def val(w: str, x: Any) -> float:
+        v = quantity(x, kind, w)
+        if check is not None:
+            check(w, v)
+        return v
+
+    if not isinstance(raw, Mapping):
+        return Segment(t, "value", value=val(where, raw))
+    shapes = [s for s in SHAPES if s in raw]
+    if len(shapes) != 1:
+        if not shapes:
+            raise ProfileError(missing_message(where, raw, SHAPES))
+        raise ProfileError(f"{where}: accepted is exactly one of {', '.join(SHAPES)}; got {', '.join(shapes)}")
+    shape = shapes[0]
+    extra = unknown_message(where, {k: v for k, v in raw.items() if k != "t"}, (shape,))
+    if extra:
+        raise ProfileError(extra)
+    spec = raw[shape]
+    w = f"{where}.{shape}"
+    if shape == "value":
+        return Segment(t, "value", value=val(w, spec))
+    if shape == "table":
+        times, values = _table(w, spec, kind)
+        for k, v in enumerate(values):
+            val(f"{w}[{k}][1]", v)
+        return Segment(t, "table", times=times, values=values)
+    if shape == "file":
+        if isinstance(spec, str):
+            raise ProfileError(f"{w}: got {spec!r}; accepted is {{path: {spec}, column: NAME, unit: U}}")
+        spec = _mapping(w, spec, _KEYS["file"])
+        times, values, src = _csv(w, spec, kind, base)
+        for v in (min(values), max(values)):
+            val(f"{w}.column", v)
+        return Segment(t, "file", times=times, values=values, source=src)
+    spec = _mapping(w, spec, _KEYS[shape])
+    if shape == "ramp":
+        d = quantity(_need(w, spec, "duration", "a time"), "time", f"{w}.duration")
+        if d < 0.0:
+            raise ProfileError(f"{w}.duration: {d:g} s; accepted is a time >= 0")
+        start = val(f"{w}.from", spec["from"]) if "from" in spec else None
+        return Segment(t, "ramp", value=val(f"{w}.to", _need(w, spec, "to", "the final value")), start=start,
+                       duration=d)
+    amp = quantity(_need(w, spec, "amplitude", "a value"), kind, f"{w}.amplitude")
+    offset = val(f"{w}.offset", spec.get("offset", 0.0))
+    if amp < 0.0:
+        raise ProfileError(f"{w}.amplitude: {amp:g}; accepted is a value >= 0")
+    for x in (offset - amp, offset + amp):
+        val(f"{w} (offset +- amplitude)", x)
+    if shape == "sine":
+        f = quantity(_need(w, spec, "frequency", "Hz"), "frequency", f"{w}.frequency")
+        if not 0.0 <= f <= 1000.0:
+            raise ProfileError(f"{w}.frequency: {f:g} Hz; accepted is 0 .. 1000 Hz")
+        return Segment(t, "sine", value=offset, amplitude=amp, f0=f)
+    f0 = quantity(_need(w, spec, "from", "the start frequency, Hz"), "frequency", f"{w}.from")
+    f1 = quantity(_need(w, spec, "to", "the end frequency, Hz"), "frequency", f"{w}.to")
+    d = quantity(_need(w, spec, "duration", "the sweep's time"), "time", f"{w}.duration")
+    if not (0.0 <= f0 <= 1000.0 and 0.0 <= f1 <= 1000.0 and d > 0.0):
+        raise ProfileError(f"{w}: from {f0:g} Hz, to {f1:g} Hz, duration {d:g} s; accepted are 0 .. 1000 Hz and a "
+                           "duration > 0")
+    return Segment(t, "chirp", value=offset, amplitude=amp, f0=f0, f1=f1, duration=d)

@@ -1,0 +1,157 @@
+"""The recorders' writer process (pcv_sim.io.writer_process): the same bag as a writer thread, a
+writer that dies is reported and never blocks the loop, a node that dies leaves a finalized bag.
+
+Real processes and real MCAP files, read back with the `mcap` package's reader.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from pcv_sim.errors import BagError
+from pcv_sim.io import read_bag
+from pcv_sim.io.recorder import BagRecorder, RigRecorder
+
+T0 = 1_700_000_000_000_000_000
+DT = 100_000
+
+
+def signals(k: int, duty: float = 0.5) -> dict[str, float]:
+    return {"duty_command": duty, "duty": duty, "load_flow": 0.0, "supply_pressure": 200e5,
+            "pressure": 1e5 + k, "current": 1e-3 * k, "spool_position": 1e-9 * k}
+
+
+def feed(rec: BagRecorder, first: int, last: int) -> None:
+    if first == 0:
+        rec.start(T0, signals(0))
+        first = 1
+    for k in range(first, last + 1):
+        rec(T0 + k * DT, signals(k, 0.5 if k < 3000 else 0.8))
+
+
+def messages(bag: Path) -> list[tuple[str, int, bytes]]:
+    """Every message of the bag (topic, log time, CDR bytes), by the mcap package's reader."""
+    out = []
+    for f in sorted(bag.glob("*.mcap")):
+        with open(f, "rb") as fh:
+            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+                out.append((channel.topic, message.log_time, bytes(message.data)))
+    return sorted(out)
+
+
+def test_the_process_writes_the_messages_a_thread_writes(tmp_path: Path) -> None:
+    for writer in ("process", "thread"):
+        rec = BagRecorder(tmp_path, name=writer, every=1, writer=writer, frame_id="load_port")
+        feed(rec, 0, 6000)
+        st = rec.close()
+        assert (st.state, st.dropped, st.queued, st.messages) == ("closed", 0, 0, 4 + 3 * 6001), st
+    assert messages(tmp_path / "process") == messages(tmp_path / "thread")
+    assert read_bag(tmp_path / "process").closed_cleanly
+
+
+def test_the_rig_recorder_runs_in_the_process_too(tmp_path: Path) -> None:
+    kw = {"valves": [("left", "a")], "namespace": "/rig",
+          "signals": ["left.pressure", "left.current", "left.spool_position",
+                      "cylinder.position", "cylinder.velocity", "cylinder.effort"]}
+    for writer in ("process", "inline"):
+        rec = RigRecorder(tmp_path, name=writer, writer=writer, **kw)
+        rec.start(T0, {"left.duty_cycle": 0.5, "left.supply_pressure": 200e5, "cylinder.external_force": 0.0})
+        for k in range(1, 500):
+            rec.sample(T0 + k * 10 * DT, [1e6 + k, 0.5, 1e-4, 0.01 * k, 0.1, 5.0], [1e-6 * k])
+            if k == 250:
+                rec.text(rec.events_topic, T0 + k * 10 * DT, "fault injected")
+        assert rec.close().state == "closed"
+    assert messages(tmp_path / "process") == messages(tmp_path / "inline")
+
+
+def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path) -> None:
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    feed(rec, 0, 1000)
+    assert rec._proc is not None
+    rec._proc.proc.kill()
+    rec._proc.proc.wait()
+    t = time.monotonic()
+    feed(rec, 1001, 3000)                                  # batches go nowhere: counted, not waited for
+    st = rec.status()
+    assert st.state == "failed" and "writer process exited unexpectedly" in st.error, st
+    assert st.dropped > 0
+    st = rec.close()
+    assert time.monotonic() - t < 5.0
+    assert st.state == "failed" and st.dropped >= 3 * 1000
+
+
+def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path) -> None:
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", when_full="wait", max_queue_s=0.01)
+    assert rec._proc is not None
+    rec._proc.proc.send_signal(signal.SIGSTOP)            # a writer that stopped taking
+    try:
+        feed(rec, 0, 400)                                 # more than the ring holds: waits (0.02 s batches)
+        rec._proc.proc.kill()
+        t = time.monotonic()
+        feed(rec, 401, 800)
+        assert time.monotonic() - t < 5.0
+    finally:
+        rec._proc.proc.kill()
+    assert rec.close().state == "failed"
+
+
+def test_an_error_opening_the_bag_in_the_process_is_the_constructor_s(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match=r"the bag writer process could not start: .*ros_distro"):
+        BagRecorder(tmp_path, name="b", writer="process", ros_distro="no such distro!")
+
+
+def test_a_node_killed_by_sigkill_leaves_a_finalized_bag_with_every_batch_it_handed_over(tmp_path: Path) -> None:
+    """The writer sees the control pipe close, writes what the ring holds and finalizes the bag."""
+    script = textwrap.dedent(f"""
+        import os, signal, sys, time
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_writer_process import feed
+        from pcv_sim.io.recorder import BagRecorder
+        rec = BagRecorder({str(tmp_path)!r}, name="b", every=1, writer="process")
+        feed(rec, 0, 5000)
+        time.sleep(rec.batch_period)
+        rec.status()                       # hands over the batch in progress
+        print(rec._proc.proc.pid, rec._proc.shipped, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    writer_pid, shipped = map(int, proc.stdout.split())
+    assert shipped == 4 + 5001                             # start(): 3 inputs, outputs; 5000 samples, a duty change
+    end = time.monotonic() + 60
+    while _alive(writer_pid) and time.monotonic() < end:
+        time.sleep(0.05)
+    assert not _alive(writer_pid)
+    bag = read_bag(tmp_path / "b")
+    assert bag.closed_cleanly and not bag.warnings, bag.warnings
+    assert len(bag["/pressure"]) == 5001 and len(bag["/duty_cycle"]) == 2
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_the_writer_process_ignores_sigint(tmp_path: Path) -> None:
+    """A Ctrl-C reaches the node, which closes the bag after its last samples; the writer waits for it."""
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    feed(rec, 0, 100)
+    assert rec._proc is not None
+    os.kill(rec._proc.proc.pid, signal.SIGINT)
+    time.sleep(0.2)
+    feed(rec, 101, 200)
+    st = rec.close()
+    assert (st.state, st.dropped) == ("closed", 0)
+    assert len(read_bag(tmp_path / "b")["/pressure"]) == 201
