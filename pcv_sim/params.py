@@ -207,6 +207,22 @@ class SolenoidParams:
     pwm: str = _param("-", "R15", _one_of("averaged", "switched"), kind="str")
     pwm_frequency: float = _param("Hz", "Sec. 3", _range(10.0, 1e5))
 
+    @property
+    def coil_thermal(self) -> bool:
+        """True when the coil heats (R33): a coil temperature state, R(T)."""
+        return self.coil_temperature == "lumped"
+    # Coil heating (not in the paper, whose coil was pre-heated: docs/model.md R33). fixed: the coil
+    # keeps `coil_resistance` (the paper's bench). lumped: a coil temperature state, R(T) =
+    # R_ref (1 + alpha (T - T_ref)) with R_ref = coil_resistance at coil_reference_temperature_c.
+    coil_temperature: str = _param("-", "R33", _one_of("fixed", "lumped"), kind="str", default="fixed")
+    coil_reference_temperature_c: float = _param("degC", "R33", _range(-60.0, 250.0), default=20.0)
+    coil_temperature_coefficient: float = _param("1/K", "R33, IEC 60028 copper", _range(0.0, 1e-2),
+                                                 default=3.93e-3)
+    coil_thermal_resistance: float = _param("K/W", "R33, assumption", _range(0.05, 50.0), default=2.5)
+    coil_heat_capacity: float = _param("J/K", "R33, assumption", _range(1.0, 1e5), default=200.0)
+    ambient_temperature_c: float = _param("degC", "R33: the ambient input's default", _range(-60.0, 150.0),
+                                          default=40.0)
+
 
 @dataclass(frozen=True)
 class SpoolParams:
@@ -221,6 +237,18 @@ class SpoolParams:
     viscous_friction_simplified: float | str = _param("Ns/m", "Sec. 4.3, R20", _range(1e-3, 1e5), kind="float_or_equivalent")
     stroke_min_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
     stroke_max_mm: float = _param("mm", "Sec. 4.2", _range(-10.0, 10.0))
+    # Core-spool separation (Sec. 3.2 names it, the model leaves it out: docs/model.md R35).
+    # attached: core and spool one body of `mass`. separate: the magnet core a body of core_mass on its own side
+    # of a unilateral contact, with core_damping of the moving parts' damping on it.
+    core: str = _param("-", "R35", _one_of("attached", "separate"), kind="str", default="attached")
+    core_mass: float = _param("kg", "R35, assumption", _range(1e-4, 1.0), default=0.024)
+    core_damping: float = _param("Ns/m", "R35, assumption", _range(0.0, 1e5), default=2.0)
+    core_stroke_min_mm: float = _param("mm", "R35, R2", _range(-10.0, 10.0), default=-0.7)
+
+    @property
+    def core_separation(self) -> bool:
+        """True when the magnet core is its own body (R35)."""
+        return self.core == "separate"
 
 
 @dataclass(frozen=True)
@@ -266,6 +294,25 @@ class FluidParams:
     # Not in the paper (its valve never sees it): the gauge pressure at which the oil cavitates
     # (gas release), the floor of the load pressure (reading R32). Optional, for older files.
     cavitation_pressure: float = _param("Pa", "R32", _range(-1.0e5, -1.0e4), default=-0.9e5)
+    # Oil temperature (not in the paper, whose oil was at 37-42 degC: docs/model.md R34). fixed: the
+    # values above. input: the oil temperature an input; density, bulk modulus and kinematic_viscosity
+    # hold at reference_temperature_c, the viscosity follows Walther (ASTM D341) through them and
+    # the second point; laminar conductances and viscous damping scale with the dynamic viscosity.
+    temperature: str = _param("-", "R34", _one_of("fixed", "input"), kind="str", default="fixed")
+    reference_temperature_c: float = _param("degC", "R34, the paper's 40 degC", _range(-40.0, 150.0),
+                                            default=40.0)
+    second_viscosity: float = _param("m^2/s", "R34, ISO VG 46 VI ~100", _range(1e-7, 1e-2), default=6.8e-6)
+    second_viscosity_temperature_c: float = _param("degC", "R34", _range(-40.0, 150.0), default=100.0)
+    thermal_expansion: float = _param("1/K", "R34, mineral oil", _range(0.0, 2e-3), default=7.0e-4)
+    bulk_modulus_temperature_coefficient: float = _param("1/K", "R34, mineral oil", _range(0.0, 2e-2),
+                                                         default=4.0e-3)
+    oil_temperature_c: float = _param("degC", "R34: the oil input's default", _range(-40.0, 150.0),
+                                      default=40.0)
+
+    @property
+    def oil_temperature_model(self) -> bool:
+        """True when the oil temperature is an input (R34)."""
+        return self.temperature == "input"
 
 
 @dataclass(frozen=True)
@@ -361,6 +408,31 @@ class ValveParams:
                 f"spool.stroke_min_mm + solenoid.core_offset_mm = {core_min} mm: the core position "
                 "must stay >= 0 mm (the core's end position) over the stroke"
             )
+        if s.core_separation and not s.core_mass < s.mass:
+            raise ParameterError(
+                f"spool.core_mass={s.core_mass} >= spool.mass={s.mass}: the core is part of the moving parts; "
+                "accepted is 0 < core_mass < mass (the spool's own mass is the rest)")
+        if s.core_separation and s.core_damping > min(s.viscous_friction, self.simplified_damping):
+            raise ParameterError(
+                f"spool.core_damping={s.core_damping} Ns/m: the core's share of the moving parts' damping; "
+                f"accepted is 0 .. spool.viscous_friction={s.viscous_friction} Ns/m")
+        if s.core_separation and not s.core_stroke_min_mm <= s.stroke_min_mm:
+            raise ParameterError(
+                f"spool.core_stroke_min_mm={s.core_stroke_min_mm}: the core's stop lies at or beyond the "
+                f"spool's, accepted is core_stroke_min_mm <= stroke_min_mm={s.stroke_min_mm}")
+        if s.core_separation and s.core_stroke_min_mm + self.solenoid.core_offset_mm < 0.0:
+            raise ParameterError(
+                f"spool.core_stroke_min_mm + solenoid.core_offset_mm = "
+                f"{s.core_stroke_min_mm + self.solenoid.core_offset_mm} mm: the core position must stay >= 0 mm")
+        fl = self.fluid
+        if fl.oil_temperature_model and not (fl.second_viscosity_temperature_c != fl.reference_temperature_c
+                                             and (fl.second_viscosity - fl.kinematic_viscosity)
+                                             * (fl.second_viscosity_temperature_c - fl.reference_temperature_c) < 0):
+            raise ParameterError(
+                "fluid.second_viscosity at fluid.second_viscosity_temperature_c: accepted is a second point of "
+                "the viscosity-temperature line at another temperature, the viscosity lower where it is warmer "
+                f"(got {fl.second_viscosity} m^2/s at {fl.second_viscosity_temperature_c} degC against "
+                f"{fl.kinematic_viscosity} m^2/s at {fl.reference_temperature_c} degC)")
         sim = self.simulation
         if sim.model == "full" and sim.method in ("euler", "rk2", "rk4"):
             raise ParameterError(

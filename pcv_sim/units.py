@@ -156,3 +156,14 @@ def display(kind: str) -> tuple[str, float]:
     """The unit reports show `kind` in and the factor SI -> that unit."""
     k = KINDS[kind]
     return k.display, 1.0 / k.units[k.display] if k.display in k.units else 1.0
+
+
+KELVIN_AT_0C = 273.15   # temperatures are kelvin inside; the YAML and reports give degC (keys *_c)
+
+
+def kelvin(celsius: float) -> float:
+    """degC (the YAML's *_c keys, scenario profiles) -> K (inside the model)."""
+    return celsius + KELVIN_AT_0C
+
+
+CST_PER_M2S = 1.0e6     # kinematic viscosity: 1 cSt = 1 mm^2/s (oil grades, Walther's relation)

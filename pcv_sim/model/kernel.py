@@ -12,6 +12,14 @@ State, inputs and outputs are float arrays (SI units):
     y  pressure (Pa), current (A), spool position (m)
     w  workspace: the last coil current (A), the Newton start of the next Eq. 2 solve
 
+Options beyond the paper's bench (docs/model.md R33-R35), each off by default and then absent
+from the layout (the paper's model, bit for bit), each appending to it when on (`layout`):
+
+    coil heating (R33)      state coil_temperature (K); input ambient_temperature (K);
+                            outputs coil_temperature (K), coil_resistance (ohm)
+    oil temperature (R34)   input oil_temperature (K)
+    core separation (R35)   states core_position (m), core_velocity (m/s); output core_position
+
 Every function here is compiled by `pcv_sim.jit` (or runs as Python); the equation functions it
 calls (`solenoid`, `orifice`, `flow_force`) are compiled the same way. Each line names its
 equation; the readings of the printed text are in docs/model.md.
@@ -20,6 +28,7 @@ equation; the readings of the printed text are in docs/model.md.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,16 +38,25 @@ from pcv_sim.model import orifice as orf
 from pcv_sim.model import solenoid as sol
 from pcv_sim.model import stops
 from pcv_sim.params import ValveParams
-from pcv_sim.units import MM_PER_M
+from pcv_sim.units import CST_PER_M2S, MM_PER_M, kelvin
 
 __all__ = [
     "INPUTS",
     "OUTPUTS",
     "STATES",
     "STATE_OUTPUTS",
+    "Layout",
     "chamber_rate",
     "coil_current",
+    "coil_current_in",
+    "coil_resistance",
+    "core_position",
     "edges",
+    "edges_in",
+    "layout",
+    "oil_properties",
+    "option_inputs",
+    "option_states",
     "output",
     "pack",
     "project",
@@ -72,10 +90,85 @@ PUMP_JET_CAP, TANK_JET_CAP, G_CLOSED, GAMMA_CLOSED, COS_CLOSED, A_CLOSED = 31, 3
 #   LEAK            internal leakage load -> tank, laminar conductance (m^3/(s Pa))
 VOLTAGE_FACTOR, AREA_FACTOR, SPOOL_FRICTION, SPOOL_FRICTION_V, STUCK, LEAK = 37, 38, 39, 40, 41, 42
 P_CAVITATION = 43           # Pa gauge: the load pressure's floor (reading R32)
-N_PARAMS = 44
+# Coil heating (R33): flag, copper's alpha (1/K), T_ref (K) at which R_COIL holds, R_th (K/W),
+# C_th (J/K); where its state and input sit in x and u, and its outputs in y.
+THERMAL, ALPHA_CU, T_REF_COIL, R_TH, C_TH, IX_COIL_T, IU_AMBIENT, IY_COIL_T = 44, 45, 46, 47, 48, 49, 50, 51
+# Oil temperature (R34): flag, where its input sits, T_ref (K) at which RHO, BETA, NU, K_D and
+# DAMPING hold, Walther's A and B (log10 log10(nu_cSt + 0.7) = A - B log10 T), the thermal
+# expansion (1/K) and the bulk modulus' relative fall (1/K).
+OIL, IU_OIL, T_REF_OIL, WALTHER_A, WALTHER_B, EXPANSION, BETA_SLOPE = 52, 53, 54, 55, 56, 57, 58
+# Core-spool separation (R35): flag, core mass (kg), core damping (Ns/m), the core's stop (m),
+# where its states sit in x and its output in y.
+SEPARATION, M_CORE, B_CORE, XC_MIN, IX_CORE, IY_CORE = 59, 60, 61, 62, 63, 64
+# 1 when any option is on: the paper's model runs its own code path, bit for bit as without them.
+OPTIONS = 65
+N_PARAMS = 66
 
 # --- the tables f ---------------------------------------------------------------------------
 T_F1, T_F2, T_F3, T_PD, T_FORCE, T_GAP, T_HOLE, T_HOLE_EXP, T_TANK, T_TANK_EXP, T_PUMP_JET, T_TANK_JET = range(12)
+
+
+class Layout(NamedTuple):
+    """The signal names of a valve with its options: the paper's first, the options' appended."""
+
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    state_outputs: tuple[str, ...]
+
+
+def layout(params: ValveParams, kind: str) -> Layout:
+    """States, inputs and outputs of the valve `kind` with the options `params` switches on."""
+    if kind not in STATES:
+        raise ValueError(f"model kind {kind!r}: accepted are 'simplified' and 'full'")
+    states: tuple[str, ...] = STATES[kind]
+    inputs: tuple[str, ...] = INPUTS
+    outputs: tuple[str, ...] = OUTPUTS
+    state_outputs: tuple[str, ...] = STATE_OUTPUTS
+    if params.solenoid.coil_thermal:
+        states += ("coil_temperature",)
+        inputs += ("ambient_temperature",)
+        outputs += ("coil_temperature", "coil_resistance")
+        state_outputs += ("coil_temperature", "coil_resistance")
+    if params.fluid.oil_temperature_model:
+        inputs += ("oil_temperature",)
+    if params.spool.core_separation:
+        states += ("core_position", "core_velocity")
+        outputs += ("core_position",)
+        state_outputs += ("core_position",)
+    return Layout(states, inputs, outputs, state_outputs)
+
+
+def option_inputs(params: ValveParams) -> tuple[float, ...]:
+    """The options' inputs at their configured values (K), in the layout's order: what a single
+    valve is fed where nothing else feeds them."""
+    out: tuple[float, ...] = ()
+    if params.solenoid.coil_thermal:
+        out += (kelvin(params.solenoid.ambient_temperature_c),)
+    if params.fluid.oil_temperature_model:
+        out += (kelvin(params.fluid.oil_temperature_c),)
+    return out
+
+
+def option_states(params: ValveParams, x: float) -> tuple[float, ...]:
+    """The options' states at rest with the spool at x (m): the coil at the ambient temperature
+    (a coil just switched on), the core on the spool at rest."""
+    out: tuple[float, ...] = ()
+    if params.solenoid.coil_thermal:
+        out += (kelvin(params.solenoid.ambient_temperature_c),)
+    if params.spool.core_separation:
+        out += (x, 0.0)
+    return out
+
+
+def _walther(params: ValveParams) -> tuple[float, float]:
+    """(A, B) of Walther's relation (ASTM D341) through the oil's two reference points."""
+    fl = params.fluid
+    t1, t2 = kelvin(fl.reference_temperature_c), kelvin(fl.second_viscosity_temperature_c)
+    z1 = math.log10(math.log10(fl.kinematic_viscosity * CST_PER_M2S + 0.7))
+    z2 = math.log10(math.log10(fl.second_viscosity * CST_PER_M2S + 0.7))
+    b = (z1 - z2) / (math.log10(t2) - math.log10(t1))
+    return z1 + b * math.log10(t1), b
 
 
 def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
@@ -120,7 +213,56 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
                                 o.tank_hole_offset)
     p[VOLTAGE_FACTOR], p[AREA_FACTOR], p[SPOOL_FRICTION_V] = 1.0, 1.0, 1e-3
     p[P_CAVITATION] = params.fluid.cavitation_pressure
+    names = layout(params, kind)
+    p[OPTIONS] = float(s.coil_thermal or params.fluid.oil_temperature_model or sp.core_separation)
+    if s.coil_thermal:
+        p[THERMAL], p[ALPHA_CU], p[T_REF_COIL] = 1.0, s.coil_temperature_coefficient, kelvin(
+            s.coil_reference_temperature_c)
+        p[R_TH], p[C_TH] = s.coil_thermal_resistance, s.coil_heat_capacity
+        p[IX_COIL_T] = names.states.index("coil_temperature")
+        p[IU_AMBIENT] = names.inputs.index("ambient_temperature")
+        p[IY_COIL_T] = names.outputs.index("coil_temperature")
+    fl = params.fluid
+    if fl.oil_temperature_model:
+        p[OIL], p[IU_OIL], p[T_REF_OIL] = 1.0, names.inputs.index("oil_temperature"), kelvin(
+            fl.reference_temperature_c)
+        p[WALTHER_A], p[WALTHER_B] = _walther(params)
+        p[EXPANSION], p[BETA_SLOPE] = fl.thermal_expansion, fl.bulk_modulus_temperature_coefficient
+    if sp.core_separation:
+        p[SEPARATION], p[M_CORE], p[B_CORE] = 1.0, sp.core_mass, sp.core_damping
+        p[XC_MIN] = sp.core_stroke_min_mm / MM_PER_M
+        p[IX_CORE], p[IY_CORE] = names.states.index("core_position"), names.outputs.index("core_position")
     return p, f
+
+
+@jit(inline=True)
+def coil_resistance(x, p):
+    """The coil's resistance (ohm): R_COIL, or with coil heating R_ref (1 + alpha (T - T_ref)) at
+    the coil temperature state (R33; copper's alpha). A partial short (fault) scales R_COIL."""
+    if p[THERMAL] == 0.0:
+        return p[R_COIL]
+    return p[R_COIL] * (1.0 + p[ALPHA_CU] * (x[int(p[IX_COIL_T])] - p[T_REF_COIL]))
+
+
+@jit(inline=True)
+def core_position(x, p):
+    """Where the magnet core is (m, spool coordinates): with the spool unless separation is on."""
+    if p[SEPARATION] == 0.0:
+        return x[1]
+    return x[int(p[IX_CORE])]
+
+
+@jit(inline=True)
+def oil_properties(temperature, p):
+    """(nu m^2/s, rho kg/m^3, beta Pa, mu / mu_ref) of the oil at `temperature` (K) (R34):
+    Walther's relation (ASTM D341) for nu, rho = rho_ref / (1 + e (T - T_ref)),
+    beta = beta_ref exp(-s (T - T_ref)); at T_ref exactly the reference values."""
+    dt = temperature - p[T_REF_OIL]
+    if dt == 0.0:
+        return p[NU], p[RHO], p[BETA], 1.0
+    nu = (10.0 ** (10.0 ** (p[WALTHER_A] - p[WALTHER_B] * math.log10(temperature))) - 0.7) / CST_PER_M2S
+    rho = p[RHO] / (1.0 + p[EXPANSION] * dt)
+    return nu, rho, p[BETA] * math.exp(-p[BETA_SLOPE] * dt), (nu * rho) / (p[NU] * p[RHO])
 
 
 @jit(inline=True)
@@ -143,7 +285,12 @@ def coil_voltage(duty, t, p):
 def edges(x, x_mm, p_load, p_s, p, f):
     """Eqs. 16-27 and 30-32 at spool x (m and mm), load pressure and supply pressure (Pa):
     (pump flow + pump -> load, tank flow + load -> tank, pump flow force, tank flow force)."""
-    rho, nu = p[RHO], p[NU]
+    return edges_in(x, x_mm, p_load, p_s, p[RHO], p[NU], p, f)
+
+
+@jit(inline=True)
+def edges_in(x, x_mm, p_load, p_s, rho, nu, p, f):
+    """`edges` with the oil's density and kinematic viscosity given (an oil temperature, R34)."""
     r, n, h = p[R_HOLE], p[N_HOLES], p[H_GAP]
     # Pump side: gap leakage and holes blended by the logistic (Eqs. 17-23, 26-27).
     dp_p = p_s - p_load
@@ -180,10 +327,17 @@ def edges(x, x_mm, p_load, p_s, p, f):
 
 @jit(inline=True)
 def coil_current(lam, x, v_s, i_guess, p, f):
-    """Eqs. 1-8: the coil current for flux linkage lam at spool x (m) and coil voltage v_s."""
+    """Eqs. 1-8: the coil current for flux linkage lam at core x (m, spool coordinates) and coil
+    voltage v_s, with the resistance R_COIL."""
+    return coil_current_in(lam, x, v_s, p[R_COIL], i_guess, p, f)
+
+
+@jit(inline=True)
+def coil_current_in(lam, x, v_s, resistance, i_guess, p, f):
+    """`coil_current` with the resistance given (a heated coil, R33)."""
     c1, c2, c3, _, _, _, _ = sol.coefficients_at(x * MM_PER_M + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
                                                  f[T_FORCE])
-    return sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, p[R_COIL], f[T_PD], i_guess,
+    return sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, resistance, f[T_PD], i_guess,
                                 p[V_LO], p[V_HI])
 
 
@@ -210,6 +364,9 @@ def rhs(t, x, u, p, f, w, dx):
     are inelastic: at a stop with the force pushing into it the spool stays (`project` does
     the impact).
     """
+    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
+        _rhs_options(t, x, u, p, f, w, dx)
+        return
     lam, xs, v, pl = x[0], x[1], x[2], x[3]
     duty, q_l, p_s = u[0], u[1], u[2]
     v_s = coil_voltage(duty, t, p)
@@ -254,6 +411,118 @@ def rhs(t, x, u, p, f, w, dx):
 
 
 @jit(inline=True)
+def _rhs_options(t, x, u, p, f, w, dx):
+    """d(state)/dt into dx; the coil current into w[0]. Eqs. 1-3 (solenoid), 14 (spool), 15 and
+    28-29 (continuity, chamber).
+
+    Continuity (reading R13): the spool's motion displaces the load side by A_c v and the
+    chamber by A_cc v. Simplified model: the chamber is rigid and lossless, its flow A_cc v
+    comes from the load volume, so the load side sees (A_c - A_cc) v. The end stops (Sec. 4.2)
+    are inelastic: at a stop with the force pushing into it the spool stays (`project` does
+    the impact). The options (R33-R35) each act only when switched on in `p`.
+    """
+    lam, xs, v, pl = x[0], x[1], x[2], x[3]
+    duty, q_l, p_s = u[0], u[1], u[2]
+    v_s = coil_voltage(duty, t, p)
+    x_mm = xs * MM_PER_M
+    xc_mm = x_mm if p[SEPARATION] == 0.0 else x[int(p[IX_CORE])] * MM_PER_M    # the core (R35)
+    c1, c2, c3, k1, k2, k3, k4 = sol.coefficients_at(xc_mm + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
+                                                     f[T_FORCE])
+    r_coil = coil_resistance(x, p)                                                       # R33
+    i = sol.solve_current_in(sol.restoring_current(lam, c1, c2, c3), v_s, r_coil, f[T_PD], w[0],
+                             p[V_LO], p[V_HI])                                            # Eqs. 1-8
+    w[0] = i
+    rho, nu, beta, k_d, damping, chamber_scale = p[RHO], p[NU], p[BETA], p[K_D], p[DAMPING], 1.0
+    if p[OIL] != 0.0 and u[int(p[IU_OIL])] != p[T_REF_OIL]:
+        # R34: the oil at its temperature; laminar conductance and viscous damping go with mu.
+        nu, rho, beta, mu_ratio = oil_properties(u[int(p[IU_OIL])], p)
+        damping *= mu_ratio
+        k_d /= mu_ratio
+        # The chamber's pole K_d beta / V_c (~1e8 1/s) is kept at its reference value (its
+        # relaxation is far below a step either way); its slow manifold, the damping the spool
+        # feels, follows the temperature. The exponential integrator's rate stays exact.
+        chamber_scale = mu_ratio * p[BETA] / beta
+    q_p, q_t, f_p, f_t = edges_in(xs, x_mm, pl, p_s, rho, nu, p, f)
+    f_s = sol.force_from_coefficients(i, k1, k2, k3, k4)
+    # Eq. 14 without the chamber and damping terms, which differ per variant.
+    force = f_s - p[A_C] * pl - p[K_SPRING] * xs - (f_p - f_t) - p[F0]
+    dx[0] = sol.flux_linkage_derivative(v_s, i, r_coil)                                  # Eq. 3
+    if p[THERMAL] != 0.0:
+        # R33: the coil's lumped heat balance, C_th dT/dt = i^2 R(T) - (T - T_ambient) / R_th.
+        it = int(p[IX_COIL_T])
+        dx[it] = (i * i * r_coil - (x[it] - u[int(p[IU_AMBIENT])]) / p[R_TH]) / p[C_TH]
+    c_load = beta / u[3]                    # Eq. 15: beta / V, V the load port's volume (an input)
+    if p[LEAK] != 0.0:
+        # Internal leakage fault: a laminar path load -> tank, q = G (p - p_t), drawn like a load flow.
+        q_l = q_l + p[LEAK] * (pl - p[P_TANK])
+    if p[SPOOL_FRICTION] != 0.0:
+        # Sticking spool fault: Coulomb friction F tanh(v / v_s) against the motion (N).
+        force -= p[SPOOL_FRICTION] * math.tanh(v / p[SPOOL_FRICTION_V])
+    if p[FULL] != 0.0:
+        p_c = x[4]
+        q_c = k_d * (pl - p_c)                                                            # Eq. 28
+        force += p[A_CC] * p_c - damping * v                                              # Eq. 14
+        dx[4] = beta / p[V_C] * (q_c - p[A_CC] * v)                                       # Eq. 29
+        if chamber_scale != 1.0:
+            dx[4] *= chamber_scale
+        dx[3] = c_load * (q_p - q_t - q_c - q_l + p[A_C] * v)                            # Eq. 15
+    else:
+        force += p[A_CC] * pl - damping * v                                               # Eq. 14, p_c = p
+        dx[3] = c_load * (q_p - q_t - q_l + p[A_NET] * v)                                 # Eq. 15
+    # Cavitation (R32): at the floor the oil releases gas instead of falling further in pressure
+    # (a load that draws more than the valve feeds: a piston pulled on by its inertia).
+    if pl <= p[P_CAVITATION] and dx[3] < 0.0:
+        dx[3] = 0.0
+    if p[SEPARATION] != 0.0:
+        _two_bodies(x, v, xs, f_s, force, p, dx)
+        return
+    # Inelastic end stops (Sec. 4.2): held while the force pushes into the stop. A stuck spool
+    # (fault) is held anywhere; the rig zeroes its velocity when the fault is set.
+    if p[STUCK] != 0.0 or stops.held(xs, v, force, p[X_MIN], p[X_MAX]):
+        dx[1] = 0.0
+        dx[2] = 0.0
+    else:
+        dx[1] = v
+        dx[2] = force / p[MASS]
+
+
+@jit(inline=True)
+def _two_bodies(x, v, xs, f_s, force, p, dx):
+    """R35: spool and magnet core as two bodies in a unilateral contact. The core sits on the -x
+    side and can only push the spool (+x): they move as one body while the contact force that
+    keeps them together is a push, apart otherwise (the core flies on when the spool stops, or
+    lags when the spool is driven away). `force` is Eq. 14's net force on both; the solenoid's
+    f_s and the core's share of the damping act on the core."""
+    ic = int(p[IX_CORE])
+    xc, vc = x[ic], x[ic + 1]
+    m_core = p[M_CORE]
+    m_spool = p[MASS] - m_core
+    f_core = f_s - p[B_CORE] * vc
+    f_spool = force - f_s + p[B_CORE] * v
+    spool_free, core_free = True, True
+    if xc >= xs and vc >= v:                  # touching and not parting
+        joint = f_spool + f_core
+        if p[STUCK] != 0.0 or stops.held(xs, v, joint, p[X_MIN], p[X_MAX]):
+            spool_free = False
+            core_free = f_core < 0.0          # held against the held spool unless it pulls away
+        else:
+            a = joint / p[MASS]
+            if m_spool * a - f_spool >= 0.0:  # the contact pushes: one body
+                dx[1], dx[2], dx[ic], dx[ic + 1] = v, a, vc, a
+                return
+    elif p[STUCK] != 0.0:
+        spool_free = False
+    if spool_free and not stops.held(xs, v, f_spool, p[X_MIN], p[X_MAX]):
+        dx[1], dx[2] = v, f_spool / m_spool
+    else:
+        dx[1], dx[2] = 0.0, 0.0
+    if core_free and not stops.held(xc, vc, f_core, p[XC_MIN], 1e300):
+        dx[ic], dx[ic + 1] = vc, f_core / m_core
+    else:
+        dx[ic], dx[ic + 1] = 0.0, 0.0
+
+
+@jit(inline=True)
 def chamber_rate(p):
     """The damping chamber's pole K_d beta / V_c (1/s, ~2.6e8): the exact linear decay of p_c in
     Eq. 29, which the exponential integrator treats exactly (0 for the simplified model)."""
@@ -263,22 +532,95 @@ def chamber_rate(p):
 @jit(inline=True)
 def state_output(t, x, p, f, y):
     """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
+    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
+        _state_output_options(t, x, p, f, y)
+        return
     y[0] = x[3]
     y[2] = x[1]
+
+
+@jit(inline=True)
+def _state_output_options(t, x, p, f, y):
+    """The outputs that depend on the state alone: pressure y[0], spool position y[2] and the
+    options' (coil temperature and resistance, core position)."""
+    y[0] = x[3]
+    y[2] = x[1]
+    _option_outputs(x, p, y)
+
+
+@jit(inline=True)
+def _option_outputs(x, p, y):
+    if p[THERMAL] != 0.0:
+        iy = int(p[IY_COIL_T])
+        y[iy] = x[int(p[IX_COIL_T])]
+        y[iy + 1] = coil_resistance(x, p)
+    if p[SEPARATION] != 0.0:
+        y[int(p[IY_CORE])] = x[int(p[IX_CORE])]
 
 
 @jit(inline=True)
 def output(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
+    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
+        _output_options(t, x, u, p, f, w, y)
+        return
     y[0] = x[3]
     y[1] = coil_current(x[0], x[1], coil_voltage(u[0], t, p), w[0], p, f)
     y[2] = x[1]
 
 
 @jit(inline=True)
+def _output_options(t, x, u, p, f, w, y):
+    """All outputs at time t with the inputs in force from t on: the coil current is algebraic
+    in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
+    y[0] = x[3]
+    y[1] = coil_current_in(x[0], core_position(x, p), coil_voltage(u[0], t, p), coil_resistance(x, p), w[0],
+                           p, f)
+    y[2] = x[1]
+    _option_outputs(x, p, y)
+
+
+@jit(inline=True)
 def project(x, p):
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
     not below the cavitation floor (R32)."""
+    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
+        _project_options(x, p)
+        return
     stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
+    x[3] = max(x[3], p[P_CAVITATION])
+
+
+@jit(inline=True)
+def _project_options(x, p):
+    """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
+    not below the cavitation floor (R32); the core (R35) not past the spool."""
+    if p[SEPARATION] != 0.0:
+        _core_impact(x, p)
+        return
+    stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
+    x[3] = max(x[3], p[P_CAVITATION])
+
+
+@jit(inline=True)
+def _core_impact(x, p):
+    """R35 after a step: a core that reached the spool meets it in an inelastic impact (momentum
+    kept, the relative velocity lost: the kinetic energy falls by m_s m_c / (2 M) dv^2), then
+    the spool's end stops; a core touching a spool that a stop holds stays with it, and the core
+    has its own stop on the -x side."""
+    ic = int(p[IX_CORE])
+    m_core = p[M_CORE]
+    m_spool = p[MASS] - m_core
+    if x[ic] > x[1] or (x[ic] == x[1] and x[ic + 1] > x[2]):
+        x[1] = (m_spool * x[1] + m_core * x[ic]) / p[MASS]
+        x[2] = (m_spool * x[2] + m_core * x[ic + 1]) / p[MASS]
+        x[ic], x[ic + 1] = x[1], x[2]
+    stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
+    if x[ic] >= x[1]:
+        x[ic] = x[1]
+        x[ic + 1] = min(x[ic + 1], x[2])
+    if x[ic] < p[XC_MIN]:
+        x[ic] = p[XC_MIN]
+        x[ic + 1] = max(x[ic + 1], 0.0)
     x[3] = max(x[3], p[P_CAVITATION])

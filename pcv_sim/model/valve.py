@@ -72,7 +72,9 @@ class ValveModel:
         self.v_range = sol.dissipating_range(self.pd)
         self.force_map = s.force
         self.core_offset_mm = s.core_offset_mm
-        self.resistance = s.coil_resistance
+        # With coil heating (R33): the resistance of a coil at the ambient temperature (a rest state's).
+        self.resistance = (s.coil_resistance if not s.coil_thermal else s.coil_resistance * (
+            1.0 + s.coil_temperature_coefficient * (s.ambient_temperature_c - s.coil_reference_temperature_c)))
         self.v_supply = s.supply_voltage
         self.switched = s.pwm == "switched"
         self.pwm_period = 1.0 / s.pwm_frequency
@@ -92,8 +94,10 @@ class ValveModel:
         self.gap_perimeter = float(self.p[kernel.GAP_PERIMETER])   # Eq. 18's O (reading R5)
         self.k_d = params.damping.restrictor_conductance
         self.v_c = params.damping.chamber_volume
-        n = len(kernel.STATES[kind])
-        self._x, self._u, self._w, self._dx = np.zeros(n), np.zeros(4), np.zeros(1), np.zeros(n)
+        self.layout = kernel.layout(params, kind)
+        n = len(self.layout.states)
+        self._x, self._w, self._dx = np.zeros(n), np.zeros(1), np.zeros(n)
+        self._u = np.array((0.0, 0.0, 0.0, 0.0, *kernel.option_inputs(params)))
 
     # --- building blocks ---------------------------------------------------------------------
 
@@ -122,7 +126,7 @@ class ValveModel:
         return sol.solenoid_force(i, self.core_mm(x), self.force_map)
 
     def flux_linkage_at_rest(self, i: float, x: float) -> float:
-        """Steady-state lambda for current i at spool x."""
+        """Steady-state lambda for current i at spool x (the core on the spool)."""
         return sol.flux_linkage_at_rest(i, *self.restoring(x), self.pd)
 
     def hydraulics(self, x: float, p: float, p_s: float) -> Hydraulics:
@@ -178,11 +182,12 @@ class ValveModel:
         """A state at rest: steady flux linkage for D's current at x, chamber pressure = p."""
         lam = self.flux_linkage_at_rest(self.steady_current(duty), x)
         base = (lam, x, 0.0, p)
-        return (*base, p) if self.kind == "full" else base
+        return (*base, p, *kernel.option_states(self.params, x)) if self.kind == "full" else (
+            *base, *kernel.option_states(self.params, x))
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        return STATE_NAMES[self.kind]
+        return self.layout.states
 
     def finite(self, state: tuple[float, ...]) -> bool:
         return all(math.isfinite(s) for s in state)

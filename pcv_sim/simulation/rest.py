@@ -14,11 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcv_sim.model import kernel
 from pcv_sim.model.statics import EquilibriumError, equilibrium_at_flow
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.simulator import Simulator
-from pcv_sim.simulation.valve import valve_system
+from pcv_sim.simulation.valve import valve_inputs, valve_system
 
 __all__ = ["EquilibriumError", "Rest", "rest_state"]
 
@@ -63,7 +64,7 @@ def rest_state(params: ValveParams, kind: str, duty: float, load_flow: float = 0
     sim = Simulator(valve_system(params, kind), params.simulation.time_step, integrator)
     sim.x[:] = start.state
     sim.W[0] = start.current
-    sim.u[:] = (duty, load_flow, ps, params.circuit.load_volume)
+    sim.u[:] = valve_inputs(params, duty, load_flow, ps)
     for _ in range(int(_SETTLE_MAX / (_SETTLE_CHUNK * sim.dt))):
         before = sim.x.copy()
         i_before = float(sim.outputs()[1])
@@ -74,4 +75,7 @@ def rest_state(params: ValveParams, kind: str, duty: float, load_flow: float = 0
         if (abs(sim.x[3] - before[3]) < 1.0 and abs(sim.x[1] - before[1]) < 1e-9
                 and abs(i_now - i_before) < 1e-6):
             break
-    return Rest(sim.x.copy(), float(sim.outputs()[1]), True)
+    state = sim.x.copy()
+    if params.solenoid.coil_thermal:      # the coil as switched on, not as warmed by the settling run
+        state[sim.plant.index("state", "valve.coil_temperature")] = kernel.option_states(params, 0.0)[0]
+    return Rest(state, float(sim.outputs()[1]), True)

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from pcv_sim.errors import CommandError
+from pcv_sim.model import kernel
 from pcv_sim.model.kernel import INPUTS
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
@@ -22,10 +23,10 @@ from pcv_sim.simulation.duty import DutyProfile, FallRateLimiter, check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
-from pcv_sim.simulation.valve import KINDS, valve_system
-from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR, bar
+from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_system
+from pcv_sim.units import KELVIN_AT_0C, M3S_PER_LPM, PA_PER_BAR, bar, kelvin
 
-__all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure"]
+__all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure", "check_temperature"]
 
 # Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
 MAX_LOAD_FLOW = 100.0 * M3S_PER_LPM     # the valve passes ~50 L/min fully open
@@ -63,6 +64,21 @@ def check_supply_pressure(value: float) -> float:
     return float(value)
 
 
+MIN_TEMPERATURE, MAX_TEMPERATURE = 213.15, 473.15    # K: -60 .. 200 degC, what a valve in a vehicle sees
+
+
+def check_temperature(what: str, value: float) -> float:
+    """A temperature input (K): refused beyond -60 .. 200 degC, with a hint when it reads as degC."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CommandError(f"{what} {value!r}: accepted is a finite number in K")
+    if not MIN_TEMPERATURE <= value <= MAX_TEMPERATURE:
+        looks_c = MIN_TEMPERATURE <= value + KELVIN_AT_0C <= MAX_TEMPERATURE
+        hint = f" (the unit is K, not degC: {value:g} degC is {value + KELVIN_AT_0C:.5g} K)" if looks_c else ""
+        raise CommandError(f"{what} {value:g} K: accepted is {MIN_TEMPERATURE:g} .. {MAX_TEMPERATURE:g} K "
+                           f"(-60 .. 200 degC){hint}")
+    return float(value)
+
+
 _NO_STEPS = np.empty(0, dtype=np.int64)
 
 
@@ -88,6 +104,8 @@ class RealTimeStepper:
             raise ValueError(f"integrator {name!r}: accepted are {', '.join(INTEGRATORS)}")
         self.integrator = name
         self.sim = Simulator(valve_system(params, self.kind), self.dt, name)
+        if params.fluid.oil_temperature_model:
+            self._check_oil(kelvin(params.fluid.oil_temperature_c))
         self._select_current = np.array([1], dtype=np.int64)     # outputs()[1]: the coil current
         self._current_out = np.zeros(1)
         self._current_step = -1          # the step _current_out holds the current of (-1: none)
@@ -114,9 +132,8 @@ class RealTimeStepper:
         self._inputs()
 
     def _inputs(self) -> None:
-        u = self.sim.u
-        u[DUTY], u[LOAD_FLOW], u[SUPPLY_PRESSURE] = self.duty, self.load_flow, self.supply_pressure
-        u[LOAD_VOLUME] = self.params.circuit.load_volume          # a single valve: the configured load volume
+        # A single valve: the configured load volume (and temperatures, with the options on).
+        self.sim.u[:] = valve_inputs(self.params, self.duty, self.load_flow, self.supply_pressure)
 
     @property
     def steps(self) -> int:
@@ -175,6 +192,43 @@ class RealTimeStepper:
         self.supply_pressure = check_supply_pressure(p)
         self.sim.u[SUPPLY_PRESSURE] = self.supply_pressure
         self._current_step = -1
+
+    def set_input(self, name: str, value: float) -> None:
+        """An option's input by its name (`ambient_temperature`, `oil_temperature`, K) from the
+        present step on; CommandError for an input this valve's layout does not have."""
+        inputs = self.sim.plant.inputs
+        if f"valve.{name}" not in inputs or name in ("duty_cycle", "load_flow", "supply_pressure", "load_volume"):
+            extra = [i.partition(".")[2] for i in inputs[4:]]
+            raise CommandError(f"input {name!r}: accepted are {', '.join(extra) or 'none'} (the valve YAML's "
+                               "options bring them: solenoid.coil_temperature: lumped, fluid.temperature: input)")
+        value = check_temperature(name.replace("_", " "), value)
+        if name == "oil_temperature":
+            self._check_oil(value)
+        self.sim.u[inputs.index(f"valve.{name}")] = value
+        self._current_step = -1
+
+    def _check_oil(self, temperature: float) -> None:
+        """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
+        outgrows the explicit step (Heun's and erk2's bound on the real axis is h lambda = 2).
+        Refused with what would run it, rather than integrated into a diverging state."""
+        p = self.sim.P[: kernel.N_PARAMS]
+        mu_ratio = float(kernel.oil_properties(temperature, p)[3])
+        sp = self.params.spool
+        mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
+        z = self.params.equivalent_damping * mu_ratio / mass * self.dt
+        if z > 2.0:
+            exact = self.dt * 2.0 / z
+            scale = 10.0 ** (math.floor(math.log10(exact)) - 1)
+            limit = math.floor(exact / scale) * scale        # two digits, rounded down: a step that runs
+            raise CommandError(
+                f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
+                f"reference's) makes the spool's damping pole {z / self.dt:.3g} 1/s, beyond what the "
+                f"{self.dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, or "
+                f"simulation.time_step <= {limit:.2g} s for this temperature")
+
+    def output(self, name: str) -> float:
+        """An output by its name at the present state (e.g. coil_temperature, core_position)."""
+        return float(self.sim.outputs()[self.sim.plant.index("output", f"valve.{name}")])
 
     # --- stepping ----------------------------------------------------------------------------
 

@@ -4,7 +4,10 @@ Signals (SI): inputs duty_cycle (0..1), load_flow (m^3/s, + drawn from the load 
 supply_pressure (Pa), load_volume (m^3: the oil volume at the load port, Eq. 15's V; a single
 valve is fed `circuit.load_volume`, a valve on a cylinder its chamber's volume); outputs
 pressure (Pa), current (A), spool_position (m); pressure and spool position depend on the state
-alone and can be connected to other systems.
+alone and can be connected to other systems. The options beyond the paper's bench append their
+signals when switched on in the valve YAML (`pcv_sim.model.kernel.layout`): inputs
+ambient_temperature and oil_temperature (K), outputs coil_temperature (K), coil_resistance (ohm)
+and core_position (m), all state outputs.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from pcv_sim.model import kernel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.system import Kernel, Stop, System
 
-__all__ = ["KINDS", "valve_system"]
+__all__ = ["KINDS", "valve_inputs", "valve_system"]
 
 KINDS = ("simplified", "full")
 
@@ -23,13 +26,21 @@ KINDS = ("simplified", "full")
 def valve_system(params: ValveParams, kind: str = "simplified", name: str = "valve") -> System:
     """The valve model (`simplified`: Sec. 4.3, 4 states; `full`: Sec. 4.2 with the damping chamber)."""
     p, f = kernel.pack(params, kind)
-    states = kernel.STATES[kind]
-    rates = [0.0] * len(states)
+    names = kernel.layout(params, kind)
+    rates = [0.0] * len(names.states)
     if kind == "full":
         rates[4] = float(kernel.chamber_rate(p))      # Eq. 29's linear part, integrated exactly
     return System(
-        name=name, states=states, inputs=kernel.INPUTS, outputs=kernel.OUTPUTS,
-        state_outputs=kernel.STATE_OUTPUTS, kernel=Kernel("pcv_sim.model.kernel"), p=p, f=f,
+        name=name, states=names.states, inputs=names.inputs, outputs=names.outputs,
+        state_outputs=names.state_outputs, kernel=Kernel("pcv_sim.model.kernel"), p=p, f=f,
         workspace=1, stiff_rates=np.array(rates),
         stops=(Stop(1, 2, p[kernel.X_MIN], p[kernel.X_MAX]),),
     )
+
+
+def valve_inputs(params: ValveParams, duty: float, load_flow: float, supply_pressure: float,
+                 load_volume: float | None = None) -> np.ndarray:
+    """The valve's input vector in its layout: the paper's four, then the options' temperatures
+    at their configured values (K): a single valve's inputs where nothing else feeds them."""
+    volume = params.circuit.load_volume if load_volume is None else load_volume
+    return np.array((duty, load_flow, supply_pressure, volume, *kernel.option_inputs(params)), dtype=np.float64)

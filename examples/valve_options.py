@@ -1,0 +1,126 @@
+"""The valve off the paper's bench (docs/model.md R33-R35): three example runs and their plot.
+
+    .venv-kilted/bin/python examples/valve_options.py [--out docs/img/valve_options.png]
+
+- cold start: ISO VG 46 at 0 degC warming to 40 degC over a minute (full model at a 10 us step:
+  the cold oil's damping makes the spool's pole 13x faster), duty stepping 50 <-> 70 % every 5 s:
+  the response slows in the cold;
+- coil heating: 90 % duty for 20 minutes, open loop (the coil warms, its resistance rises, the
+  current and the pressure fall) and with a PI controller closing the loop on pressure (the
+  duty rises to hold it);
+- fast release with core-spool separation: 100 % -> 0 % -> 60 %, without and with the paper's
+  fall-rate limit (2 /s): without it the spool stops on its end stop and the core flies on
+  (the gap); the solenoid brings it back at once when the duty returns.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from pcv_sim.params import default_params, replace_param
+from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.units import PA_PER_BAR, kelvin
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _params(**changes):
+    p = default_params()
+    for key, value in changes.items():
+        p = replace_param(p, key.replace("__", "."), value)
+    return p
+
+
+def cold_start() -> dict[str, np.ndarray]:
+    st = RealTimeStepper(_params(fluid__temperature="input", fluid__oil_temperature_c=0.0,
+                                 simulation__time_step=1e-5), duty=0.5, kind="full")
+    t, p, oil = [], [], []
+    for k in range(60_000):                         # 60 s in 1 ms samples
+        if k % 5000 == 0:
+            st.set_duty(0.7 if (k // 5000) % 2 else 0.5)
+        st.set_input("oil_temperature", kelvin(40.0 * min(1.0, k / 60_000)))
+        st.advance(100)
+        t.append(st.time)
+        p.append(st.pressure / PA_PER_BAR)
+        oil.append(st.sim.u[4] - kelvin(0.0))
+    return {"t": np.array(t), "p": np.array(p), "oil": np.array(oil)}
+
+
+def coil_heating(closed_loop: bool) -> dict[str, np.ndarray]:
+    st = RealTimeStepper(_params(solenoid__coil_temperature="lumped", solenoid__coil_reference_temperature_c=40.0),
+                         duty=0.9)
+    target, integral = st.pressure, 0.0
+    t, p, i, temp, duty = [], [], [], [], []
+    for _ in range(1200 * 10):                      # 20 min, the controller at 10 Hz
+        if closed_loop:
+            err = (target - st.pressure) / PA_PER_BAR
+            integral += 0.1 * err
+            st.set_duty(min(1.0, max(0.0, 0.9 + 0.002 * err + 0.002 * integral)))
+        st.advance(1000)
+        t.append(st.time)
+        p.append(st.pressure / PA_PER_BAR)
+        i.append(st.current)
+        temp.append(st.output("coil_temperature") - kelvin(0.0))
+        duty.append(st.duty)
+    return {"t": np.array(t), "p": np.array(p), "i": np.array(i), "T": np.array(temp), "duty": np.array(duty)}
+
+
+def release(limit: float | None) -> dict[str, np.ndarray]:
+    st = RealTimeStepper(_params(spool__core="separate", command__duty_fall_rate_limit=limit), duty=1.0)
+    st.set_duty(0.0)
+    t, p, gap = [], [], []
+    for k in range(8000):                           # 0.8 s in 0.1 ms steps
+        if k == 1000:
+            st.set_duty(0.6)
+        st.advance(1)
+        t.append(st.time)
+        p.append(st.pressure / PA_PER_BAR)
+        gap.append((st.spool_position - st.output("core_position")) * 1e3)
+    return {"t": np.array(t), "p": np.array(p), "gap": np.array(gap)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default=str(REPO / "docs" / "img" / "valve_options.png"))
+    args = ap.parse_args()
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cold = cold_start()
+    hot_open, hot_closed = coil_heating(False), coil_heating(True)
+    fast, limited = release(None), release(2.0)
+    fig, ax = plt.subplots(3, 2, figsize=(12, 10))
+    ax[0, 0].plot(cold["t"], cold["p"])
+    ax[0, 0].set(title="cold start: duty 50 <-> 70 %, oil 0 -> 40 degC", xlabel="s", ylabel="pressure, bar")
+    ax[0, 1].plot(cold["t"], cold["oil"])
+    ax[0, 1].set(title="oil temperature (input)", xlabel="s", ylabel="degC")
+    for run, label in ((hot_open, "duty 90 % (open loop)"), (hot_closed, "PI on pressure")):
+        ax[1, 0].plot(run["t"] / 60, run["p"], label=label)
+        ax[1, 1].plot(run["t"] / 60, run["T"], label=f"coil temperature, {label}")
+    ax[1, 0].set(title="coil heating: pressure", xlabel="min", ylabel="bar")
+    ax[1, 1].set(title="coil temperature", xlabel="min", ylabel="degC")
+    for a in ax[1]:
+        a.legend()
+    for run, label in ((fast, "no rate limit"), (limited, "fall rate limit 2 /s")):
+        ax[2, 0].plot(run["t"] * 1e3, run["p"], label=label)
+        ax[2, 1].plot(run["t"] * 1e3, run["gap"], label=label)
+    ax[2, 0].set(title="release 100 -> 0 %, 60 % after 100 ms: pressure", xlabel="ms", ylabel="bar")
+    ax[2, 1].set(title="core-spool gap", xlabel="ms", ylabel="mm")
+    for a in ax[2]:
+        a.legend()
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=80)
+    print(f"wrote {args.out}")
+    print(f"coil heating, open loop: current {hot_open['i'][0]:.3f} -> {hot_open['i'][-1]:.3f} A, pressure "
+          f"{hot_open['p'][0]:.1f} -> {hot_open['p'][-1]:.1f} bar, coil {hot_open['T'][-1]:.1f} degC; "
+          f"closed loop: duty {hot_closed['duty'][0]:.3f} -> {hot_closed['duty'][-1]:.3f}, "
+          f"pressure {hot_closed['p'][-1]:.1f} bar")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,225 @@
+"""The valve beyond the paper's bench (docs/model.md R33-R35), each effect against its physics:
+coil heating (copper's resistance, the first-order heat balance), oil temperature (the grade's
+viscosity, the paper's model at the paper's temperature) and core-spool separation (Sec. 3.2's
+undershoot without the rate limiter, none with it, contact regained, energy lost at the impact).
+
+The simulations run the valve with all three options on and the coil's reference temperature at
+the ambient's (40 degC): at rest that is the paper's bench, so each test sees the one effect it
+is about (and one compiled layout per model serves them all).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.model import kernel
+from pcv_sim.model.valve import ValveModel
+from pcv_sim.params import default_params, replace_param
+from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.units import kelvin
+
+ALPHA_COPPER = 3.93e-3      # 1/K, annealed copper at 20 degC (IEC 60028)
+
+
+def options(**changes):
+    """All three options on, the coil's resistance holding at the ambient 40 degC, plus `changes`
+    (`section__key=value`)."""
+    p = default_params()
+    for key, value in {"solenoid.coil_temperature": "lumped", "solenoid.coil_reference_temperature_c": 40.0,
+                       "fluid.temperature": "input", "spool.core": "separate",
+                       **{k.replace("__", "."): v for k, v in changes.items()}}.items():
+        p = replace_param(p, key, value)
+    return p
+
+
+# --- coil heating (R33) ------------------------------------------------------------------------
+
+
+def test_resistance_follows_copper_at_two_temperatures():
+    st = RealTimeStepper(options(solenoid__coil_reference_temperature_c=20.0), duty=0.7)
+    ix = st.sim.plant.index("state", "valve.coil_temperature")
+    for t_c in (20.0, 80.0):
+        st.sim.x[ix] = kelvin(t_c)
+        assert st.output("coil_temperature") == kelvin(t_c)
+        assert st.output("coil_resistance") == pytest.approx(5.6 * (1.0 + ALPHA_COPPER * (t_c - 20.0)), rel=1e-12)
+    # The hot coil (6.92 ohm) draws less current at the same duty: 0.7 * 12 V / R once the flux settles.
+    st.advance(5000)
+    assert st.current == pytest.approx(0.7 * 12.0 / (5.6 * (1.0 + ALPHA_COPPER * 60.0)), rel=2e-3)
+
+
+def test_thermal_step_response_is_first_order():
+    """alpha = 0 and a constant duty: constant heat P = (D V)^2 / R, so T(t) = T_a + P R_th (1 - e^(-t/tau)),
+    tau = R_th C_th (a small heat capacity: tau = 5 s)."""
+    r_th, c_th, duty = 2.5, 2.0, 0.7
+    params = options(solenoid__coil_temperature_coefficient=0.0, solenoid__coil_heat_capacity=c_th,
+                     solenoid__coil_thermal_resistance=r_th)
+    st = RealTimeStepper(params, duty=0.0)
+    st.set_duty(duty)
+    t_a, power, tau = kelvin(40.0), (duty * 12.0) ** 2 / 5.6, r_th * c_th
+    times, temps = [], []
+    for _ in range(20):
+        st.advance(5000)                            # 0.5 s
+        times.append(st.time)
+        temps.append(st.output("coil_temperature"))
+    # Once the coil's electrical transient (tens of ms) is over the heat input is constant: from the
+    # first sample on, T(t) = T_inf + (T(t1) - T_inf) exp(-(t - t1) / tau) exactly.
+    t, temps_a = np.array(times), np.array(temps)
+    t_inf = t_a + power * r_th
+    expected = t_inf + (temps_a[0] - t_inf) * np.exp(-(t - t[0]) / tau)
+    assert np.max(np.abs(temps_a - expected)) < 2e-3            # of a 31.5 K rise
+    # The start: the first 0.5 s as from t = 0, less the heat the rising current did not bring yet.
+    assert temps_a[0] - t_a == pytest.approx(power * r_th * (1 - math.exp(-0.5 / tau)), abs=0.2)
+
+
+def test_thermal_steady_state_with_copper():
+    """With alpha the heat falls as the coil warms (P = (D V)^2 / R(T)): the steady state solves
+    (T - T_a) / R_th = (D V)^2 / (R_ref (1 + alpha (T - T_ref))), a quadratic."""
+    r_th, c_th, duty = 2.5, 2.0, 1.0
+    st = RealTimeStepper(options(solenoid__coil_heat_capacity=c_th), duty=duty)
+    st.advance(400_000)                             # 40 s = 8 tau
+    v2, r_ref, a = (duty * 12.0) ** 2, 5.6, ALPHA_COPPER
+    # d = T - T_a (T_ref = T_a): d (1 + a d) = v2 R_th / R_ref
+    rise = (-1.0 + math.sqrt(1.0 + 4.0 * a * v2 * r_th / r_ref)) / (2.0 * a)
+    assert st.output("coil_temperature") - kelvin(40.0) == pytest.approx(rise, abs=0.01)   # 46.6 K
+    assert st.current == pytest.approx(12.0 / (r_ref * (1 + a * rise)), rel=1e-4)
+
+
+def test_ambient_temperature_input_is_checked():
+    st = RealTimeStepper(options(), duty=0.0)
+    st.set_input("ambient_temperature", kelvin(-20.0))
+    assert st.sim.u[st.sim.plant.index("input", "valve.ambient_temperature")] == kelvin(-20.0)
+    with pytest.raises(CommandError, match="not degC"):
+        st.set_input("ambient_temperature", -20.0)
+    with pytest.raises(CommandError, match="accepted are ambient_temperature, oil_temperature"):
+        st.set_input("coil_temperature", 300.0)
+    with pytest.raises(CommandError, match="accepted are none"):
+        RealTimeStepper(default_params(), duty=0.0).set_input("ambient_temperature", 300.0)
+
+
+# --- oil temperature (R34) ---------------------------------------------------------------------
+
+
+def test_viscosity_against_the_grade():
+    """ISO VG 46: 46 cSt at 40 degC (ISO 3448); an HM 46 of viscosity index ~100: 6.8 cSt at
+    100 degC and ~580 cSt at 0 degC (typical data sheets); at -20 degC 'tens of times' 40 degC's."""
+    p, _ = kernel.pack(options(), "simplified")
+    nu = {t: kernel.oil_properties(kelvin(t), p)[0] * 1e6 for t in (-20.0, 0.0, 40.0, 40.0001, 100.0)}
+    assert nu[40.0] == 46.0
+    assert nu[40.0001] == pytest.approx(46.0, rel=1e-4)
+    assert nu[100.0] == pytest.approx(6.8, rel=1e-9)
+    assert nu[0.0] == pytest.approx(580.0, rel=0.05)
+    assert 30 < nu[-20.0] / 46.0 < 300
+    _, rho, beta, mu_ratio = kernel.oil_properties(kelvin(0.0), p)
+    assert rho == pytest.approx(900.0 / (1 - 7e-4 * 40.0))
+    assert beta == pytest.approx(1e9 * math.exp(4e-3 * 40.0))
+    assert mu_ratio == pytest.approx(nu[0.0] * rho / (46.0 * 900.0))
+
+
+def test_at_the_papers_temperature_the_model_is_the_papers():
+    paper, oil = ValveModel(default_params(), "full"), ValveModel(
+        replace_param(default_params(), "fluid.temperature", "input"), "full")
+    state = paper.initial_state(0.7, 1e-4, 110e5)
+    for duty, q in ((0.7, 0.0), (0.3, 1e-5), (1.0, -2e-5)):
+        (d_oil, i_oil), (d_paper, i_paper) = (m.derivatives(0.0, state, duty, q, 200e5, 1.5) for m in (oil, paper))
+        assert i_oil == pytest.approx(i_paper, rel=1e-14)
+        assert d_oil == pytest.approx(d_paper, rel=1e-12, abs=1e-12 * max(abs(v) for v in d_paper))
+    # Colder oil: more damping on the moving spool, less gap leakage.
+    oil._u[4] = kelvin(0.0)
+    moving = (*state[:2], -0.01, *state[3:])
+    d_paper, _ = paper.derivatives(0.0, moving, 0.7, 0.0, 200e5, 1.5)
+    d_cold, _ = oil.derivatives(0.0, moving, 0.7, 0.0, 200e5, 1.5)
+    assert d_cold[2] > d_paper[2]                   # the viscous force on v < 0 pushes harder toward +x
+
+
+def test_cold_oil_slows_the_full_model():
+    """A duty step with oil at 0 degC (13x the viscosity): the laminar damping 13x (B and the
+    chamber's restrictor), the spool's pole 13x: at a 10 us step the pressure follows later."""
+    warm, cold = (RealTimeStepper(options(fluid__oil_temperature_c=t, simulation__time_step=1e-5, spool__core="attached"),
+                                  duty=0.5, kind="full") for t in (40.0, 0.0))
+    start = warm.pressure
+    assert cold.pressure == pytest.approx(start, abs=0.5e5)       # the same rest, to the leakage
+    for st in (warm, cold):
+        st.set_duty(0.7)
+        st.advance(1000)                            # 10 ms
+    assert cold.pressure - start < 0.5 * (warm.pressure - start)
+
+
+def test_too_cold_oil_for_the_step_is_refused():
+    with pytest.raises(CommandError, match=r"oil temperature 0.0 degC: .* simulation.time_step <= \S+ s") as err:
+        RealTimeStepper(options(fluid__oil_temperature_c=0.0, spool__core="attached"), duty=0.5)
+    step = float(str(err.value).rsplit("<= ", 1)[1].split(" ")[0])
+    assert 1e-5 < step < 1e-4                       # 13x the viscosity: about a tenth of the step
+    RealTimeStepper(options(fluid__oil_temperature_c=0.0, spool__core="attached", simulation__time_step=step), duty=0.5)
+    st = RealTimeStepper(options(), duty=0.5)
+    with pytest.raises(CommandError, match=r"beyond what the 0\.0001 s step integrates"):
+        st.set_input("oil_temperature", kelvin(-20.0))
+    assert st.sim.u[st.sim.plant.index("input", "valve.oil_temperature")] == kelvin(40.0)   # the last valid stays
+
+
+def test_oil_second_point_is_checked():
+    with pytest.raises(ParameterError, match="second point"):
+        options(fluid__second_viscosity=60e-6)
+
+
+# --- core-spool separation (R35) ---------------------------------------------------------------
+
+
+def test_impact_keeps_momentum_and_loses_energy():
+    p, _ = kernel.pack(options(), "simplified")
+    ic = int(p[kernel.IX_CORE])
+    x = np.array([0.0, 1e-4, -0.02, 100e5, kelvin(40.0), 1.01e-4, 0.05])    # the core caught the spool
+    m, mc = p[kernel.MASS], p[kernel.M_CORE]
+    ms = m - mc
+    before_p = ms * x[2] + mc * x[ic + 1]
+    before_e = 0.5 * ms * x[2] ** 2 + 0.5 * mc * x[ic + 1] ** 2
+    dv = x[ic + 1] - x[2]
+    kernel.project(x, p)
+    assert x[1] == x[ic] and x[2] == x[ic + 1]
+    assert m * x[2] == pytest.approx(before_p, rel=1e-12)
+    after_e = 0.5 * m * x[2] ** 2
+    assert before_e - after_e == pytest.approx(0.5 * ms * mc / m * dv**2, rel=1e-9)
+    assert before_e - after_e > 0
+
+
+@pytest.mark.parametrize("kind", ["simplified", "full"])
+def test_release_to_zero_separates_and_contact_is_regained(kind):
+    """A sudden release to 0 % duty: the spool stops on its end stop and the core flies on (the
+    solenoid no longer holds it against the spool); when the duty returns the core meets the spool
+    again (an inelastic impact) and they move as one."""
+    params = options()
+    st = RealTimeStepper(params, duty=1.0, kind=kind)
+    st.set_duty(0.0)
+    gaps = []
+    for _ in range(1000):                           # 100 ms
+        st.advance(1)
+        gaps.append(st.spool_position - st.output("core_position"))
+    assert st.spool_position == params.spool.stroke_min_mm * 1e-3
+    assert max(gaps) > 1e-6                         # > 1 um apart
+    st.set_duty(0.6)
+    for _ in range(3000):
+        st.advance(1)
+    assert st.output("core_position") == st.spool_position      # contact regained, one body again
+    ic = st.sim.plant.index("state", "valve.core_velocity")
+    assert st.sim.x[ic] == st.sim.x[2]
+
+
+@pytest.mark.parametrize("kind", ["simplified", "full"])
+def test_no_separation_at_the_papers_rate_limit(kind):
+    """Sec. 3.2: the rig's fall-rate limit (2 /s) keeps core and spool together over the duties the
+    rig drove (30 .. 100 %)."""
+    st = RealTimeStepper(options(command__duty_fall_rate_limit=2.0), duty=1.0, kind=kind)
+    st.set_duty(0.3)
+    for _ in range(60):                             # 0.6 s: the ramp to 0 and beyond
+        st.advance(100)
+        assert st.output("core_position") == st.spool_position
+
+
+def test_core_parameters_are_checked():
+    with pytest.raises(ParameterError, match="core_mass"):
+        options(spool__core_mass=0.05)
+    with pytest.raises(ParameterError, match="core_damping"):
+        options(spool__core_damping=10.0)
