@@ -102,8 +102,12 @@ class _Host:
         self.meas[k] = measured
         if self.setpoint is not None:
             self.sp[k] = v = self.setpoint(rig.time)
-            self._msg.data = v
-            self._pub_sp.publish(self._msg)          # before the samples: the node has it when they come
+            # Before the samples, so the node has it when they come; not at the last instant, which
+            # needs no answer: DDS does not order a setpoint after the samples of another topic, and a
+            # setpoint that came after the run's last answer would be taken into the next run.
+            if k < self.n:
+                self._msg.data = v
+                self._pub_sp.publish(self._msg)
         if k == self.n:                              # the last instant: no answer needed (as run_lockstep)
             self.duties[k] = [rig.duties[v] for v in self.valves]
             self.done = True
