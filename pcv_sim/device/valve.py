@@ -30,6 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pcv_sim.device.device import MODEL_FAILURES, Device
 from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import INPUT_ROLES
@@ -46,9 +47,6 @@ __all__ = [
     "INPUTS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
     "trial_run",
 ]
-
-#: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
-MODEL_FAILURES = (ArithmeticError, ValueError)
 
 #: Input names, as the node's topics are called.
 INPUTS = INPUT_ROLES
@@ -117,31 +115,32 @@ class _Inputs:
     last_rejection: str = ""
 
 
-class ValveDevice:
+#: The name of the emulator's one valve (its watchdog's key).
+VALVE = "valve"
+
+
+class ValveDevice(Device):
     """One emulated valve: the model stepper plus the device behaviour around it."""
+
+    queue: InputQueue[tuple[str, float]]       # (input name, value)
 
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
         sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1,
     ) -> None:
+        super().__init__(params.simulation.time_step, (VALVE,), 0)
         self.params = params
-        self.dt = params.simulation.time_step
-        self.dt_ns = round(self.dt * 1e9)
-        self.origin_ns = 0                 # stamp of model time 0 (the node anchors it to the ROS clock)
         self.steps = 0
         self.safe_duty = check_duty(safe_duty, params.command.duty_range)
         self.sample_every = _positive_int(sample_every, "sample_every")
         self.recorder = recorder
         self.record_every = _positive_int(record_every, "record_every")
         self.counts = _Inputs()
-        self._pending: InputQueue[tuple[str, float]] = InputQueue()
         self.command = self.safe_duty       # last valid duty command (the safe duty before any)
         self.load_flow = 0.0
         self.supply_pressure: float | None = None   # None: the parameter file's circuit.supply_pressure
-        self.watchdog = Watchdog(0)                  # the safe duty while it holds (waiting, fired)
+        self.watchdog: Watchdog = self.watchdogs[VALVE]   # the safe duty while it holds (waiting, fired)
         self.set_watchdog_timeout(watchdog_timeout)
-        self.fault: str | None = None
-        self.fault_step: int | None = None
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
@@ -217,8 +216,7 @@ class ValveDevice:
                 stepper.set_supply_pressure(self.supply_pressure)
         except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
             self.counts.last_rejection = f"after a model restart: {err}"
-        self.fault = None
-        self.fault_step = None
+        self.clear_fault()
         self.last_good = self.sample()
         what = f"model at rest at duty {self.duty_command_in_force:g}, {stepper.pressure / 1e5:.2f} bar"
         return f"{what} (cleared fault: {was})" if was else what
@@ -244,7 +242,7 @@ class ValveDevice:
         except CommandError as err:
             return self._reject(name, str(err))
         step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
-        self._pending.push(step, (name, value))
+        self.queue.push(step, (name, value))
         return None
 
     def _reject(self, name: str, reason: str) -> str:
@@ -260,7 +258,7 @@ class ValveDevice:
         self.stepper.set_duty(duty)
 
     def _apply_due_inputs(self) -> None:
-        while (due := self._pending.pop_due(self.steps)) is not None:
+        while (due := self.queue.pop_due(self.steps)) is not None:
             name, value = due
             try:
                 if name == "duty_cycle":
@@ -287,17 +285,9 @@ class ValveDevice:
         stop = min(end, s + self.sample_every - s % self.sample_every)
         if self.recorder is not None and (not self._traced() or self.stepper.ramping):
             stop = min(stop, s + self.record_every - s % self.record_every)
-        return min(stop, self._pending.next_step, self.watchdog.deadline)
+        return min(stop, self.next_due())
 
     # --- time --------------------------------------------------------------------------------
-
-    @property
-    def time(self) -> float:
-        """Model time, s."""
-        return self.steps * self.dt
-
-    def stamp_ns(self, step: int | None = None) -> int:
-        return self.origin_ns + (self.steps if step is None else step) * self.dt_ns
 
     def run(self, n: int) -> list[Sample]:
         """Advance n steps; returns the samples at the multiples of sample_every reached.
@@ -386,10 +376,6 @@ class ValveDevice:
         lim = self.limits
         return None if lim.pressure_min <= p <= lim.pressure_max else lim.problem(p, 0.0)
 
-    def skip(self, n: int) -> None:
-        """Let n steps of model time pass without computing them (the model state is held)."""
-        self.steps += n
-
     # --- outputs -----------------------------------------------------------------------------
 
     def sample(self) -> Sample:
@@ -410,12 +396,6 @@ class ValveDevice:
         st = self.stepper
         self.set_fault(f"{problem} at t = {self.time:.4f} s (duty {st.duty:g}, load flow {st.load_flow:g} m^3/s, "
                        f"supply {st.supply_pressure:g} Pa)")
-
-    def set_fault(self, reason: str) -> None:
-        """Enter the fault state (also the hook for fault injection): no stepping, no samples."""
-        if self.fault is None:
-            self.fault = reason
-            self.fault_step = self.steps
 
     def reset(self) -> str:
         """Back to rest at the present operating point; clears a fault. Returns what was done.
