@@ -27,6 +27,7 @@ __all__ = [
     "DIAGNOSTICS",
     "DUTY_CYCLE",
     "EMULATOR_INTERFACE",
+    "EVENTS",
     "EXTERNAL_FORCE",
     "FAULTS",
     "FLAGS_QOS",
@@ -70,6 +71,7 @@ CYLINDER: Final = "cylinder"                # namespace of the cylinder's topics
 JOINT_STATES: Final = "joint_states"        # out, sensor_msgs/JointState: prismatic joint, m, m/s, N
 CHAMBER_PRESSURE: Final = "pressure_{}"     # out, sensor_msgs/FluidPressure, Pa, chamber a | b (= its valve's)
 FAULTS: Final = "faults"                    # in, std_msgs/String: {fault: coil_open, valve: left} (YAML)
+EVENTS: Final = "rig/events"                # in bags only, std_msgs/String: the rig's log (faults, watchdog, reset)
 EXTERNAL_FORCE: Final = "external_force"    # in, std_msgs/Float64, N on the rod, + extending (under cylinder/)
 
 # A scenario whose controller is a ROS node (`pcv_sim.node.scenario_host`), relative to its namespace:

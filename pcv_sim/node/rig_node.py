@@ -48,7 +48,7 @@ stay monotonic; in simulated time the run after it is a fresh start's, shifted i
 at the present step in simulated time and with an external clock (the next sample shows it), in
 real time at the step an input received at the request would act at.
 
-Recording (`record.enabled`): a `pcv_sim.io.recorder.RigRecorder` (the emulator's BagRecorder
+Recording (`record.enabled`): a `pcv_sim.rig.bag.RigRecorder` (the emulator's BagRecorder
 machinery: writer process, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
 (the rig at rest) on: each valve's topics under `<namespace>/<valve>/` as the emulator records
 them (inputs duty_cycle, supply_pressure on change, stamped at the step they act; load_flow the
@@ -79,7 +79,7 @@ from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
 from pcv_sim.errors import BagError, CommandError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus, RigRecorder
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
     CURRENT,
@@ -121,6 +121,7 @@ from pcv_sim.node.rig_settings import (
     settings_from,
 )
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
+from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
     ExternalClock,
@@ -129,10 +130,9 @@ from pcv_sim.simulation.clock import (
 )
 from pcv_sim.simulation.duty import check_duty
 
-__all__ = ["JOINT_NAME", "NODE_NAME", "RigNode"]
+__all__ = ["NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
-JOINT_NAME = "steering"
 _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
 # s between polls for the controller's commands: polling beat an rcl wait set here (a wake through
 # rmw_wait took longer than a 20 us sleep; bench/rig_dds.py, BENCHMARKS.md "Rig")
