@@ -26,6 +26,7 @@ from pcv_sim.device.settings import NodeSettings
 from pcv_sim.device.valve import INPUTS, ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.simulation.clock import RealTimeSchedule
+from pcv_sim.units import bar
 
 __all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Status", "recording_status"]
 
@@ -167,7 +168,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
             "fault_reason": dev.fault or "",
             "integrator": dev.stepper.integrator,
             "pressure_pa": f"{last.pressure:.1f}" if last else "",
-            "pressure_bar": f"{last.pressure / 1e5:.3f}" if last else "",
+            "pressure_bar": f"{bar(last.pressure):.3f}" if last else "",
             "current_a": f"{last.current:.5f}" if last else "",
             "spool_position_m": f"{last.spool_position:.4e}" if last else "",
             "samples_published": samples_published,

@@ -42,6 +42,7 @@ from pcv_sim.simulation.stepper import (
     check_load_flow,
     check_supply_pressure,
 )
+from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = [
     "INPUTS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
@@ -82,14 +83,14 @@ class PhysicalLimits:
     @classmethod
     def of(cls, params: ValveParams) -> PhysicalLimits:
         sol = params.solenoid
-        return cls(-1.0e5, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
+        return cls(-PA_PER_BAR, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
                    2.0 * sol.supply_voltage / sol.coil_resistance)
 
     def problem(self, pressure: float, current: float) -> str | None:
         """Why (pressure, current) is no valve's, or None."""
         if not self.pressure_min <= pressure <= self.pressure_max:
-            return (f"pressure {pressure / 1e5:.4g} bar outside the physical range {self.pressure_min / 1e5:g} .. "
-                    f"{self.pressure_max / 1e5:g} bar: the model diverged")
+            return (f"pressure {bar(pressure):.4g} bar outside the physical range {bar(self.pressure_min):g} .. "
+                    f"{bar(self.pressure_max):g} bar: the model diverged")
         if not abs(current) <= self.current_max:
             return (f"coil current {current:.4g} A beyond the coil's possible +-{self.current_max:.3g} A: "
                     "the model diverged")
@@ -218,7 +219,7 @@ class ValveDevice(Device):
             self.counts.last_rejection = f"after a model restart: {err}"
         self.clear_fault()
         self.last_good = self.sample()
-        what = f"model at rest at duty {self.duty_command_in_force:g}, {stepper.pressure / 1e5:.2f} bar"
+        what = f"model at rest at duty {self.duty_command_in_force:g}, {bar(stepper.pressure):.2f} bar"
         return f"{what} (cleared fault: {was})" if was else what
 
     # --- inputs ------------------------------------------------------------------------------
