@@ -32,7 +32,7 @@ def valve_system(params: ValveParams, kind: str = "simplified", name: str = "val
         rates[4] = float(kernel.chamber_rate(p))      # Eq. 29's linear part, integrated exactly
     return System(
         name=name, states=names.states, inputs=names.inputs, outputs=names.outputs,
-        state_outputs=names.state_outputs, kernel=Kernel("pcv_sim.model.kernel"), p=p, f=f,
+        state_outputs=names.state_outputs, kernel=Kernel("pcv_sim.model.kernel", *kernel.functions(params)), p=p, f=f,
         workspace=1, stiff_rates=np.array(rates),
         stops=(Stop(1, 2, p[kernel.X_MIN], p[kernel.X_MAX]),),
     )
