@@ -47,10 +47,12 @@ def valve_integrator(params: ValveParams, kind: str) -> str:
     """The integrator a valve of `kind` runs: the config's `simulation.integrator` for the
     config's model; 'auto' (or another kind) is Heun (rk2) for the simplified model, exponential
     Heun (erk2) for the full one (its chamber pole) and for either with the oil temperature as
-    an input (the spool's damping pole grows ~100x in oil at -20 degC, R34)."""
+    an input and the core attached (the spool's damping pole, ~100x in oil at -20 degC, taken
+    exactly: R34)."""
     if kind == params.simulation.model and params.simulation.integrator != "auto":
         return params.simulation.integrator
-    return "erk2" if kind == "full" or params.fluid.oil_temperature_model else "rk2"
+    exact_spool = params.fluid.oil_temperature_model and not params.spool.core_separation
+    return "erk2" if kind == "full" or exact_spool else "rk2"
 
 
 def valve_inputs(params: ValveParams, duty: float, load_flow: float, supply_pressure: float,
