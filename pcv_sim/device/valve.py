@@ -45,7 +45,7 @@ from pcv_sim.simulation.stepper import (
 from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = [
-    "INPUTS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
+    "INPUTS", "OPTION_SIGNALS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
     "trial_run",
 ]
 
@@ -54,6 +54,10 @@ INPUTS = INPUT_ROLES
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
+#: The options' signals (docs/model.md R33-R35; `pcv_sim.io.topics.OPTION_INTERFACE`): inputs
+#: ambient_temperature, oil_temperature (K), outputs coil_temperature (K), coil_resistance (ohm),
+#: core_position (m); `signals()` adds those the valve's options bring.
+OPTION_SIGNALS = ("ambient_temperature", "oil_temperature", "coil_temperature", "coil_resistance", "core_position")
 
 
 class Recorder(Protocol):
@@ -145,6 +149,11 @@ class ValveDevice(Device):
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
+        plant = self.stepper.sim.plant
+        #: The options' signals this valve has: (name, index into the model's inputs or outputs, is an input).
+        self._option_signals = [(n, plant.inputs.index(f"valve.{n}"), True) for n in OPTION_SIGNALS
+                                if f"valve.{n}" in plant.inputs] + [
+            (n, plant.outputs.index(f"valve.{n}"), False) for n in OPTION_SIGNALS if f"valve.{n}" in plant.outputs]
         # Every kernel the stepping uses is loaded (or compiled) now: compiled on first use in a
         # loop's first wake it would hold the loop (and its stop check) for seconds, a minute
         # on a busy machine with an empty kernel cache.
@@ -384,12 +393,19 @@ class ValveDevice(Device):
         return Sample(self.steps, st.pressure, st.current, st.spool_position, st.duty, st.command)
 
     def signals(self) -> dict[str, float]:
+        """SIGNALS by name, and the OPTION_SIGNALS the valve's options bring."""
         st = self.stepper
-        return {
+        out = {
             "duty_command": st.command, "duty": st.duty, "load_flow": st.load_flow,
             "supply_pressure": st.supply_pressure, "pressure": st.pressure, "current": st.current,
             "spool_position": st.spool_position,
         }
+        if self._option_signals:
+            u = st.sim.u
+            y = st.sim.outputs() if any(not is_input for _, _, is_input in self._option_signals) else u
+            for name, i, is_input in self._option_signals:
+                out[name] = float(u[i] if is_input else y[i])
+        return out
 
     # --- faults ------------------------------------------------------------------------------
 

@@ -42,7 +42,7 @@ from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
-from pcv_sim.simulation.valve import valve_system
+from pcv_sim.simulation.valve import valve_integrator, valve_system
 
 __all__ = [
     "CYLINDER_SIGNALS",
@@ -133,7 +133,9 @@ class Rig(Device):
             wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
                       (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
         self.plant = compose(systems, wires)
-        self.sim = Simulator(self.plant, self.dt, valves[0].params.simulation.method)
+        # One integrator for all: erk2 when a valve's spool pole needs it (oil temperature, R34).
+        methods = {valve_integrator(v.params, kind) for v in valves}
+        self.sim = Simulator(self.plant, self.dt, "erk2" if "erk2" in methods else valves[0].params.simulation.method)
         plant = self.plant
         self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in self.valve_names]
         self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in self.valve_names]
@@ -147,6 +149,11 @@ class Rig(Device):
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
                           for v in valves]
         self._volumes = [v.params.circuit.load_volume for v in valves]
+        #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
+        #: values: (input index, value) per valve that has them.
+        self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
+                               for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
+                                                      kernel.option_inputs(v.params), strict=True)]
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._healthy_cylinder = systems[-1].p.copy()
@@ -197,6 +204,8 @@ class Rig(Device):
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
+        for i, value in self._option_inputs:
+            sim.u[i] = value
         for watchdog in self.watchdogs.values():
             watchdog.restart()
         self.clear_fault()
