@@ -153,6 +153,8 @@ def _relative(row: Mapping[str, Any], names: list[str], limits: Mapping[str, flo
         if m is None or (isinstance(m, float) and math.isnan(m)):
             continue
         lim = abs(limits.get(n, 0.0))
+        if lim == 0.0 and m >= 0.0:
+            continue            # a limit of 0 gives no scale: only its violation (m < 0) ranks a variant
         out = min(out, m / lim if lim > 0 and math.isfinite(lim) else m)
     return out
 
