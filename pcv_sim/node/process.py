@@ -62,13 +62,29 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
     try:
         try:
             return run(list(sys.argv if args is None else args), stop)
-        except StartInterrupted:
+        except BaseException as exc:
+            if not _interrupted(exc):
+                raise
             stop.starting = False
             print(f"stopped on {stop.name} while starting", file=sys.stderr)
             return EXIT_OK
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether `exc` is the start-up interruption, or an error raised because of it: a signal that
+    lands while an extension module initialises (pybind11's, e.g. scipy's HiGHS) comes out as
+    "ImportError: initialization failed" with the StartInterrupted as its cause."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, StartInterrupted):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]], Any]) -> int:
