@@ -9,13 +9,19 @@ The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthen
    report): a sweep of a scenario value (the rig is reset between variants) and a Monte Carlo of
    valve tolerances (each variant a new rig: its own valve parameters and rest states). Each
    measured twice, interleaved; the better of the two.
-2. Where a variant's time goes: the campaign's own timings (set-up: values into the files,
-   validation, controller, rig; run: the lockstep run and its assertions).
-3. Scaling: a Monte Carlo of `--scaling` variants on 1 and on 2 local workers (variants/s).
+2. Where a Monte Carlo variant's time goes, part by part, timed around the calls the campaign's
+   worker makes (median over K variants): the variant's scenario (its values into the YAML
+   mappings and the loaders' validation), the controller (import and instance), the new rig
+   (composing the plant, the compiled module looked up, of it the valves' rest states), the
+   lockstep loop (of it the controller's calls, timed inside the loop: the timer's own cost,
+   ~0.1 us a call, is in that figure) and the assertions with the row.
+3. Scaling: a Monte Carlo of `--scaling` variants on 1 and on 2 local workers (variants/s of the
+   run; the workers' set-up, one warm-up variant before the fork, counted apart).
 4. Dask against local: the same campaign on a localhost Dask cluster (a `dask scheduler` and two
    `dask worker --nworkers 1 --nthreads 1`, started here, stopped after; the cluster's start-up
-   not counted) against 2 local workers.
-5. `--big` variants of a Monte Carlo on every core: the wall time.
+   not counted; the workers' warm-up, one pinned task each, counted apart) against 2 local
+   workers, interleaved, twice each (the better of each).
+5. `--big` variants of a Monte Carlo on every core: the wall time (set-up and run).
 The machine's load average is printed with the figures: on a shared machine it changes them.
 """
 
@@ -26,10 +32,7 @@ import csv
 import json
 import os
 import shutil
-import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -61,58 +64,74 @@ def _mc(samples: int, seed: int = 1) -> dict:
         "valves.fluid.bulk_modulus": {"distribution": "uniform", "tolerance": "10%", "tied": True}}}}
 
 
-def _timed_campaign(path: Path, out: Path, **kwargs) -> tuple[float, list[dict]]:
+def _timed_campaign(path: Path, out: Path, **kwargs) -> tuple[float, list[dict], dict]:
+    """Wall time, the per-variant timings and the summary (its setup_time_s and run_time_s)."""
     from pcv_sim.campaign.run import run_campaign
 
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    run_campaign(path, out, report=False, **kwargs)
+    result = run_campaign(path, out, report=False, **kwargs)
     wall = time.perf_counter() - t0
     with (out / "timings.csv").open() as f:
-        return wall, list(csv.DictReader(f))
+        return wall, list(csv.DictReader(f)), result.summary
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+def _where(mc: Path, k: int) -> dict[str, float]:
+    """Median seconds per part of a Monte Carlo variant (see the module docstring, 2)."""
+    from pcv_sim.campaign.runner import Worker
+    from pcv_sim.campaign.spec import load_campaign
+    from pcv_sim.rig import rig as rig_module
+    from pcv_sim.rig.lockstep import run_lockstep
+    from pcv_sim.rig.rig import Rig
+    from pcv_sim.rig.scenario import resolve_controller, scenario_result, schedule_timeline
 
+    w = Worker(load_campaign(mc))
+    w.run(0)
+    parts: dict[str, list[float]] = {}
+    rest_solve = rig_module.rest_state
+    spent = [0.0]
 
-def _dask_cluster(tmp: Path) -> tuple[str, list[subprocess.Popen]]:
-    from distributed import Client
-
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
-    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--dashboard-address", ":0"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              env=env, cwd=tmp)]
-    for k in range(2):
-        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nworkers", "1",
-                                       "--nthreads", "1", "--host", "127.0.0.1", "--dashboard-address", ":0",
-                                       "--name", f"w{k}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                      env=env, cwd=tmp))
-    deadline = time.monotonic() + 180
-    while True:
+    def timed_rest(*a, **kw):
+        t0 = time.perf_counter()
         try:
-            with Client(address, timeout=10) as c:
-                c.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
-            return address, procs
-        except (OSError, TimeoutError):
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(1.0)
+            return rest_solve(*a, **kw)
+        finally:
+            spent[0] += time.perf_counter() - t0
 
+    rig_module.rest_state = timed_rest                      # type: ignore[attr-defined]
+    try:
+        for j in range(1, k + 1):
+            t = [time.perf_counter()]
+            sc = w.scenario(w.variants[j])
+            t.append(time.perf_counter())
+            ctrl = resolve_controller(sc.controller, sc.controller_params, sc.path.parent if sc.path else None)
+            t.append(time.perf_counter())
+            spent[0] = 0.0
+            rig = Rig(sc.rig, seed=sc.seed)
+            rest = spent[0]
+            t.append(time.perf_counter())
+            schedule_timeline(rig, sc)
+            in_ctrl = [0.0]
 
-def _stop(procs: list[subprocess.Popen]) -> None:
-    for p in reversed(procs):
-        p.terminate()
-    for p in procs:
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+            def counted(tt, m, ctrl=ctrl, in_ctrl=in_ctrl):
+                t0 = time.perf_counter()
+                out = ctrl(tt, m)
+                in_ctrl[0] += time.perf_counter() - t0
+                return out
+
+            run = run_lockstep(rig, counted, sc.duration, setpoint=sc.setpoint_function())
+            t.append(time.perf_counter())
+            scenario_result(sc, run)
+            t.append(time.perf_counter())
+            for name, a, b in (("scenario_s", 0, 1), ("controller_import_s", 1, 2), ("new_rig_s", 2, 3),
+                               ("lockstep_s", 3, 4), ("assertions_s", 4, 5)):
+                parts.setdefault(name, []).append(t[b] - t[a])
+            parts.setdefault("of_new_rig_rest_states_s", []).append(rest)
+            parts.setdefault("of_lockstep_controller_calls_s", []).append(in_ctrl[0])
+            parts.setdefault("lockstep_real_time_factor", []).append(run.real_time_factor)
+    finally:
+        rig_module.rest_state = rest_solve                  # type: ignore[attr-defined]
+    return {name: statistics.median(v) for name, v in parts.items()}
 
 
 def main() -> None:
@@ -151,9 +170,9 @@ def main() -> None:
                 s = load_scenario(scen)
                 run_scenario(s)
             own_full.append((time.perf_counter() - t0) / k)
-            wall, _ = _timed_campaign(sweep, tmp / "o_sweep", workers=1)
+            wall, _, _ = _timed_campaign(sweep, tmp / "o_sweep", workers=1)
             camp_sweep.append(wall / k)
-            wall, timings = _timed_campaign(mc, tmp / "o_mc", workers=1)
+            wall, timings, _ = _timed_campaign(mc, tmp / "o_mc", workers=1)
             camp_mc.append(wall / k)
         o = out["overhead"] = {
             "k": k, "scenario_s": 2.0, "own_kept_rig_s": min(own_kept), "own_load_and_new_rig_s": min(own_full),
@@ -165,28 +184,43 @@ def main() -> None:
         run = [float(t["run_s"]) for t in timings]
         out["where"] = {"monte_carlo_setup_median_s": statistics.median(setup),
                         "monte_carlo_run_median_s": statistics.median(run),
-                        "setup_share": statistics.median(setup) / (statistics.median(setup) + statistics.median(run))}
+                        "setup_share": statistics.median(setup) / (statistics.median(setup) + statistics.median(run)),
+                        "parts": _where(mc, k - 1)}
         n = args.scaling
         scal = _campaign(tmp, "scaling", _mc(n, seed=2))
-        w1, _ = _timed_campaign(scal, tmp / "o1", workers=1)
-        w2, _ = _timed_campaign(scal, tmp / "o2", workers=2)
+        w1, _, s1 = _timed_campaign(scal, tmp / "o1", workers=1)
+        w2, _, s2 = _timed_campaign(scal, tmp / "o2", workers=2)
         same = (tmp / "o1" / "results.csv").read_bytes() == (tmp / "o2" / "results.csv").read_bytes()
-        out["scaling"] = {"variants": n, "one_worker_per_s": n / w1, "two_workers_per_s": n / w2,
-                          "speed_up": w1 / w2, "same_table": same}
+        out["scaling"] = {"variants": n, "one_worker_per_s": n / s1["run_time_s"],
+                          "two_workers_per_s": n / s2["run_time_s"], "speed_up": s1["run_time_s"] / s2["run_time_s"],
+                          "two_workers_setup_s": s2["setup_time_s"], "wall_one_s": w1, "wall_two_s": w2,
+                          "same_table": same}
         if not args.no_dask:
-            address, procs = _dask_cluster(tmp)
-            try:
-                wd, _ = _timed_campaign(scal, tmp / "od", scheduler=address)
-                wl, _ = _timed_campaign(scal, tmp / "o2b", workers=2)
-            finally:
-                _stop(procs)
-            same = (tmp / "od" / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
-            out["dask"] = {"variants": n, "dask_per_s": n / wd, "local_two_per_s": n / wl, "dask_vs_local": wl / wd,
-                           "same_table": same}
+            from pcv_sim.testing import dask_cluster
+
+            (tmp / "dask").mkdir()
+            runs: dict[str, list[dict]] = {"dask": [], "local": []}
+            with dask_cluster(tmp / "dask", 2) as address:
+                for r in range(2):
+                    _, _, sd = _timed_campaign(scal, tmp / f"od{r}", scheduler=address)
+                    _, _, sl = _timed_campaign(scal, tmp / f"ol{r}", workers=2)
+                    runs["dask"].append(sd)
+                    runs["local"].append(sl)
+            same = all((tmp / f"od{r}" / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
+                       for r in range(2))
+            best = {key: min(v, key=lambda x: x["run_time_s"]) for key, v in runs.items()}
+            out["dask"] = {"variants": n, "dask_per_s": n / best["dask"]["run_time_s"],
+                           "local_two_per_s": n / best["local"]["run_time_s"],
+                           "dask_vs_local": best["local"]["run_time_s"] / best["dask"]["run_time_s"],
+                           "dask_setup_s": [x["setup_time_s"] for x in runs["dask"]],
+                           "local_setup_s": [x["setup_time_s"] for x in runs["local"]],
+                           "dask_run_s": [x["run_time_s"] for x in runs["dask"]],
+                           "local_run_s": [x["run_time_s"] for x in runs["local"]], "same_table": same}
         if args.big:
             big = _campaign(tmp, "big", _mc(args.big, seed=3))
-            wb, _ = _timed_campaign(big, tmp / "ob", workers=0)
-            out["big"] = {"variants": args.big, "scenario_s": 2.0, "workers": os.cpu_count(), "wall_s": wb}
+            wb, _, sb = _timed_campaign(big, tmp / "ob", workers=0)
+            out["big"] = {"variants": args.big, "scenario_s": 2.0, "workers": os.cpu_count(), "wall_s": wb,
+                          "setup_s": sb["setup_time_s"], "run_s": sb["run_time_s"]}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     out["load_after"] = os.getloadavg()
@@ -203,16 +237,21 @@ def main() -> None:
     w = out["where"]
     print(f"a Monte Carlo variant: set-up {w['monte_carlo_setup_median_s'] * 1e3:.1f} ms, run "
           f"{w['monte_carlo_run_median_s'] * 1e3:.1f} ms (set-up {w['setup_share']:.1%})")
+    print("  parts (median): " + ", ".join(f"{name} {v * 1e3:.2f} ms" if name.endswith("_s") else f"{name} {v:.1f}"
+                                           for name, v in w["parts"].items()))
     s = out["scaling"]
     print(f"{s['variants']} variants: 1 worker {s['one_worker_per_s']:.2f}/s, 2 workers {s['two_workers_per_s']:.2f}/s "
-          f"({s['speed_up']:.2f}x); same table: {s['same_table']}")
+          f"({s['speed_up']:.2f}x; set-up of the 2 workers {s['two_workers_setup_s']:.2f} s apart); "
+          f"same table: {s['same_table']}")
     if "dask" in out:
         d = out["dask"]
         print(f"Dask (2 workers) {d['dask_per_s']:.2f}/s vs local 2 workers {d['local_two_per_s']:.2f}/s "
-              f"({d['dask_vs_local']:.2f}x); same table as local: {d['same_table']}")
+              f"({d['dask_vs_local']:.2f}x; set-up apart: Dask {d['dask_setup_s']}, local {d['local_setup_s']} s); "
+              f"same table as local: {d['same_table']}")
     if "big" in out:
         b = out["big"]
-        print(f"{b['variants']}-variant Monte Carlo of a 2 s scenario on {b['workers']} workers: {b['wall_s']:.1f} s")
+        print(f"{b['variants']}-variant Monte Carlo of a 2 s scenario on {b['workers']} workers: {b['wall_s']:.1f} s "
+              f"(set-up {b['setup_s']:.1f} s, run {b['run_s']:.1f} s)")
 
 
 if __name__ == "__main__":

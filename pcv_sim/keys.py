@@ -6,7 +6,9 @@ import difflib
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["closest", "missing_message", "unknown_message"]
+from pcv_sim.errors import ParameterError, PcvSimError
+
+__all__ = ["check_keys", "closest", "missing_message", "unknown_message"]
 
 
 def closest(word: Any, accepted: Iterable[str], *, cutoff: float = 0.6) -> str | None:
@@ -48,3 +50,18 @@ def missing_message(where: str, given: Mapping[Any, Any], wanted: Iterable[str],
             hints.append(f"{k!r} (did you mean {near!r}?)")
     got = ", ".join(hints or [repr(k) for k in there]) or "none"
     return f"{where}: accepted is {'exactly one of' if one_of else 'each of'} {', '.join(wanted)}; got {got}"
+
+
+def check_keys(where: str, given: Any, accepted: tuple[str, ...], required: tuple[str, ...] = (),
+               error: type[PcvSimError] = ParameterError) -> Mapping[str, Any]:
+    """`given` as a mapping with only `accepted` keys and every `required` one; `error` naming
+    `where`, the unknown key and the one it was likely meant as, or the missing ones, otherwise."""
+    if not isinstance(given, Mapping):
+        raise error(f"{where}: got {given!r}; accepted is a mapping with {', '.join(accepted)}")
+    msg = unknown_message(where, given, accepted)
+    if msg:
+        raise error(msg)
+    missing = [k for k in required if k not in given]
+    if missing:
+        raise error(f"{where}: {', '.join(missing)} missing; accepted keys: {', '.join(accepted)}")
+    return given

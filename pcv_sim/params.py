@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.units import quantity, si_kind
 
 __all__ = [
@@ -61,6 +61,7 @@ __all__ = [
     "params_to_mapping",
     "plausible_range",
     "positive",
+    "read_yaml",
     "replace_param",
     "section_from_mapping",
     "setting",
@@ -660,6 +661,25 @@ def yaml_load_unique(text: str, origin: str) -> Any:
         raise ParameterError(f"{origin}: {err}") from None
     except yaml.YAMLError as err:
         raise ParameterError(f"{origin}: not valid YAML: {err}") from err
+
+
+def read_yaml(path: str | Path, what: str, error: type[PcvSimError] = ParameterError, *, unique: bool = False) -> Any:
+    """The YAML file `path` (a `what`: "scenario", "rig file"...) as data; `error` naming the file
+    when it cannot be read or is not valid YAML (`unique`: nor holds a key twice in a mapping)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise error(f"cannot read {what} {p}: {err.strerror}") from None
+    if unique:
+        try:
+            return yaml_load_unique(text, str(p))
+        except ParameterError as err:
+            raise (err if error is ParameterError else error(str(err))) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise error(f"{p}: not valid YAML: {err}") from None
 
 
 def load_params(path: str | Path | None = None) -> ValveParams:

@@ -36,7 +36,13 @@ returns a `CampaignResult` (`passed`: the gate; `pass_rate`, `worst_margin(name)
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import contextlib
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +55,7 @@ from pcv_sim.rig.lockstep import Controller
 from pcv_sim.rig.rig import Rig
 from pcv_sim.rig.scenario import ScenarioResult, load_scenario, run_scenario, scenario_from_mapping
 
-__all__ = ["rig_campaign", "rig_scenario", "run_rig_campaign", "run_rig_scenario"]
+__all__ = ["dask_cluster", "rig_campaign", "rig_scenario", "run_rig_campaign", "run_rig_scenario"]
 
 _RIGS: dict[int, Rig] = {}
 
@@ -106,3 +112,56 @@ def rig_campaign(tmp_path: Path) -> Callable[..., CampaignResult]:
         return run_rig_campaign(campaign, tmp_path / f"campaign_{next(runs)}", **kwargs)
 
     return run
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def dask_cluster(folder: Path, workers: int = 2, *, wait: float = 180.0) -> Iterator[str]:
+    """A real Dask cluster on localhost: `dask scheduler` and `workers` single-threaded `dask
+    worker` processes (cwd and logs `scheduler.log`, `worker<k>.log` in `folder`); yields the
+    scheduler's address, and stops them all after. RuntimeError with the scheduler's and the
+    first worker's log when the cluster is not up within `wait` s."""
+    import distributed
+
+    client_type: Any = distributed.Client        # distributed carries no annotations
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    procs: list[subprocess.Popen[bytes]] = []
+    with contextlib.ExitStack() as logs:
+        def start(name: str, *args: str) -> None:
+            log = logs.enter_context((folder / f"{name}.log").open("w"))
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
+                                          env=env, cwd=folder))
+
+        try:
+            start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
+                  "--dashboard-address", ":0")
+            for k in range(workers):
+                start(f"worker{k}", "worker", address, "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
+                      "--dashboard-address", ":0", "--name", f"w{k}")
+            deadline = time.monotonic() + wait
+            while True:
+                try:
+                    with client_type(address, timeout=10) as c:
+                        c.wait_for_workers(workers, timeout=max(1.0, deadline - time.monotonic()))
+                    break
+                except (OSError, TimeoutError):
+                    if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
+                        text = "\n".join((folder / f).read_text() for f in ("scheduler.log", "worker0.log"))
+                        raise RuntimeError(f"the Dask cluster did not start:\n{text}") from None
+                    time.sleep(1.0)
+            yield address
+        finally:
+            for p in reversed(procs):
+                p.terminate()
+            for p in procs:
+                try:
+                    p.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()

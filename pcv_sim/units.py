@@ -18,7 +18,8 @@ from typing import Any
 
 from pcv_sim.errors import ParameterError
 
-__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "si_kind", "to_fit_mm"]
+__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "si_kind", "to_fit_mm", "unit_kind",
+           "value_kind"]
 
 MM_PER_M = 1.0e3        # the paper's fits (Eqs. 5-13, 21-25, 27, 31-32) take the position in mm
 PA_PER_BAR = 1.0e5
@@ -132,6 +133,22 @@ def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str =
         raise UnitError(f"{where}: unit {unit!r} in {raw!r}{also}; accepted for a {kind}{' rate' if rate else ''} "
                         f"are {accepted}")
     return number * f
+
+
+def unit_kind(unit: str) -> str | None:
+    """The kind a unit is of (`mm` -> length, `bar` -> pressure); None for none. ('-' is a
+    fraction's and a plain number's: fraction.)"""
+    return next((name for name, k in KINDS.items() if unit in k.units), None)
+
+
+def value_kind(raw: Any) -> str | None:
+    """The kind of a value as written: the kind its unit names ("20 mm" -> length), None for a
+    bare number or a string with no unit of any kind."""
+    if isinstance(raw, str):
+        m = _VALUE.match(raw)
+        if m is not None and m.group(2) is not None:
+            return unit_kind(m.group(2))
+    return None
 
 
 def fmt(value: float | None, kind: str, *, digits: int = 4) -> str:

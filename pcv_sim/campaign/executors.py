@@ -6,12 +6,17 @@ campaign keeps every finished variant). The rows do not depend on the executor, 
 workers or the chunking: a variant's values are a function of (campaign, index) alone.
 
 - `run_inline`: in this process (one worker; no start-up cost).
-- `run_local`: `workers` processes forked from this one after it prepared the campaign and
-  loaded the compiled kernels once (the children inherit them); Ctrl-C terminates the
-  workers and keeps what finished.
+- `run_local`: `workers` processes forked from this one after it prepared the campaign and ran
+  its first variant once (imports, compiled kernels, the controller's module: the children
+  inherit them); Ctrl-C terminates the workers and keeps what finished.
 - `run_dask`: a Dask distributed cluster (`dask scheduler` + `dask worker`s, on any machines
   with this package installed and the scenario's files at the same paths): the campaign is
-  scattered once to every worker, the chunks are Dask tasks. Dask does the scheduling.
+  scattered once to every worker, each worker warmed by one task pinned to it (the first variant
+  run once: its imports and kernels loaded), then the chunks are Dask tasks. Dask does the
+  scheduling.
+
+`on_ready()`, when given, is called once the workers are warm, before the first chunk: the
+caller counts the set-up apart from the run.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import signal
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -26,10 +32,11 @@ from pcv_sim.campaign.runner import run_chunk, worker_for
 from pcv_sim.campaign.spec import Campaign
 from pcv_sim.errors import UsageError
 
-__all__ = ["chunks", "run_dask", "run_inline", "run_local"]
+__all__ = ["chunks", "run_dask", "run_inline", "run_local", "warm"]
 
 Row = dict[str, Any]
 OnRow = Callable[[Row], None]
+OnReady = Callable[[], None] | None
 
 
 def chunks(indices: Sequence[int], workers: int, *, most: int = 8) -> list[list[int]]:
@@ -39,8 +46,10 @@ def chunks(indices: Sequence[int], workers: int, *, most: int = 8) -> list[list[
     return [list(indices[i:i + size]) for i in range(0, len(indices), size)]
 
 
-def run_inline(campaign: Campaign, indices: Sequence[int], on_row: OnRow) -> None:
+def run_inline(campaign: Campaign, indices: Sequence[int], on_row: OnRow, on_ready: OnReady = None) -> None:
     w = worker_for(campaign)
+    if on_ready is not None:
+        on_ready()
     for k in indices:
         on_row(w.run(k))
 
@@ -59,19 +68,30 @@ def _chunk(indices: list[int]) -> list[Row]:
     return run_chunk(_CAMPAIGN, indices)
 
 
-def run_local(campaign: Campaign, indices: Sequence[int], workers: int, on_row: OnRow) -> None:
+def warm(campaign: Campaign, index: int) -> float:
+    """Prepare `campaign` in this process (this thread's Worker) and run variant `index` once, its
+    row dropped: the imports, the compiled kernels and the controller's module are loaded before
+    the first chunk. The seconds it took."""
+    t0 = time.perf_counter()
+    worker_for(campaign).run(index)
+    return time.perf_counter() - t0
+
+
+def run_local(campaign: Campaign, indices: Sequence[int], workers: int, on_row: OnRow,
+              on_ready: OnReady = None) -> None:
     """`workers` forked processes (1: this process)."""
     if workers <= 1 or len(indices) <= 1:
-        run_inline(campaign, indices, on_row)
+        run_inline(campaign, indices, on_row, on_ready)
         return
     global _CAMPAIGN
     _CAMPAIGN = campaign
-    # Prepared here, before the fork: the children inherit the imports, the variant table and
-    # the compiled kernels of the first variant's rig instead of loading them each.
-    w = worker_for(campaign)
-    w.rig(w.scenario(w.variants[indices[0]]))
+    # Warmed here, before the fork: the children inherit the imports, the variant table and the
+    # compiled kernels instead of loading them each.
+    warm(campaign, indices[0])
     ctx = multiprocessing.get_context("fork")
     pool = ctx.Pool(workers, initializer=_init_worker)
+    if on_ready is not None:
+        on_ready()
     try:
         for rows in pool.imap_unordered(_chunk, chunks(indices, workers)):
             for row in rows:
@@ -85,7 +105,7 @@ def run_local(campaign: Campaign, indices: Sequence[int], workers: int, on_row: 
         _CAMPAIGN = None
 
 
-def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: OnRow, *,
+def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: OnRow, on_ready: OnReady = None, *,
              timeout: float = 10.0) -> None:
     """On the Dask cluster whose scheduler is at `address` (tcp://HOST:PORT)."""
     try:
@@ -101,8 +121,16 @@ def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: O
         raise UsageError(f"--scheduler {address}: no Dask scheduler answered ({err}); accepted is the address "
                          "of a running `dask scheduler`, e.g. tcp://127.0.0.1:8786") from None
     with client:
-        n = max(1, len(client.nthreads()))
+        threads = client.nthreads()
+        n = max(1, sum(threads.values()))
         shared = client.scatter(campaign, broadcast=True)
+        if indices:
+            # One warm-up per worker, pinned to it: each loads what the first variant needs
+            # (a worker that joins later warms itself with its first chunk).
+            client.gather([client.submit(warm, shared, indices[0], workers=[addr], allow_other_workers=False,
+                                         pure=False) for addr in threads])
+        if on_ready is not None:
+            on_ready()
         futures = [client.submit(run_chunk, shared, c, pure=False) for c in chunks(indices, n)]
         try:
             for future in as_completed(futures):

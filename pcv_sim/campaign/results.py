@@ -9,7 +9,8 @@
     DIR/timings.csv     per variant: set-up and run wall time (s), which vary from run to run
 
 The summary: pass rate with its 95 % Wilson score interval, each assertion's pass rate and
-worst margin, the worst variants (an error first, then by the smallest margin relative to its
+worst margin (SI in the tables and --json, with its kind; the text and the report show it in
+engineering units, `pcv_sim.units.fmt`), the worst variants (an error first, then by the smallest margin relative to its
 limit), each varied number's Spearman rank correlation with each assertion's margin, the gate.
 """
 
@@ -29,6 +30,7 @@ from pcv_sim.campaign.runner import ERROR, PASSED
 from pcv_sim.campaign.sensitivity import analyze
 from pcv_sim.campaign.spec import Campaign
 from pcv_sim.errors import UsageError
+from pcv_sim.units import fmt
 
 __all__ = ["Store", "assertion_names", "columns", "summary", "summary_text", "wilson"]
 
@@ -151,6 +153,8 @@ def _relative(row: Mapping[str, Any], names: list[str], limits: Mapping[str, flo
         if m is None or (isinstance(m, float) and math.isnan(m)):
             continue
         lim = abs(limits.get(n, 0.0))
+        if lim == 0.0 and m >= 0.0:
+            continue            # a limit of 0 gives no scale: only its violation (m < 0) ranks a variant
         out = min(out, m / lim if lim > 0 and math.isfinite(lim) else m)
     return out
 
@@ -172,9 +176,10 @@ def summary(campaign: Campaign, rows: Iterable[Mapping[str, Any]], varied: list[
         ok = sum(bool(r.get(f"{name}.passed")) for r in ran)
         finite = np.isfinite(m) | np.isneginf(m)
         k = int(np.argmin(np.where(finite, m, np.inf))) if finite.any() else None
+        kind = next((r["_kinds"][name] for r in ran if name in r.get("_kinds", {})), "number")
         per[name] = {"pass_rate": ok / len(ran) if ran else math.nan, "worst_margin": float(m[k]) if k is not None
                      else math.nan, "worst_variant": int(ran[k]["index"]) if k is not None else None,
-                     "limit": limits[name]}
+                     "limit": limits[name], "kind": kind}
     order = sorted(rows, key=lambda r: (_relative(r, names, limits), r["index"]))
     worst_rows = [{"index": r["index"], "status": r["status"], "relative_margin": _relative(r, names, limits),
                    "error": r.get("error")} for r in order[:worst]]
@@ -210,8 +215,9 @@ def summary_text(s: Mapping[str, Any]) -> str:
              f"pass rate {s['pass_rate']:.4f} (95 % CI {lo:.4f} .. {hi:.4f}); gate pass_rate >= "
              f"{s['gate']['pass_rate']:g}: {'holds' if s['gate']['holds'] else 'DOES NOT HOLD'}"]
     for name, a in s["assertions"].items():
-        lines.append(f"  {name}: pass rate {a['pass_rate']:.4f}, worst margin {a['worst_margin']:.6g} "
-                     f"(variant {a['worst_variant']})")
+        kind = a.get("kind", "number")
+        lines.append(f"  {name}: pass rate {a['pass_rate']:.4f}, worst margin {fmt(a['worst_margin'], kind)} "
+                     f"(variant {a['worst_variant']}; limit {fmt(a['limit'], kind)})")
     if s["worst"]:
         lines.append("worst variants: " + ", ".join(
             f"{w['index']} ({w['status']}{', ' + str(w['error'])[:80] if w.get('error') else ''})"

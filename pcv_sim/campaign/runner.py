@@ -21,6 +21,7 @@ import numpy as np
 from pcv_sim.campaign.spec import Campaign
 from pcv_sim.campaign.variants import Variant, Variants
 from pcv_sim.errors import PcvSimError
+from pcv_sim.rig.assertions import outcome_kind
 from pcv_sim.rig.rig import Rig
 from pcv_sim.rig.scenario import Outcome, Scenario, ScenarioResult, resolve_controller, run_scenario
 
@@ -114,16 +115,19 @@ class Worker:
         else:
             row["status"] = PASSED if result.passed else FAILED
             seen: list[str] = []
+            kinds: dict[str, str] = {}
             for o in result.outcomes:           # an assertion may check several limits: one outcome each
                 name, j = o.name, 2
                 while name in seen:
                     name, j = f"{o.name} #{j}", j + 1
                 seen.append(name)
+                kinds[name] = outcome_kind(o)
                 row[f"{name}.passed"] = o.passed
                 row[f"{name}.limit"] = o.limit
                 row[f"{name}.value"] = o.value
                 row[f"{name}.margin"] = margin(o)
             row.update(metrics(result, tuple(s.name for s in scenario.rig.valves)))
+            row["_kinds"] = kinds               # the unit kind of each value, limit and margin (not a column)
         row["_timing"] = timing
         return row, result, scenario
 

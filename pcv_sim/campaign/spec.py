@@ -26,7 +26,9 @@
     gate: {pass_rate: 0.99}          # exit 0 when at least this fraction of variants passes (default 1.0)
     worst: 5                         # the worst variants whose own scenario reports the report links
 
-Varied keys: `pcv_sim.campaign.targets`. A normal distribution is truncated at `truncate`
+Varied keys: `pcv_sim.campaign.targets`. A nominal value written with a unit (a scenario's
+`20 mm`) is taken in SI, and the other numbers of its distribution may carry a unit of the same
+kind; the variants' values are SI. A normal distribution is truncated at `truncate`
 (+-N% of the nominal, +-x in SI, or [low, high]); `tied: true` draws one value for every valve of
 a `valves.` key (default: each valve its own). Every combination of the sections present is a
 variant (faults outermost, Monte Carlo innermost), and variant k's values are a pure function of
@@ -44,13 +46,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from pcv_sim.campaign.sensitivity import METHODS, Dimension, Sensitivity
 from pcv_sim.campaign.sensitivity import size as sensitivity_size
 from pcv_sim.campaign.targets import Base, CampaignError, Target, load_base, parse_target, scenario_path
 from pcv_sim.errors import PcvSimError
+from pcv_sim.keys import check_keys
+from pcv_sim.params import read_yaml
 from pcv_sim.rig.faults import CYLINDER, CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS
+from pcv_sim.units import UnitError, quantity, value_kind
 
 __all__ = ["Campaign", "Distribution", "FaultMatrix", "MonteCarlo", "Sweep", "campaign_from_mapping", "load_campaign"]
 
@@ -142,19 +145,34 @@ def _int(where: str, v: Any, lo: int, hi: int) -> int:
 
 
 def _keys(where: str, v: Any, accepted: tuple[str, ...], required: tuple[str, ...] = ()) -> Mapping[str, Any]:
-    if not isinstance(v, Mapping):
-        raise CampaignError(f"{where}: got {v!r}; accepted is a mapping with {', '.join(accepted)}")
-    bad = sorted(str(k) for k in v if k not in accepted)
-    if bad:
-        raise CampaignError(f"{where}: unknown key(s) {', '.join(bad)}; accepted: {', '.join(accepted)}")
-    for k in required:
-        if k not in v:
-            raise CampaignError(f"{where}: {k} missing; accepted keys: {', '.join(accepted)}")
-    return v
+    return check_keys(where, v, accepted, required, CampaignError)
 
 
-def _relative(where: str, v: Any, nominal: float) -> float:
-    """A number in SI, or 'N%' of the nominal value (its magnitude)."""
+def _si(where: str, v: Any, kind: str) -> float:
+    """A number (SI) or a value with a unit of `kind` ("20 mm"; any unit when `kind` is "number",
+    the nominal value having been written without one) in SI."""
+    if not isinstance(v, str):
+        return _num(where, v, "a number in SI or a value with its unit (e.g. 20 mm)")
+    try:
+        return quantity(v, kind if kind != "number" else value_kind(v) or "number", where)
+    except UnitError as err:
+        raise CampaignError(str(err)) from None
+
+
+def _nominal(where: str, target: Target, nominal: Any) -> tuple[float, str]:
+    """The nominal value of a varied key in SI, and the kind its unit names ("number": none)."""
+    kind = value_kind(nominal) or "number"
+    if not isinstance(nominal, bool) and isinstance(nominal, (int, float, str)):
+        try:
+            return quantity(nominal, kind, where), kind
+        except UnitError:
+            pass
+    raise CampaignError(f"{where}: the nominal value of {target.key} is {nominal!r}; accepted is a numeric key (a "
+                        "number, or a value with its unit such as 20 mm)")
+
+
+def _relative(where: str, v: Any, nominal: float, kind: str = "number") -> float:
+    """A number in SI, a value with a unit of `kind`, or 'N%' of the nominal value (its magnitude)."""
     if isinstance(v, str) and v.strip().endswith("%"):
         try:
             pct = float(v.strip()[:-1])
@@ -163,7 +181,9 @@ def _relative(where: str, v: Any, nominal: float) -> float:
         if not math.isfinite(pct) or pct < 0:
             raise CampaignError(f"{where}: got {v!r}; accepted is a percentage >= 0 of the nominal value (e.g. 5%)")
         return abs(nominal) * pct / 100.0
-    return _num(where, v, "a number in SI or a percentage of the nominal value (e.g. 5%)")
+    if isinstance(v, str):
+        return _si(where, v, kind)
+    return _num(where, v, "a number in SI, a value with its unit or a percentage of the nominal value (e.g. 5%)")
 
 
 def _values(where: str, raw: Any) -> tuple[Any, ...]:
@@ -219,8 +239,7 @@ def _distribution(where: str, raw: Any, target: Target, nominal: Any) -> Distrib
     kind = spec["distribution"]
     if kind not in DISTRIBUTIONS:
         raise CampaignError(f"{where}.distribution: got {kind!r}; accepted is {' or '.join(DISTRIBUTIONS)}")
-    if isinstance(nominal, bool) or not isinstance(nominal, (int, float)):
-        raise CampaignError(f"{where}: the nominal value of {target.key} is {nominal!r}; accepted is a numeric key")
+    nominal, unit_kind = _nominal(where, target, nominal)
     tied = spec.get("tied", False)
     if not isinstance(tied, bool):
         raise CampaignError(f"{where}.tied: got {tied!r}; accepted is true or false")
@@ -232,8 +251,8 @@ def _distribution(where: str, raw: Any, target: Target, nominal: Any) -> Distrib
                 raise CampaignError(f"{where}.{k}: not for a normal distribution; accepted: mean, sd, truncate, tied")
         if "sd" not in spec:
             raise CampaignError(f"{where}: normal needs sd (SI, or a percentage of the nominal value)")
-        mean = _num(f"{where}.mean", spec.get("mean", nominal))
-        sd = _relative(f"{where}.sd", spec["sd"], mean)
+        mean = _si(f"{where}.mean", spec.get("mean", nominal), unit_kind)
+        sd = _relative(f"{where}.sd", spec["sd"], mean, unit_kind)
         if sd <= 0:
             raise CampaignError(f"{where}.sd: got {spec['sd']!r}; accepted is a standard deviation > 0")
         lo, hi = -math.inf, math.inf
@@ -241,9 +260,9 @@ def _distribution(where: str, raw: Any, target: Target, nominal: Any) -> Distrib
         if isinstance(t, list):
             if len(t) != 2:
                 raise CampaignError(f"{where}.truncate: got {t!r}; accepted is [low, high] (SI) or +-x / N%")
-            lo, hi = _num(f"{where}.truncate[0]", t[0]), _num(f"{where}.truncate[1]", t[1])
+            lo, hi = _si(f"{where}.truncate[0]", t[0], unit_kind), _si(f"{where}.truncate[1]", t[1], unit_kind)
         elif t is not None:
-            half = _relative(f"{where}.truncate", t, mean)
+            half = _relative(f"{where}.truncate", t, mean, unit_kind)
             lo, hi = mean - half, mean + half
         if not lo < mean < hi:
             raise CampaignError(f"{where}.truncate: bounds {lo:g} .. {hi:g}; accepted are bounds with the mean "
@@ -252,18 +271,25 @@ def _distribution(where: str, raw: Any, target: Target, nominal: Any) -> Distrib
     for k in ("mean", "sd", "truncate"):
         if k in spec:
             raise CampaignError(f"{where}.{k}: not for a uniform distribution; accepted: low and high, or tolerance")
+    lo, hi = _bounds(where, spec, nominal, unit_kind)
+    return Distribution(kind, (lo + hi) / 2, 0.0, lo, hi, tied)
+
+
+def _bounds(where: str, spec: Mapping[str, Any], nominal: float, kind: str) -> tuple[float, float]:
+    """A range as `low` and `high`, or as the nominal value +- `tolerance`."""
     if "tolerance" in spec:
         if "low" in spec or "high" in spec:
             raise CampaignError(f"{where}: accepted is tolerance or low and high, not both")
-        half = _relative(f"{where}.tolerance", spec["tolerance"], float(nominal))
-        lo, hi = float(nominal) - half, float(nominal) + half
+        half = _relative(f"{where}.tolerance", spec["tolerance"], nominal, kind)
+        lo, hi = nominal - half, nominal + half
     else:
         if "low" not in spec or "high" not in spec:
-            raise CampaignError(f"{where}: uniform needs low and high (SI), or tolerance (SI or N%)")
-        lo, hi = _num(f"{where}.low", spec["low"]), _num(f"{where}.high", spec["high"])
+            raise CampaignError(f"{where}: accepted are low and high (SI, or with a unit), or tolerance (SI, with a "
+                                "unit, or N% of the nominal value)")
+        lo, hi = _si(f"{where}.low", spec["low"], kind), _si(f"{where}.high", spec["high"], kind)
     if not lo < hi:
         raise CampaignError(f"{where}: bounds {lo:g} .. {hi:g}; accepted is low < high")
-    return Distribution(kind, (lo + hi) / 2, 0.0, lo, hi, tied)
+    return lo, hi
 
 
 def _monte_carlo(raw: Any, base: Base) -> MonteCarlo:
@@ -383,20 +409,9 @@ def _sensitivity(raw: Any, base: Base) -> Sensitivity:
         if not isinstance(tied, bool) or (tied and target.kind != "valve"):
             raise CampaignError(f"{where}.tied: accepted is true or false, true only for a key of every valve")
         bounds = []
-        for col, nominal in zip(target.columns, target.nominals):
-            if isinstance(nominal, bool) or not isinstance(nominal, (int, float)):
-                raise CampaignError(f"{where}: the nominal value of {col} is {nominal!r}; accepted is a numeric key")
-            if "tolerance" in p:
-                if "low" in p or "high" in p:
-                    raise CampaignError(f"{where}: accepted is tolerance or low and high, not both")
-                half = _relative(f"{where}.tolerance", p["tolerance"], float(nominal))
-                lo, hi = float(nominal) - half, float(nominal) + half
-            else:
-                if "low" not in p or "high" not in p:
-                    raise CampaignError(f"{where}: accepted is {{low, high}} (SI) or {{tolerance}} (SI or N%)")
-                lo, hi = _num(f"{where}.low", p["low"]), _num(f"{where}.high", p["high"])
-            if not lo < hi:
-                raise CampaignError(f"{where}: bounds {lo:g} .. {hi:g}; accepted is low < high")
+        for col, raw_nominal in zip(target.columns, target.nominals):
+            nominal, unit_kind = _nominal(where, target, raw_nominal)
+            lo, hi = _bounds(where, p, nominal, unit_kind)
             for v in (lo, hi):
                 _check_value(base, col, v, where)
             bounds.append((lo, hi))
@@ -443,13 +458,4 @@ def campaign_from_mapping(data: Any, path: Path) -> Campaign:
 
 
 def load_campaign(path: str | Path) -> Campaign:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise CampaignError(f"cannot read campaign {p}: {err.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise CampaignError(f"{p}: not valid YAML: {err}") from None
-    return campaign_from_mapping(data, p)
+    return campaign_from_mapping(read_yaml(path, "campaign", CampaignError), Path(path))

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from pcv_sim.errors import PcvSimError
-from pcv_sim.params import DEFAULT_CONFIG, ValveParams, params_from_mapping, validate_section_value, yaml_load_unique
+from pcv_sim.params import DEFAULT_CONFIG, ValveParams, params_from_mapping, read_yaml, validate_section_value
 from pcv_sim.plant.params import CylinderParams
 from pcv_sim.rig.params import DEFAULT_RIG, TimingParams, rig_from_mapping
 from pcv_sim.rig.scenario import Scenario, scenario_from_mapping
@@ -151,18 +151,11 @@ class Base:
         return scenario_from_mapping(data, path=self.scenario_file, rig_params=rig)
 
 
-def _read_yaml(path: Path, what: str) -> Any:
-    try:
-        return yaml_load_unique(path.read_text(encoding="utf-8"), str(path))
-    except OSError as err:
-        raise CampaignError(f"cannot read {what} {path}: {err.strerror}") from None
-
-
 def load_base(scenario: Any, campaign_file: Path) -> Base:
     """The campaign's `scenario` (a path relative to the campaign file, or the scenario inline)."""
     if isinstance(scenario, str):
         file = campaign_file.parent / scenario
-        data = _read_yaml(file, "scenario")
+        data = read_yaml(file, "scenario", CampaignError, unique=True)
     elif isinstance(scenario, Mapping):
         file, data = campaign_file, dict(scenario)
     else:
@@ -176,11 +169,12 @@ def load_base(scenario: Any, campaign_file: Path) -> Base:
         raise CampaignError("scenario.controller: a ROS controller node; a campaign runs a Python controller "
                             "('module:callable') in each worker: accepted is module:callable")
     rig_file = (file.parent / data["rig"]) if data.get("rig") else DEFAULT_RIG
-    rig_data = _read_yaml(rig_file, "rig")
+    rig_data = read_yaml(rig_file, "rig", CampaignError, unique=True)
     valve_data = {}
     for name, slot in rig_data["valves"].items():
         config = slot.get("config") or ""
-        valve_data[name] = _read_yaml(rig_file.parent / config if config else DEFAULT_CONFIG, f"valve {name}'s YAML")
+        valve_data[name] = read_yaml(rig_file.parent / config if config else DEFAULT_CONFIG, f"valve {name}'s YAML",
+                                     CampaignError, unique=True)
     return Base(data, file, rig_data, rig_file, valve_data, sc)
 
 

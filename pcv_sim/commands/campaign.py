@@ -102,6 +102,7 @@ def _one(args: argparse.Namespace, campaign: Any) -> int:
         args.report.parent.mkdir(parents=True, exist_ok=True)
         args.report.write_text(render_html(result), encoding="utf-8")
     row.pop("_timing", None)
+    row.pop("_kinds", None)
     if args.json:
         emit_json(row)
     else:

@@ -11,6 +11,15 @@ current below half of what the commanded duty drives at rest (V D / R: a coil op
 driver) for `fault_time` s: the flag `fault_detected` goes to the rig's record. (The current,
 not the pressure: while the piston moves the pressures leave their set points by design.)
 
+A duty is a voltage (the coil sees V D), so with duties alone each valve's coil current, and so
+its pressure, scales with 1/R of its own coil: a few per cent between the two coils (their
+tolerance, or one coil warmer than the other) is a static force on the piston that only the
+slow integral works away. `current_loop` (s, 0: off) closes a loop on each coil's measured
+current instead, as a valve amplifier does: the PI's duty is read as a current target D V / R
+(R the nominal `coil_ohm`) and a trim per valve, integrated with that time constant from the
+current error (within +-0.2), is added to the duty sent. (examples/campaigns/tolerances.yaml:
+with it the settling no longer depends on the coils.)
+
 Measurements (SI): `left.pressure` (Pa), `cylinder.position` (m), `cylinder.velocity` (m/s),
 `setpoint` (m), ... A missing key is a dropped sample: the controller holds its last value.
 """
@@ -23,9 +32,13 @@ class PositionController:
 
     def __init__(self, kp: float = 15.0, ki: float = 30.0, kv: float = 0.5, base: float = 0.6,
                  period: float = 1e-3, fault_time: float = 0.02, coil_volts: float = 12.0,
-                 coil_ohm: float = 5.6) -> None:
+                 coil_ohm: float = 5.6, current_loop: float = 0.0) -> None:
+        if not current_loop >= 0.0:
+            raise ValueError(f"current_loop {current_loop!r}: accepted is a time constant in s >= 0 (0: off)")
         self.kp, self.ki, self.kv, self.base, self.period = kp, ki, kv, base, period
         self.fault_time, self.amps_per_duty = fault_time, coil_volts / coil_ohm
+        self.current_loop = current_loop
+        self.trim = {"left": 0.0, "right": 0.0}
         self.integral = 0.0
         self.last: dict[str, float] = {}
         self.low_since: dict[str, float | None] = {"left": None, "right": None}
@@ -47,7 +60,14 @@ class PositionController:
             self.low_since[valve] = start
             fault = fault or (start is not None and t - start >= self.fault_time)
         self.duty = {"left": min(1.0, max(0.3, self.base + u)), "right": min(1.0, max(0.3, self.base - u))}
-        return {**self.duty, "flags": {"fault_detected": float(fault)}}
+        if not self.current_loop:
+            return {**self.duty, "flags": {"fault_detected": float(fault)}}
+        sent: dict[str, object] = {}
+        for valve, target in self.duty.items():      # the PI's duty as a current target, D V / R
+            error = target - m[f"{valve}.current"] / self.amps_per_duty
+            self.trim[valve] = max(-0.2, min(0.2, self.trim[valve] + error * self.period / self.current_loop))
+            sent[valve] = min(1.0, max(0.0, target + self.trim[valve]))
+        return {**sent, "flags": {"fault_detected": float(fault)}}
 
 
 __all__ = ["PositionController"]

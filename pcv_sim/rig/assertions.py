@@ -43,7 +43,7 @@ from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.rig import signal_kind
 from pcv_sim.units import quantity
 
-__all__ = ["ASSERTION_TYPES", "EVENTS", "Outcome", "check_assertions", "outcomes", "signal_kind"]
+__all__ = ["ASSERTION_TYPES", "EVENTS", "Outcome", "check_assertions", "outcome_kind", "outcomes", "signal_kind"]
 
 ASSERTION_TYPES = ("max_error", "within_band", "never_above", "never_below", "flag_within", "step_response",
                    "baseline")
@@ -84,6 +84,16 @@ class Outcome:
     kind: str = ""
     signal: str = ""
     draw: Mapping[str, Any] = field(default_factory=dict)
+
+
+def outcome_kind(o: Outcome) -> str:
+    """The kind of an outcome's value, limit and margin."""
+    tail = o.name.rsplit(" ", 1)[-1]
+    if o.kind == "flag_within" or tail.endswith(("rise_time", "settling_time")):
+        return "time"
+    if tail.endswith(("overshoot", "nrmse")):
+        return "fraction"
+    return signal_kind(o.signal) if o.signal else "number"
 
 
 # --- validation -------------------------------------------------------------------------------

@@ -19,8 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import (
     ValveParams,
@@ -29,6 +27,7 @@ from pcv_sim.params import (
     one_of,
     parameter,
     plausible_range,
+    read_yaml,
     section_from_mapping,
 )
 from pcv_sim.plant.params import CylinderParams
@@ -161,12 +160,4 @@ def _installed_default() -> Path:
 def load_rig(path: str | Path | None = None) -> RigParams:
     """Load and validate a rig YAML file (default: config/rig.yaml)."""
     p = Path(path) if path is not None else _installed_default()
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ParameterError(f"cannot read rig file {p}: {err.strerror}") from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ParameterError(f"{p}: not valid YAML: {err}") from err
-    return rig_from_mapping(data, origin=str(p), base=p.parent)
+    return rig_from_mapping(read_yaml(p, "rig file"), origin=str(p), base=p.parent)

@@ -151,6 +151,22 @@ class Profile:
                 break
         return k
 
+    def sample(self, times: Sequence[float]) -> list[float]:
+        """The profile at each of `times` (not decreasing): `[self(t) for t in times]` to the last
+        bit, with each segment looked up once."""
+        out = []
+        starts = self._starts
+        k = -1
+        for t in times:
+            while k + 1 < len(starts) and starts[k + 1] <= t + 1e-12:
+                k += 1
+            if k < 0:
+                out.append(self.initial)
+            else:
+                seg = self.segments[k]
+                out.append(seg.at(max(0.0, t - seg.t), self._before[k]))
+        return out
+
     def __call__(self, t: float) -> float:
         k = self.index(t)
         if k < 0:

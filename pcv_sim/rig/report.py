@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from pcv_sim.rig.assertions import Outcome, signal_kind
+from pcv_sim.rig.assertions import Outcome, outcome_kind, signal_kind
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.units import display, fmt
 
@@ -29,16 +29,6 @@ __all__ = ["outcome_kind", "plot_run", "render_html", "render_index"]
 
 _VIOLATION = "#d62728"
 _BAND = "#2ca02c"
-
-
-def outcome_kind(o: Outcome) -> str:
-    """The kind of an outcome's value, limit and margin."""
-    tail = o.name.rsplit(" ", 1)[-1]
-    if o.kind == "flag_within" or tail.endswith(("rise_time", "settling_time")):
-        return "time"
-    if tail.endswith(("overshoot", "nrmse")):
-        return "fraction"
-    return signal_kind(o.signal) if o.signal else "number"
 
 
 def _panels(run: RigRun, extra: Mapping[str, np.ndarray]) -> list[tuple[str, str, list[str]]]:

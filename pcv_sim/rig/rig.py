@@ -15,8 +15,10 @@ rig starts with each valve at rest at its `initial_duty`, its watchdog waiting f
 (no controller yet: it does not fire), and the piston at `initial_position`, at rest.
 
 Faults (`pcv_sim.rig.faults`) are injected and cleared at the present step; scheduled inputs
-(`schedule`) act at the first step at or after their time. Everything is deterministic: the same
-inputs at the same steps give the same numbers bit for bit. A state that runs away (non-finite)
+(`schedule`) act at the first step at or after their time; a fed input (`feed`: a profile's values
+at given steps, the external force) takes its values at their steps inside the compiled calls,
+so a profile costs the lockstep no Python call per control period. Everything is deterministic: the
+same inputs at the same steps give the same numbers bit for bit. A state that runs away (non-finite)
 raises RigError and is the device's fault state (`fault`, `pcv_sim.device.device`) until `reset`.
 """
 
@@ -30,7 +32,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from pcv_sim.device.device import MODEL_FAILURES, Device
-from pcv_sim.device.inputs import InputQueue, WatchdogState
+from pcv_sim.device.inputs import NEVER, InputQueue, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
@@ -138,6 +140,8 @@ class Rig(Device):
         self.sim = Simulator(self.plant, self.dt, "erk2" if "erk2" in methods else valves[0].params.simulation.method)
         plant = self.plant
         self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in self.valve_names]
+        #: per valve: (its command.duty_range, its duty's input index): set_duty's look-up
+        self._duty_slot = {v.name: (v.params.command.duty_range, self._duty_i[k]) for k, v in enumerate(valves)}
         self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in self.valve_names]
         self._force_i = plant.index("input", "cylinder.external_force")
         #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
@@ -164,6 +168,13 @@ class Rig(Device):
         #: force) changes, with the step it acts from (a recorder's hook); None: nobody listens.
         self.on_input: InputHook | None = None
         self._rest: list[tuple[np.ndarray, float]] | None = None     # the valves' initial rest states
+        #: Fed inputs (`feed`): their names, input indices, and one row per step at which any of
+        #: them changes (NaN: that input does not change there); rows from _feed_next on are pending.
+        self._feed_names: tuple[str, ...] = ()
+        self._feed_i = np.zeros(0, dtype=np.int64)
+        self._feed_steps: list[int] = []
+        self._feed_v = np.zeros((0, 0))
+        self._feed_next = 0
         self.reset()
         # Compile (or load from the cache) the composite's functions now, not in the first run
         # (whose speed would then count the compile): each one the lockstep and the node call.
@@ -218,6 +229,7 @@ class Rig(Device):
             self.rejected: list[tuple[float, str]] = []
             self.log: list[tuple[float, str]] = []
             self.queue.clear()
+            self._set_feed({})
         self._inputs_changed()
 
     def _inputs_changed(self) -> None:
@@ -277,18 +289,26 @@ class Rig(Device):
     def set_duty(self, valve: str, duty: Any) -> None:
         """The duty command of `valve` from the present step on; CommandError (logged, the last
         valid command stays) unless it is within the valve's command.duty_range."""
-        k = self.valve_names.index(valve)
-        try:
-            d = check_duty(duty, self.params.valves[k].params.command.duty_range)
-        except CommandError as err:
-            self.rejected.append((self.time, f"{valve}: {err}"))
-            raise
+        slot = self._duty_slot.get(valve)
+        if slot is None:
+            self.valve_names.index(valve)              # ValueError naming it, as for any unknown valve
+        assert slot is not None
+        (lo, hi), i = slot
+        if type(duty) is float and lo <= duty <= hi:   # the common case: what check_duty would return
+            d = duty
+        else:
+            try:
+                d = check_duty(duty, (lo, hi))
+            except CommandError as err:
+                self.rejected.append((self.time, f"{valve}: {err}"))
+                raise
         self.commands[valve] = d
         self.duties[valve] = d
-        self.sim.u[self._duty_i[k]] = d
+        sim = self.sim
+        sim.u[i] = d
         if self.on_input is not None:
-            self.on_input(self.sim.steps, f"{valve}.duty_cycle", d)
-        if self.watchdogs[valve].command(self.sim.steps):
+            self.on_input(sim.steps, f"{valve}.duty_cycle", d)
+        if self.watchdogs[valve].command(sim.steps):
             self.log.append((self.time, f"{valve}: watchdog cleared by a valid command"))
 
     def set_external_force(self, force: Any) -> None:
@@ -397,6 +417,59 @@ class Rig(Device):
         self.queue.push(step, action)
         return step
 
+    def feed(self, name: str, steps: Sequence[int], values: Sequence[float]) -> None:
+        """The input `name` (only `EXTERNAL_FORCE`, N) takes `values[j]` from step `steps[j]` on
+        (increasing steps; one before the present step acts at the present step), in place of any
+        earlier feed of it; CommandError for a value `set_external_force` refuses. The values are
+        put into the model inside the compiled calls (a profile of the timeline, sampled at the
+        control instants); `on_input` hears each one as it acts."""
+        if name != EXTERNAL_FORCE:
+            raise CommandError(f"feed {name!r}: accepted is {EXTERNAL_FORCE}")
+        st = np.asarray(steps, dtype=np.int64)
+        vs = np.asarray(values, dtype=np.float64)
+        if st.ndim != 1 or st.shape != vs.shape or np.any(np.diff(st) < 0):
+            raise CommandError(f"feed {name}: accepted are as many values as steps, the steps increasing")
+        for v in vs[~(np.isfinite(vs) & (np.abs(vs) <= MAX_EXTERNAL_FORCE))][:1]:
+            check_external_force(float(v))          # raises, naming the value
+        pending = self._pending_feed()
+        now = self.sim.steps
+        pending[name] = {int(k): float(v) for k, v in zip(np.maximum(st, now), vs)}   # a later value at a step wins
+        self._set_feed(pending)
+
+    def _pending_feed(self) -> dict[str, dict[int, float]]:
+        """The feed's rows not yet applied, per input: step -> value."""
+        out: dict[str, dict[int, float]] = {n: {} for n in self._feed_names}
+        for r in range(self._feed_next, len(self._feed_steps)):
+            for j, n in enumerate(self._feed_names):
+                v = float(self._feed_v[r, j])
+                if not math.isnan(v):
+                    out[n][self._feed_steps[r]] = v
+        return out
+
+    def _set_feed(self, tracks: dict[str, dict[int, float]]) -> None:
+        tracks = {n: t for n, t in tracks.items() if t}
+        self._feed_names = tuple(tracks)
+        self._feed_i = np.array([self.plant.index("input", n) for n in tracks], dtype=np.int64)
+        self._feed_steps = sorted({k for t in tracks.values() for k in t})
+        v = np.full((len(self._feed_steps), len(tracks)), np.nan)
+        where = {k: r for r, k in enumerate(self._feed_steps)}
+        for j, t in enumerate(tracks.values()):
+            for k, x in t.items():
+                v[where[k], j] = x
+        self._feed_v = np.ascontiguousarray(v)
+        self._feed_next = 0
+
+    def _feed_row(self, r: int, step: int) -> None:
+        """Row r of the feed is in force from `step` (it is put into the model by the caller or here)."""
+        u, hook = self.sim.u, self.on_input
+        for j, name in enumerate(self._feed_names):
+            v = float(self._feed_v[r, j])
+            if not math.isnan(v):
+                u[self._feed_i[j]] = v
+                if hook is not None:
+                    hook(step, name, v)
+        self._feed_next = r + 1
+
     # --- stepping ------------------------------------------------------------------------------
 
     def advance_to(self, step: int) -> None:
@@ -413,30 +486,59 @@ class Rig(Device):
                 self._fail(f"model step failed ({type(err).__name__}: {err})")
             self._check_finite()
 
-    def advance_sample(self, step: int, after: int = 0) -> np.ndarray:
+    def advance_sample(self, step: int, after: int = 0, out: np.ndarray | None = None) -> np.ndarray:
         """`advance_to(step)`, `sample()`, then `after` more steps with the same inputs: the same
         numbers as those calls, in one compiled call when no input falls due before the last step
         (the lockstep's hot path: a call costs about as much as five steps). Returns the sample at
-        `step`; the rig is then at `step + after`, or at `step` if an input fell due on the way
-        (the caller checks `steps`)."""
+        `step` (in `out` when given: a float64 array of the signals' length); the rig is then at
+        `step + after`, or at `step` if an input fell due on the way (the caller checks `steps`)."""
         sim = self.sim
-        self._due()                                    # inputs due now act over the whole stretch
-        if step >= sim.steps and self._next_due() > step + after:
-            out = np.empty(len(self._signal_i))
-            try:
-                norm = sim.advance_sample(step - sim.steps, self._signal_i, out, after)
-            except MODEL_FAILURES as err:
-                self._fail(f"model step failed ({type(err).__name__}: {err})")
-            if not math.isfinite(norm):
-                self._check_finite()                   # raises, naming the time and the faults
-            return out
+        now = sim.steps
+        fs = self._feed_steps
+        r = self._feed_next
+        fed = fs[r] if r < len(fs) else NEVER
+        other = self._due_step(feed=False)
+        if other <= now or fed <= now:
+            self._due()                                # inputs due now act over the whole stretch
+            fs = self._feed_steps
+            r = self._feed_next
+            fed = fs[r] if r < len(fs) else NEVER
+            other = self._due_step(feed=False)
+        if step >= now:
+            # A fed row due at `step` itself goes into the same call (after the steps to it,
+            # before the sample); one due earlier, or up to step + after, takes the plain path.
+            last = step + after
+            if other > last and (fed > last or (fed == step and (r + 1 == len(fs) or fs[r + 1] > last))):
+                row = r if fed == step else -1
+                if out is None:
+                    out = np.empty(len(self._signal_i))
+                try:
+                    norm = sim.advance_sample(step - now, self._signal_i, out, after, (self._feed_i, self._feed_v, row))
+                except MODEL_FAILURES as err:
+                    self._fail(f"model step failed ({type(err).__name__}: {err})")
+                if row >= 0:
+                    self._feed_row(row, step)          # already in the model; for the hook and the bookkeeping
+                if not math.isfinite(norm):
+                    self._check_finite()               # raises, naming the time and the faults
+                return out
         self.advance_to(step)
-        return self.sample()
+        if out is None:
+            return self.sample()
+        out[:] = self.sample()
+        return out
 
     def _next_due(self) -> int:
-        """The first step after the present one at which a scheduled input or a watchdog deadline
-        falls (a large number if none): where a batch of compiled steps must stop."""
-        return max(self.next_due(), self.sim.steps + 1)
+        """The first step after the present one at which a scheduled input, a watchdog deadline or
+        a fed input falls (a large number if none): where a batch of compiled steps must stop."""
+        return max(self._due_step(), self.sim.steps + 1)
+
+    def _due_step(self, *, feed: bool = True) -> int:
+        """The first step at which a scheduled input, a watchdog deadline or (with `feed`) a fed
+        input falls, pending now or later (NEVER if none)."""
+        nxt = self.next_due()                       # the queue and the watchdogs (Device)
+        if feed and self._feed_next < len(self._feed_steps):
+            nxt = min(nxt, self._feed_steps[self._feed_next])
+        return nxt
 
     def _check_finite(self) -> None:
         x = self.sim.x
@@ -454,6 +556,8 @@ class Rig(Device):
         steps = self.sim.steps
         while (action := self.queue.pop_due(steps)) is not None:
             action()
+        while self._feed_next < len(self._feed_steps) and self._feed_steps[self._feed_next] <= steps:
+            self._feed_row(self._feed_next, steps)
         for k, name in enumerate(self.valve_names):
             if self.watchdogs[name].check(steps):
                 self.duties[name] = self._safe

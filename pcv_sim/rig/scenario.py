@@ -74,16 +74,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.keys import closest, missing_message, unknown_message
+from pcv_sim.params import read_yaml
 from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
 from pcv_sim.rig.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
-from pcv_sim.rig.rig import MAX_EXTERNAL_FORCE, Rig, RigError, signal_names
+from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, Rig, RigError, signal_names
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
@@ -484,16 +484,7 @@ def ros_controller(raw: Any) -> RosController:
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ScenarioError(f"cannot read scenario {p}: {err.strerror}") from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ScenarioError(f"{p}: not valid YAML: {err}") from err
-    return scenario_from_mapping(data, path=p)
+    return scenario_from_mapping(read_yaml(path, "scenario", ScenarioError), path=Path(path))
 
 
 def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path | None) -> Controller:
@@ -534,28 +525,31 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
 # --- running ---------------------------------------------------------------------------------------
 
 
-def _profile_updates(rig: Rig, t0: float, seg: Segment, before: float, until: float,
-                     apply: Callable[[float], None]) -> None:
-    """A segment on the rig: a value once at t0; any other shape at each control instant from
-    t0 until it is constant or the next segment starts (held over the period), then its end value."""
+def _profile_updates(T: float, t0: float, seg: Segment, before: float, until: float) -> list[tuple[float, float]]:
+    """A segment on the rig as (time, value) updates: a value once at t0; any other shape at each
+    control instant (period T) from t0 until it is constant or the next segment starts (held over
+    the period), then its end value."""
     if seg.constant:
-        rig.schedule(t0, functools.partial(apply, seg.value))
-        return
-    T = rig.params.timing.control_period
+        return [(t0, seg.value)]
+    out = []
     stop = min(until, t0 + seg.end())
     k = math.ceil(t0 / T - 1e-9)
     while k * T < stop - 1e-12:
-        rig.schedule(k * T, functools.partial(apply, seg.at(k * T - t0, before)))
+        out.append((k * T, seg.at(k * T - t0, before)))
         k += 1
     if math.isfinite(stop) and stop < until:
-        rig.schedule(stop, functools.partial(apply, seg.at(stop - t0, before)))
+        out.append((stop, seg.at(stop - t0, before)))
+    return out
 
 
 def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
     """Put the scenario's timeline on the rig's schedule: events at their times, profiles as
-    values at each control instant (zero-order hold over the control period)."""
+    values at each control instant (zero-order hold over the control period); the external
+    force is fed (`Rig.feed`: its values go into the model inside the compiled calls, at the
+    steps `Rig.schedule` would give them)."""
     signals = rig.signals
-    end = scenario.duration + rig.params.timing.control_period
+    T = rig.params.timing.control_period
+    end = scenario.duration + T
     channels: dict[tuple[str, str], list[Segment]] = {}
     for e in scenario.timeline:
         t = float(e["t"])
@@ -582,9 +576,16 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
             apply = functools.partial(_supply, rig, valve)
             x0 = initial[valve].params.circuit.supply_pressure
         profile = Profile(sorted(segs, key=lambda s: s.t), initial=x0)
+        updates: list[tuple[float, float]] = []
         for k, seg in enumerate(profile.segments):
             nxt = profile.segments[k + 1].t if k + 1 < len(profile.segments) else end
-            _profile_updates(rig, seg.t, seg, profile(seg.t - 1e-9) if k else x0, nxt, apply)
+            updates += _profile_updates(T, seg.t, seg, profile(seg.t - 1e-9) if k else x0, nxt)
+        if a == "force":
+            rig.feed(EXTERNAL_FORCE, [max(rig.steps, math.ceil(t / rig.dt - 1e-9)) for t, _ in updates],
+                     [v for _, v in updates])
+        else:
+            for t, v in updates:
+                rig.schedule(t, functools.partial(apply, v))
 
 
 def _duty(rig: Rig, valve: str, duty: float) -> None:

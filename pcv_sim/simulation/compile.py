@@ -130,13 +130,20 @@ def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
 _SAMPLE = '''
 
 @jit(nrt=False)
-def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after):
-    # n steps, then the outputs at the step reached (inputs in force from there on): out[i] =
-    # Y[select[i]], then `after` more steps with the same inputs. One call where advance +
-    # outputs + advance would be three: a call from Python costs ~3 us of argument unboxing (F
-    # alone is 25 arrays for two valves), more than a step of the rig.
+def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
+                         feed_i, feed_v, row):
+    # n steps, then the inputs of row `row` of feed_v (u[feed_i[j]] = feed_v[row, j]; NaN: left
+    # as it is; row < 0: none) and the outputs at the step reached (inputs in force from there
+    # on): out[i] = Y[select[i]], then `after` more steps with the same inputs. One call where
+    # advance + inputs + outputs + advance would be four: a call from Python costs ~3 us of
+    # argument unboxing (F alone is 25 arrays for two valves), more than a step of the rig.
     if n > 0:
         advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
+    if row >= 0:
+        for j in range(len(feed_i)):
+            v = feed_v[row, j]
+            if v == v:
+                u[feed_i[j]] = v
     outputs((k0 + n) * h, x, u, P, F, W, Y, U)
     for i in range(len(select)):
         out[i] = Y[select[i]]

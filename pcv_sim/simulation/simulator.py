@@ -15,6 +15,9 @@ from pcv_sim.simulation.system import Composite, System, compose
 
 __all__ = ["Simulator"]
 
+#: `advance_sample`'s feed when there is none (always these types: one compiled specialisation).
+_NO_FEED = (np.zeros(0, dtype=np.int64), np.zeros((0, 0)), -1)
+
 
 class Simulator:
     """Fixed-step simulation of a `Composite` (or one `System`)."""
@@ -91,15 +94,18 @@ class Simulator:
                       s1, s2, s3, s4, xt, e, a, b)
         self.steps += n
 
-    def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray, after: int = 0) -> float:
+    def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray, after: int = 0,
+                       feed: tuple[np.ndarray, np.ndarray, int] | None = None) -> float:
         """`advance(n)`, `outputs()[select]` into `out`, then `advance(after)`, in one compiled
-        call: what a loop that samples every few steps (the rig's lockstep) runs. Returns the sum of
-        the squared states: not finite if and only if the state ran away."""
-        s1, s2, s3, s4, xt = self._scratch
-        e, a, b = self._weights
+        call: what a loop that samples every few steps (the rig's lockstep) runs. `feed` =
+        (indices, values, row): before the outputs, `u[indices[j]] = values[row, j]` (indices
+        int64, values a C-contiguous float64 matrix; NaN leaves that input as it is), the inputs
+        due at the sampled step. Returns the sum of the squared states: not finite if and only if
+        the state ran away."""
         n, after = max(int(n), 0), max(int(after), 0)
+        feed_i, feed_v, row = feed if feed is not None else _NO_FEED
         norm = self._advance_sample(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
-                                    s1, s2, s3, s4, xt, e, a, b, select, out, after)
+                                    *self._scratch, *self._weights, select, out, after, feed_i, feed_v, row)
         self.steps += n + after
         return float(norm)
 

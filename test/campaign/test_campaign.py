@@ -355,3 +355,47 @@ def test_campaign_over_oil_temperature_runs(write_campaign, tmp_path, capsys):
     assert float(cold["left.fluid.oil_temperature_c"]) == -20.0
     assert all(math.isfinite(float(r["tracks.value"])) for r in rows)
     assert float(cold["tracks.value"]) > float(warm["tracks.value"])  # the cold valves track worse
+
+
+def test_monte_carlo_over_a_scenario_value_written_with_its_unit(write_campaign, tmp_path, capsys):
+    """`setpoint: 10 mm` in the scenario: a Monte Carlo of it draws in SI around 0.01 m (its other
+    numbers may carry a unit of the same kind), and variant k runs the scenario with its SI value
+    written in; a unit of another kind is refused naming the key."""
+    scenario = json.loads(json.dumps(SCENARIO))
+    scenario["setpoint"][1]["value"] = "10 mm"
+    mc = {"monte_carlo": {"samples": 3, "seed": 5, "parameters": {
+        "scenario.setpoint[1].value": {"distribution": "normal", "sd": "0.5 mm", "truncate": "10%"}}}, "worst": 0,
+        "gate": {"pass_rate": 0.0}}
+    path = write_campaign(mc, scenario=scenario)
+    assert run_campaign(path, tmp_path / "out", "--workers", "1") == 0
+    capsys.readouterr()
+    rows = read_rows(tmp_path / "out" / "results.csv")
+    values = [float(r["scenario.setpoint[1].value"]) for r in rows]
+    assert all(0.009 <= v <= 0.011 for v in values) and len(set(values)) == 3
+    for row, v in zip(rows, values):
+        alone = json.loads(json.dumps(scenario))
+        alone["setpoint"][1]["value"] = v
+        (tmp_path / f"alone{row['index']}.yaml").write_text(yaml.safe_dump(alone))
+        main(["scenario", "run", str(tmp_path / f"alone{row['index']}.yaml"), "--json"])
+        out = json.loads(capsys.readouterr().out)
+        assert float(row["tracks.value"]) == out["assertions"][0]["value"]        # every bit
+    bad = {"monte_carlo": {**mc["monte_carlo"], "parameters": {
+        "scenario.setpoint[1].value": {"distribution": "normal", "sd": "1 bar"}}}}
+    assert run_campaign(write_campaign(bad, scenario=scenario, name="bad.yaml"), tmp_path / "bad") == 2
+    err = capsys.readouterr().err
+    assert "scenario.setpoint[1].value" in err and "sd" in err and "mm" in err
+
+
+def test_margins_are_shown_in_engineering_units(write_campaign, tmp_path, capsys):
+    """The summary's text and the report give each assertion's limit and worst margin in its
+    engineering unit (mm for the position, bar for a pressure); the table and --json stay SI."""
+    path = write_campaign({"sweep": {"parameters": {"cylinder.mass": [40.0, 60.0]}}, "worst": 0})
+    assert main(["campaign", "run", str(path), "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    line = next(x for x in text.splitlines() if x.strip().startswith("tracks:"))
+    assert " mm " in line and "limit 2.5 mm" in line, line
+    assert "limit 180 bar" in next(x for x in text.splitlines() if x.strip().startswith("chamber a:"))
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "2.5 mm" in html and "180 bar" in html
+    rows = read_rows(tmp_path / "out" / "results.csv")
+    assert float(rows[0]["tracks.limit"]) == 2.5e-3

@@ -1,15 +1,12 @@
 """A campaign on a real Dask cluster on localhost (`dask scheduler` + two `dask worker`
 processes) gives the same table as the local run, byte for byte."""
 import socket
-import subprocess
-import sys
-import time
 
 import pytest
 
+from pcv_sim import testing
 from pcv_sim.cli import main
 
-from .conftest import child_env
 from .test_campaign import MONTE_CARLO
 
 
@@ -22,48 +19,11 @@ def free_port():
 @pytest.fixture
 def dask_cluster(tmp_path):
     """tcp://127.0.0.1:PORT of a scheduler with two single-threaded workers; all stopped after."""
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = child_env()
-    procs = []
-    logs = []
-
-    def start(name, *args):
-        log = (tmp_path / f"{name}.log").open("w")
-        logs.append(log)
-        procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
-                                      env=env, cwd=tmp_path))
-
     try:
-        start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0")
-        for k in range(2):
-            start(f"worker{k}", "worker", address, "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
-                  "--dashboard-address", ":0", "--name", f"w{k}")
-        from distributed import Client
-
-        deadline = time.monotonic() + 180
-        while True:
-            try:
-                with Client(address, timeout=10) as c:
-                    c.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
-                break
-            except (OSError, TimeoutError):
-                if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
-                    logs_text = "\n".join((tmp_path / f).read_text() for f in ("scheduler.log", "worker0.log"))
-                    pytest.fail(f"the Dask cluster did not start:\n{logs_text}")
-                time.sleep(1.0)
-        yield address
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        for log in logs:
-            log.close()
+        with testing.dask_cluster(tmp_path, 2) as address:
+            yield address
+    except RuntimeError as err:
+        pytest.fail(str(err))
 
 
 def test_dask_cluster_gives_the_local_table(dask_cluster, write_campaign, tmp_path, capsys):

@@ -57,3 +57,21 @@ def test_the_coil_monitor_flags_a_low_current_after_fault_time():
     assert flags[:20] == [0.0] * 20             # low for less than 20 ms: not yet
     assert flags[20:] == [1.0] * 10
     assert c(0.031, measurements())["flags"]["fault_detected"] == 0.0   # current back: cleared
+
+
+def test_the_current_loop_makes_each_coil_carry_the_current_the_duty_stands_for():
+    """A coil 3 % above the nominal resistance (and one 3 % below): with duties alone its current is
+    3 % off the D V / R the control law meant; with `current_loop` the duty sent is trimmed until
+    the measured current is that target, whatever the coil."""
+    for factor in (1.03, 0.97):
+        amps = 12.0 / (5.6 * factor)              # this coil's current per unit duty
+        c = PositionController(current_loop=0.02)
+        sent = {"left": 0.6, "right": 0.6}
+        for k in range(300):
+            out = c(k * 1e-3, measurements(setpoint=0.0, left=amps * sent["left"], right=AMPS * sent["right"]))
+            sent = {v: out[v] for v in ("left", "right")}
+        assert amps * sent["left"] == pytest.approx(AMPS * c.duty["left"], rel=1e-4)
+        assert sent["right"] == pytest.approx(c.duty["right"], rel=1e-6)        # the nominal coil: no trim
+        assert out["flags"] == {"fault_detected": 0.0}
+    with pytest.raises(ValueError, match="current_loop"):
+        PositionController(current_loop=-1.0)

@@ -102,3 +102,14 @@ def test_force_supply_and_duty_profiles_act_on_the_rig(rig):
     # one supply event in the log, not one per period
     assert sum("supply_drop" in text for _, text in run.log) == 1
     assert any("external force: ramp" in text and "-1000 N" in text for _, text in result.events)
+
+
+def test_sampling_a_profile_at_many_times_is_calling_it_at_each():
+    """`Profile.sample` (the lockstep's setpoint, evaluated before the run) gives the numbers of
+    calling the profile at each time, to the last bit, across every shape and a segment start."""
+    segs = [seg({"value": 0.01}, "length", t=0.0), seg({"ramp": {"to": 0.02, "duration": 0.05}}, "length", t=0.1),
+            seg({"sine": {"amplitude": 0.003, "frequency": 7.0, "offset": 0.01}}, "length", t=0.2),
+            seg({"table": [[0, 0.0], [0.05, 0.004]]}, "length", t=0.3)]
+    p = Profile(segs, initial=0.0)
+    times = [k * 1e-3 for k in range(400)]
+    assert p.sample(times) == [p(t) for t in times]

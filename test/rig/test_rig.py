@@ -248,6 +248,52 @@ def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
     assert np.array_equal(ends[0][0], ends[1][0]) and np.array_equal(ends[0][1], ends[1][1])
 
 
+def test_a_fed_force_gives_the_numbers_of_the_same_values_scheduled(rig):
+    """`Rig.feed` (a profile's values put into the model inside the lockstep's compiled call)
+    against the same values scheduled one by one (`Rig.schedule`, the plain path), bit for bit,
+    with a controller answering every period: values on sample instants, one between two, one
+    on the step after a sample (where the answer acts); the hook hears the same (step, value)."""
+    from pcv_sim.rig.rig import EXTERNAL_FORCE
+
+    per = rig.params.steps_per_period
+    steps = [3 * per, 4 * per, 5 * per, 5 * per + 3, 9 * per + 1, 12 * per]
+    values = [100.0, 250.0, -400.0, 80.0, 0.0, 1500.0]
+    runs, heard = [], []
+    for how in ("none", "scheduled", "fed"):
+        rig.on_input = None
+        rig.reset()
+        seen = []
+        rig.on_input = lambda step, name, value, seen=seen: seen.append((step, value)) if name == EXTERNAL_FORCE \
+            else None
+        if how == "fed":
+            rig.feed(EXTERNAL_FORCE, steps, values)
+        elif how == "scheduled":
+            for st, v in zip(steps, values):
+                rig.schedule(st * rig.dt, lambda v=v: rig.set_external_force(v))
+        runs.append(run_lockstep(rig, step_controller, 0.02))
+        heard.append(seen)
+    rig.on_input = None
+    none, scheduled, fed = runs
+    assert np.array_equal(scheduled.true, fed.true) and np.array_equal(scheduled.duties, fed.duties)
+    assert heard[1] == heard[2] == list(zip(steps, values))
+    assert not np.array_equal(none.true, fed.true)               # the force did act
+
+
+def test_feed_refuses_what_the_rig_would_refuse(rig):
+    from pcv_sim.rig.rig import EXTERNAL_FORCE
+
+    with pytest.raises(CommandError, match=r"external force 2000000\.0"):
+        rig.feed(EXTERNAL_FORCE, [10, 20], [0.0, 2e6])
+    with pytest.raises(CommandError, match="steps increasing"):
+        rig.feed(EXTERNAL_FORCE, [20, 10], [0.0, 1.0])
+    with pytest.raises(CommandError, match=r"accepted is cylinder\.external_force"):
+        rig.feed("left.duty_cycle", [10], [0.5])
+    rig.feed(EXTERNAL_FORCE, [0, 30], [5.0, 7.0])           # a second feed of it replaces the first
+    rig.feed(EXTERNAL_FORCE, [20], [6.0])
+    rig.advance_to(40)
+    assert rig.input_values()[EXTERNAL_FORCE] == 6.0
+
+
 def test_a_chamber_pulled_on_by_the_piston_cavitates_at_the_floor_and_recovers(rig):
     """Watchdog to duty 0 while the piston moves: the expanding chamber's valve relieves to tank
     and cannot feed it; the pressure stops at the oil's cavitation pressure (R32; it went to
