@@ -59,8 +59,9 @@ _CAMPAIGN: Campaign | None = None
 
 def _init_worker() -> None:
     # Ctrl-C reaches the whole process group: the parent alone decides, the workers go on
-    # until it terminates them.
+    # until it terminates them (SIGTERM: the default, whatever handler the parent had at the fork).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _chunk(indices: list[int]) -> list[Row]:

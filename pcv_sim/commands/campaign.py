@@ -8,7 +8,7 @@ Carlo of tolerances, a fault matrix. Every variant runs in lockstep like `pcv-si
 of the scenario with its values written into the files. By default on every core of this
 machine (worker processes that load the compiled kernels once); with --scheduler on a Dask
 cluster. Out: DIR/results.csv (a row per variant), DIR/report.html, the summary on stdout.
-Ctrl-C keeps every finished variant; --resume runs only the missing ones. --variant K re-runs
+Ctrl-C (SIGINT) or SIGTERM keeps every finished variant; --resume runs only the missing ones. --variant K re-runs
 variant K alone (its report and bag), with the same assertion values as in the campaign.
 Exit status: 0 the campaign's gate holds, 1 it does not, 2 a bad file or options, 130 interrupted.
 """
@@ -16,10 +16,13 @@ Exit status: 0 the campaign's gate holds, 1 it does not, 2 a bad file or options
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -135,8 +138,9 @@ def run(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else Path(f"{campaign.name}_campaign")
     progress = Progress(campaign.size, _interactive(args))
     try:
-        result = run_campaign(campaign, out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                              on_row=progress.update, on_start=progress.start)
+        with _interrupt_on_signals():
+            result = run_campaign(campaign, out, workers=args.workers, scheduler=args.scheduler,
+                                  resume=args.resume, on_row=progress.update, on_start=progress.start)
     finally:
         progress.close()
     s = result.summary
@@ -151,3 +155,21 @@ def run(args: argparse.Namespace) -> int:
               "the rest)", file=sys.stderr)
         return 130
     return 0 if result.passed else 1
+
+
+@contextlib.contextmanager
+def _interrupt_on_signals() -> Iterator[None]:
+    """SIGINT and SIGTERM stop the campaign as Ctrl-C does (finished variants kept, exit 130),
+    whatever the process inherited: a job started in the background by a non-interactive shell
+    (a CI script's `&`, nohup) inherits SIGINT ignored, and Python then installs no
+    KeyboardInterrupt for it; SIGTERM is what CI runners and `timeout` send."""
+    def interrupt(_signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+

@@ -251,9 +251,12 @@ def test_example_campaigns_load():
     assert faults[5].at == {("assertions", 0, "after"): 0.9}
 
 
-def test_ctrl_c_keeps_finished_variants_and_resume_completes(write_campaign, tmp_path, capsys):
-    """SIGINT to a running `pcv-sim campaign run` (2 workers): exit 130, every finished variant
-    kept; --resume runs the rest and the table is that of an uninterrupted run."""
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_keeps_finished_variants_and_resume_completes(sig, write_campaign, tmp_path, capsys):
+    """SIGINT or SIGTERM to a running `pcv-sim campaign run` (2 workers): exit 130, every finished
+    variant kept; --resume runs the rest and the table is that of an uninterrupted run. The child
+    starts with SIGINT ignored, as a job put in the background by a non-interactive shell (a CI
+    script's `&`, nohup) inherits it: the command must stop on it all the same."""
     import signal
     import subprocess
     import sys
@@ -264,15 +267,17 @@ def test_ctrl_c_keeps_finished_variants_and_resume_completes(write_campaign, tmp
     mc = {"monte_carlo": {**MONTE_CARLO["monte_carlo"], "samples": 40}, "worst": 0, "gate": {"pass_rate": 0.0}}
     path = write_campaign(mc)
     out = tmp_path / "cut"
-    p = subprocess.Popen([sys.executable, "-m", "pcv_sim", "campaign", "run", str(path), "--out", str(out),
-                          "--workers", "2", "--json"], env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    ignoring_sigint = ["sh", "-c", 'trap "" INT; exec "$0" "$@"']      # as `cmd &` in a script
+    p = subprocess.Popen([*ignoring_sigint, sys.executable, "-m", "pcv_sim", "campaign", "run", str(path), "--out",
+                          str(out), "--workers", "2", "--json"], env=child_env(), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
     try:
         log = out / "variants.jsonl"
         deadline = time.monotonic() + 240
         while not (log.is_file() and len(log.read_text().splitlines()) >= 3):
             assert p.poll() is None and time.monotonic() < deadline, p.communicate()
             time.sleep(0.05)
-        p.send_signal(signal.SIGINT)
+        p.send_signal(getattr(signal, sig))
         _, err = p.communicate(timeout=60)
     finally:
         if p.poll() is None:
