@@ -10,8 +10,6 @@ PACKAGE = Path(__file__).resolve().parent.parent / "pcv_sim"
 
 #: A pressure scaled by 1e5 / 1e-5 (Pa <-> bar), a "bar": 1e5 table entry, a flow by 1e-3 / 60 or 60000.
 FACTOR = re.compile(r"([/*]\s*1(\.0)?e-?5\b|\"bar\":\s*1e5|1(\.0)?e-3\s*/\s*60|/\s*60_?000)")
-#: Modules whose remaining factors go with the device and node being merged into one.
-PENDING = {"device/valve.py", "device/diagnostics.py", "node/demo.py"}
 
 
 def factors(text: str) -> list[str]:
@@ -28,11 +26,7 @@ def test_the_pattern_finds_the_factors_it_is_for():
 @pytest.mark.parametrize("path", sorted(p for p in PACKAGE.rglob("*.py") if p.name != "units.py"),
                          ids=lambda p: str(p.relative_to(PACKAGE)))
 def test_no_unit_factor_outside_the_units_module(path):
-    found = factors(path.read_text(encoding="utf-8"))
-    if str(path.relative_to(PACKAGE)) in PENDING:
-        assert found, "nothing left here: take the module off PENDING"
-    else:
-        assert found == []
+    assert factors(path.read_text(encoding="utf-8")) == []
 
 
 def test_the_conversions():

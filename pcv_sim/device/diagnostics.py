@@ -26,8 +26,9 @@ from pcv_sim.device.settings import NodeSettings
 from pcv_sim.device.valve import INPUTS, ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.simulation.clock import RealTimeSchedule
+from pcv_sim.units import bar
 
-__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Status", "recording_status"]
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Status", "recording_status"]
 
 OK, WARN, ERROR = 0, 1, 2
 CONCERNS = ("timing", "inputs", "model", "recording")
@@ -42,15 +43,16 @@ class Status:
     values: dict[str, str] = field(default_factory=dict)
 
 
-class DiagnosticsBuilder:
-    """Keeps the counts of the previous period; `build` once per diagnostics period."""
+class PeriodDiagnostics:
+    """What every node's diagnostics keep between two builds (one per diagnostics period): the wall
+    time, the model steps and the counts of the previous build, so that a build reports the period's."""
 
     def __init__(self, node_name: str, now: float) -> None:
         self.node_name = node_name
         self._wall = now
         self._steps = 0
         self._counts: dict[str, int] = {}
-        self._dropped = 0
+        self._dropped = 0                  # the recorder's drops at the previous build
 
     def restart(self, now: float, steps: int) -> None:
         """Start the first period at `now` (the loop's start)."""
@@ -60,17 +62,28 @@ class DiagnosticsBuilder:
         return Status(f"{self.node_name}: {concern}", self.node_name, level, "; ".join(problems) if problems else ok,
                       {k: str(v) for k, v in values.items()})
 
-    def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
-              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
-        dev, s = device, settings
-        wall = max(now - self._wall, 1e-9)
-        period_steps = dev.steps - self._steps
-        counts = {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}
+    def _period(self, now: float, steps: int, counts: dict[str, int],
+                schedule: RealTimeSchedule | None) -> tuple[float, int, dict[str, int]]:
+        """Wall seconds and model steps since the previous build, and what each count (with the
+        schedule's late and skipped steps, in real time) gained since then; starts a new period."""
         if schedule is not None:
             counts["late_steps"] = schedule.late_steps
             counts["skipped_steps"] = schedule.skipped_steps
+        wall = max(now - self._wall, 1e-9)
+        period_steps = steps - self._steps
         new = {k: v - self._counts.get(k, 0) for k, v in counts.items()}
-        self._wall, self._steps, self._counts = now, dev.steps, counts
+        self._wall, self._steps, self._counts = now, steps, counts
+        return wall, period_steps, new
+
+
+class DiagnosticsBuilder(PeriodDiagnostics):
+    """The emulator's four statuses; `build` once per diagnostics period."""
+
+    def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
+              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
+        dev, s = device, settings
+        wall, period_steps, new = self._period(
+            now, dev.steps, {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}, schedule)
         return [self._timing(dev, s, schedule, new, wall, period_steps, time_mode or s.time_mode),
                 self._inputs(dev, s, new),
                 self._model(dev, samples_published),
@@ -155,7 +168,7 @@ class DiagnosticsBuilder:
             "fault_reason": dev.fault or "",
             "integrator": dev.stepper.integrator,
             "pressure_pa": f"{last.pressure:.1f}" if last else "",
-            "pressure_bar": f"{last.pressure / 1e5:.3f}" if last else "",
+            "pressure_bar": f"{bar(last.pressure):.3f}" if last else "",
             "current_a": f"{last.current:.5f}" if last else "",
             "spool_position_m": f"{last.spool_position:.4e}" if last else "",
             "samples_published": samples_published,

@@ -4,6 +4,8 @@
   first step at or after the input's reception that has not been shown); inputs due at one step
   act in the order they were queued. Deterministic: the same (step, input) pairs in the same order
   act the same way.
+- `InputTiming`: the rule in wall terms, the step an input acts from: the first step stamped at or
+  after its reception, never one already shown, two inputs under one name never at one step.
 - `Watchdog`: one per valve, in model time. "waiting" until the first valid duty command (no
   controller yet: it never fires), "ok" while commands come, "fired" once `timeout_steps` have
   passed since the last one took effect, "off" when the timeout is 0. What duty a state means
@@ -15,7 +17,7 @@ from __future__ import annotations
 import heapq
 from typing import Generic, TypeVar
 
-__all__ = ["InputQueue", "Watchdog", "WatchdogState"]
+__all__ = ["InputQueue", "InputTiming", "Watchdog", "WatchdogState"]
 
 T = TypeVar("T")
 
@@ -51,6 +53,40 @@ class InputQueue(Generic[T]):
 
     def __len__(self) -> int:
         return len(self._heap)
+
+
+class InputTiming:
+    """The step an input acts from (every device's, every time mode's).
+
+    The first step stamped at or after its reception (`received_ns`, the DDS reception time on the
+    stamps' clock; `origin_ns` is the stamp of step 0), never later than the step the wall clock
+    had reached when it was taken (`elapsed` s since step 0's slot on the monotonic clock: a system
+    clock stepped forward cannot delay it), never a step already shown (`first`), and two inputs of
+    one name never at one step (a starved DDS thread can receive several at once: the later acts
+    one step after the earlier, so none is lost unseen). Without a wall clock (simulated time, an
+    external clock: `elapsed` None) an input acts from `first`."""
+
+    def __init__(self, dt_ns: int) -> None:
+        self.dt_ns = dt_ns
+        self._last: dict[str, int] = {}       # per name: the step its last accepted input acts from
+
+    def step(self, name: str, first: int, *, received_ns: int = 0, origin_ns: int = 0,
+             elapsed: float | None = None) -> int:
+        """The step an input of `name` acts from (see the class docstring); `took` records it."""
+        at = first
+        if elapsed is not None:
+            dt_ns = self.dt_ns
+            taken = -(-round(elapsed * 1e9) // dt_ns)          # ceil: the first step at or after now
+            at = max(at, min(-(-(received_ns - origin_ns) // dt_ns), taken) if received_ns else taken)
+        return max(at, self.last(name) + 1)
+
+    def took(self, name: str, step: int) -> None:
+        """An input of `name` was accepted to act from `step`: the next one acts later."""
+        self._last[name] = step
+
+    def last(self, name: str) -> int:
+        """The step the last accepted input of `name` acts from (-1: none yet)."""
+        return self._last.get(name, -1)
 
 
 class WatchdogState:

@@ -42,6 +42,7 @@ __all__ = [
     "MODEL_PREFIX",
     "NODE_PARAMETERS",
     "RUNTIME_FIXED_MODEL",
+    "CommonSettings",
     "ModelParameter",
     "NodeParameter",
     "NodeSettings",
@@ -81,29 +82,11 @@ def bag_name_check(v: str) -> str | None:
 
 
 
-def _record_signals(name: str, v: Any) -> tuple[str, ...]:
-    if isinstance(v, str):                    # -p record.signals:=pressure,duty_cycle
-        v = [x.strip() for x in v.split(",") if x.strip()]
-    if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
-        raise ParameterError(f"{name}: got {v!r}; accepted is a list of signal names, e.g. "
-                             f"[{', '.join(RECORDABLE)}]")
-    try:
-        return check_signals(v)
-    except BagError as err:
-        raise ParameterError(f"{name}: {err}") from None
-
-
 @dataclass(frozen=True)
-class NodeSettings:
-    """The node's parameters: each declared once, with default, unit, description, check, read-only."""
+class CommonSettings:
+    """The settings every node has, declared once (each node's settings class extends it): the
+    real-time loop, diagnostics, the rejection log, where a bag goes."""
 
-    time_mode: str = setting(
-        "real", "-", "real: model time follows the wall clock (hardware in the loop), or an external /clock "
-        "with use_sim_time; simulated: model time decoupled, /clock published (controller CI)",
-        one_of("real", "simulated"), "str", read_only=True)
-    publish_rate: float = setting(
-        1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
-        "whole multiple of the model step", positive)
     wake_period: float = setting(
         1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock and computes the steps "
         "due", positive, read_only=True)
@@ -120,6 +103,52 @@ class NodeSettings:
     realtime_priority: int = setting(
         0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this priority (needs root or an "
         "rtprio limit); 0 = normal scheduling", _priority, "int", read_only=True)
+    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
+    reject_log_period: float = setting(
+        1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
+        non_negative)
+    record_directory: str = setting(
+        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
+        name="record.directory", read_only=True)
+    record_split_size_mb: float = setting(
+        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", non_negative,
+        name="record.split_size_mb", read_only=True)
+
+    def check_loop(self) -> None:
+        """max_catchup against wake_period (ParameterError)."""
+        if self.max_catchup < self.wake_period:
+            raise ParameterError(f"max_catchup: got {self.max_catchup!r}; accepted is a number >= wake_period "
+                                 f"({self.wake_period:g} s)")
+
+    @property
+    def catchup_bound(self) -> float:
+        """s of backlog the real-time loop computes rather than skips (see `overrun`)."""
+        return self.max_catchup if self.overrun == "catch_up" else self.wake_period
+
+
+def _record_signals(name: str, v: Any) -> tuple[str, ...]:
+    if isinstance(v, str):                    # -p record.signals:=pressure,duty_cycle
+        v = [x.strip() for x in v.split(",") if x.strip()]
+    if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+        raise ParameterError(f"{name}: got {v!r}; accepted is a list of signal names, e.g. "
+                             f"[{', '.join(RECORDABLE)}]")
+    try:
+        return check_signals(v)
+    except BagError as err:
+        raise ParameterError(f"{name}: {err}") from None
+
+
+@dataclass(frozen=True)
+class NodeSettings(CommonSettings):
+    """The emulator's parameters: each declared once, with default, unit, description, check, read-only."""
+
+    time_mode: str = setting(
+        "real", "-", "real: model time follows the wall clock (hardware in the loop), or an external /clock "
+        "with use_sim_time; simulated: model time decoupled, /clock published (controller CI)",
+        one_of("real", "simulated"), "str", read_only=True)
+    publish_rate: float = setting(
+        1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
+        "whole multiple of the model step", positive)
     watchdog_timeout: float = setting(
         2.0, "s", "no valid duty command for this long (model time) -> safe_duty; 0 = off. Above the 1 s "
         "period of `ros2 topic pub`'s default rate", non_negative)
@@ -133,7 +162,6 @@ class NodeSettings:
         "advancing (deterministic controller-in-the-loop)", any_value, "bool", read_only=True)
     valve_config: str = setting(
         "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
-    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
     diagnostics_late_fraction: float = setting(
         0.05, "-", "timing status WARN when more than this fraction of the steps of a diagnostics period were "
         "late. A loop sharing its machine with other jobs has 0.2-3 % of its steps late with nothing wrong "
@@ -144,18 +172,12 @@ class NodeSettings:
         0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
         "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
     frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", any_value, "str")
-    reject_log_period: float = setting(
-        1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
-        non_negative)
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
         "file) stops the node at start (exit 2); true: warn and ignore it", any_value, "bool", read_only=True)
     record_enabled: bool = setting(
         False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start (the device at rest) until "
         "SIGINT/SIGTERM", any_value, "bool", name="record.enabled", read_only=True)
-    record_directory: str = setting(
-        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
-        name="record.directory", read_only=True)
     record_name: str = setting(
         "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
         "overwritten", bag_name_check, "str", name="record.name", read_only=True)
@@ -165,9 +187,6 @@ class NodeSettings:
     record_rate_hz: float = setting(
         1000.0, "Hz", "output samples in the bag (model time); 10000 = every 0.1 ms model step; the period must "
         "be a whole multiple of the model step", positive, name="record.rate_hz", read_only=True)
-    record_split_size_mb: float = setting(
-        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", non_negative,
-        name="record.split_size_mb", read_only=True)
 
     def check(self, params: ValveParams) -> NodeSettings:
         """Cross-checks against the model (step multiples, duty range); returns self or raises."""
@@ -178,19 +197,12 @@ class NodeSettings:
             steps_per(1.0 / self.record_rate_hz, dt, what=f"record.rate_hz {self.record_rate_hz:g}: record period")
         except ValueError as err:
             raise ParameterError(str(err)) from None
-        if self.max_catchup < self.wake_period:
-            raise ParameterError(f"max_catchup: got {self.max_catchup!r}; accepted is a number >= wake_period "
-                                 f"({self.wake_period:g} s)")
+        self.check_loop()
         try:
             check_duty(self.safe_duty, params.command.duty_range)
         except ValueError as err:
             raise ParameterError(f"safe_duty: {err}") from None
         return self
-
-    @property
-    def catchup_bound(self) -> float:
-        """s of backlog the real-time loop computes rather than skips (see `overrun`)."""
-        return self.max_catchup if self.overrun == "catch_up" else self.wake_period
 
     def sample_every(self, dt: float) -> int:
         """Model steps per published sample."""
@@ -228,12 +240,14 @@ class NodeParameter:
 
 
 def parameters_of(settings: type) -> tuple[NodeParameter, ...]:
-    """The parameters a node declares, one per field of its settings dataclass (`setting(...)`)."""
+    """The parameters a node declares, one per field of its settings dataclass (`setting(...)`): the
+    node's own first, then those every node has (`CommonSettings`)."""
+    common = {f.name for f in dataclasses.fields(CommonSettings)}
     return tuple(
         NodeParameter(f.metadata["name"] or f.name, f.name, list(f.default) if isinstance(f.default, tuple)
                       else f.default, f.metadata["unit"], f.metadata["description"], f.metadata["read_only"],
                       f.metadata)
-        for f in dataclasses.fields(settings))
+        for f in sorted(dataclasses.fields(settings), key=lambda f: f.name in common))
 
 
 NODE_PARAMETERS = parameters_of(NodeSettings)

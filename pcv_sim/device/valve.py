@@ -30,6 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pcv_sim.device.device import MODEL_FAILURES, Device
 from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import INPUT_ROLES
@@ -41,20 +42,22 @@ from pcv_sim.simulation.stepper import (
     check_load_flow,
     check_supply_pressure,
 )
+from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = [
-    "INPUTS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
+    "INPUTS", "OPTION_SIGNALS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
     "trial_run",
 ]
-
-#: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
-MODEL_FAILURES = (ArithmeticError, ValueError)
 
 #: Input names, as the node's topics are called.
 INPUTS = INPUT_ROLES
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
+#: The options' signals (docs/model.md R33-R35; `pcv_sim.io.topics.OPTION_INTERFACE`): inputs
+#: ambient_temperature, oil_temperature (K), outputs coil_temperature (K), coil_resistance (ohm),
+#: core_position (m); `signals()` adds those the valve's options bring.
+OPTION_SIGNALS = ("ambient_temperature", "oil_temperature", "coil_temperature", "coil_resistance", "core_position")
 
 
 class Recorder(Protocol):
@@ -84,14 +87,14 @@ class PhysicalLimits:
     @classmethod
     def of(cls, params: ValveParams) -> PhysicalLimits:
         sol = params.solenoid
-        return cls(-1.0e5, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
+        return cls(-PA_PER_BAR, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
                    2.0 * sol.supply_voltage / sol.coil_resistance)
 
     def problem(self, pressure: float, current: float) -> str | None:
         """Why (pressure, current) is no valve's, or None."""
         if not self.pressure_min <= pressure <= self.pressure_max:
-            return (f"pressure {pressure / 1e5:.4g} bar outside the physical range {self.pressure_min / 1e5:g} .. "
-                    f"{self.pressure_max / 1e5:g} bar: the model diverged")
+            return (f"pressure {bar(pressure):.4g} bar outside the physical range {bar(self.pressure_min):g} .. "
+                    f"{bar(self.pressure_max):g} bar: the model diverged")
         if not abs(current) <= self.current_max:
             return (f"coil current {current:.4g} A beyond the coil's possible +-{self.current_max:.3g} A: "
                     "the model diverged")
@@ -117,34 +120,40 @@ class _Inputs:
     last_rejection: str = ""
 
 
-class ValveDevice:
+#: The name of the emulator's one valve (its watchdog's key).
+VALVE = "valve"
+
+
+class ValveDevice(Device):
     """One emulated valve: the model stepper plus the device behaviour around it."""
+
+    queue: InputQueue[tuple[str, float]]       # (input name, value)
 
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
         sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1,
     ) -> None:
+        super().__init__(params.simulation.time_step, (VALVE,), 0)
         self.params = params
-        self.dt = params.simulation.time_step
-        self.dt_ns = round(self.dt * 1e9)
-        self.origin_ns = 0                 # stamp of model time 0 (the node anchors it to the ROS clock)
         self.steps = 0
         self.safe_duty = check_duty(safe_duty, params.command.duty_range)
         self.sample_every = _positive_int(sample_every, "sample_every")
         self.recorder = recorder
         self.record_every = _positive_int(record_every, "record_every")
         self.counts = _Inputs()
-        self._pending: InputQueue[tuple[str, float]] = InputQueue()
         self.command = self.safe_duty       # last valid duty command (the safe duty before any)
         self.load_flow = 0.0
         self.supply_pressure: float | None = None   # None: the parameter file's circuit.supply_pressure
-        self.watchdog = Watchdog(0)                  # the safe duty while it holds (waiting, fired)
+        self.watchdog: Watchdog = self.watchdogs[VALVE]   # the safe duty while it holds (waiting, fired)
         self.set_watchdog_timeout(watchdog_timeout)
-        self.fault: str | None = None
-        self.fault_step: int | None = None
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         self.stepper = rest_stepper(params, self.safe_duty)
+        plant = self.stepper.sim.plant
+        #: The options' signals this valve has: (name, index into the model's inputs or outputs, is an input).
+        self._option_signals = [(n, plant.inputs.index(f"valve.{n}"), True) for n in OPTION_SIGNALS
+                                if f"valve.{n}" in plant.inputs] + [
+            (n, plant.outputs.index(f"valve.{n}"), False) for n in OPTION_SIGNALS if f"valve.{n}" in plant.outputs]
         # Every kernel the stepping uses is loaded (or compiled) now: compiled on first use in a
         # loop's first wake it would hold the loop (and its stop check) for seconds, a minute
         # on a busy machine with an empty kernel cache.
@@ -217,10 +226,9 @@ class ValveDevice:
                 stepper.set_supply_pressure(self.supply_pressure)
         except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
             self.counts.last_rejection = f"after a model restart: {err}"
-        self.fault = None
-        self.fault_step = None
+        self.clear_fault()
         self.last_good = self.sample()
-        what = f"model at rest at duty {self.duty_command_in_force:g}, {stepper.pressure / 1e5:.2f} bar"
+        what = f"model at rest at duty {self.duty_command_in_force:g}, {bar(stepper.pressure):.2f} bar"
         return f"{what} (cleared fault: {was})" if was else what
 
     # --- inputs ------------------------------------------------------------------------------
@@ -244,7 +252,7 @@ class ValveDevice:
         except CommandError as err:
             return self._reject(name, str(err))
         step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
-        self._pending.push(step, (name, value))
+        self.queue.push(step, (name, value))
         return None
 
     def _reject(self, name: str, reason: str) -> str:
@@ -260,7 +268,7 @@ class ValveDevice:
         self.stepper.set_duty(duty)
 
     def _apply_due_inputs(self) -> None:
-        while (due := self._pending.pop_due(self.steps)) is not None:
+        while (due := self.queue.pop_due(self.steps)) is not None:
             name, value = due
             try:
                 if name == "duty_cycle":
@@ -287,17 +295,9 @@ class ValveDevice:
         stop = min(end, s + self.sample_every - s % self.sample_every)
         if self.recorder is not None and (not self._traced() or self.stepper.ramping):
             stop = min(stop, s + self.record_every - s % self.record_every)
-        return min(stop, self._pending.next_step, self.watchdog.deadline)
+        return min(stop, self.next_due())
 
     # --- time --------------------------------------------------------------------------------
-
-    @property
-    def time(self) -> float:
-        """Model time, s."""
-        return self.steps * self.dt
-
-    def stamp_ns(self, step: int | None = None) -> int:
-        return self.origin_ns + (self.steps if step is None else step) * self.dt_ns
 
     def run(self, n: int) -> list[Sample]:
         """Advance n steps; returns the samples at the multiples of sample_every reached.
@@ -386,10 +386,6 @@ class ValveDevice:
         lim = self.limits
         return None if lim.pressure_min <= p <= lim.pressure_max else lim.problem(p, 0.0)
 
-    def skip(self, n: int) -> None:
-        """Let n steps of model time pass without computing them (the model state is held)."""
-        self.steps += n
-
     # --- outputs -----------------------------------------------------------------------------
 
     def sample(self) -> Sample:
@@ -397,12 +393,19 @@ class ValveDevice:
         return Sample(self.steps, st.pressure, st.current, st.spool_position, st.duty, st.command)
 
     def signals(self) -> dict[str, float]:
+        """SIGNALS by name, and the OPTION_SIGNALS the valve's options bring."""
         st = self.stepper
-        return {
+        out = {
             "duty_command": st.command, "duty": st.duty, "load_flow": st.load_flow,
             "supply_pressure": st.supply_pressure, "pressure": st.pressure, "current": st.current,
             "spool_position": st.spool_position,
         }
+        if self._option_signals:
+            u = st.sim.u
+            y = st.sim.outputs() if any(not is_input for _, _, is_input in self._option_signals) else u
+            for name, i, is_input in self._option_signals:
+                out[name] = float(u[i] if is_input else y[i])
+        return out
 
     # --- faults ------------------------------------------------------------------------------
 
@@ -410,12 +413,6 @@ class ValveDevice:
         st = self.stepper
         self.set_fault(f"{problem} at t = {self.time:.4f} s (duty {st.duty:g}, load flow {st.load_flow:g} m^3/s, "
                        f"supply {st.supply_pressure:g} Pa)")
-
-    def set_fault(self, reason: str) -> None:
-        """Enter the fault state (also the hook for fault injection): no stepping, no samples."""
-        if self.fault is None:
-            self.fault = reason
-            self.fault_step = self.steps
 
     def reset(self) -> str:
         """Back to rest at the present operating point; clears a fault. Returns what was done.

@@ -18,21 +18,28 @@ from typing import Final, Literal
 from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, Qos
 
 __all__ = [
+    "AMBIENT_TEMPERATURE",
     "BAG_TOPICS",
     "CHAMBER_PRESSURE",
     "CLOCK",
+    "COIL_RESISTANCE",
+    "COIL_TEMPERATURE",
     "CONTROLLER_FLAGS",
+    "CORE_POSITION",
     "CURRENT",
     "CYLINDER",
     "DIAGNOSTICS",
     "DUTY_CYCLE",
     "EMULATOR_INTERFACE",
+    "EVENTS",
     "EXTERNAL_FORCE",
     "FAULTS",
     "FLAGS_QOS",
     "INPUT_ROLES",
     "JOINT_STATES",
     "LOAD_FLOW",
+    "OIL_TEMPERATURE",
+    "OPTION_INTERFACE",
     "OUTPUT_ROLES",
     "PRESSURE",
     "RELIABLE_10",
@@ -65,11 +72,20 @@ DIAGNOSTICS: Final = "/diagnostics"         # out, diagnostic_msgs/DiagnosticArr
 CLOCK: Final = "/clock"                     # out (simulated time) or in (use_sim_time), rosgraph_msgs/Clock
 RESET: Final = "reset"                      # service, std_srvs/Trigger
 
+# The valve's options beyond the paper's bench (docs/model.md R33-R35), present when the valve
+# YAML switches them on (:data:`OPTION_INTERFACE`):
+AMBIENT_TEMPERATURE: Final = "ambient_temperature"  # in, std_msgs/Float64, K (solenoid.coil_temperature: lumped)
+OIL_TEMPERATURE: Final = "oil_temperature"          # in, std_msgs/Float64, K (fluid.temperature: input)
+COIL_TEMPERATURE: Final = "coil_temperature"        # out, std_msgs/Float64, K
+COIL_RESISTANCE: Final = "coil_resistance"          # out, std_msgs/Float64, ohm
+CORE_POSITION: Final = "core_position"              # out, std_msgs/Float64, m (spool.core: separate)
+
 # The rig node (`pcv_sim.node.rig`): each valve's topics above under `<valve>/`, and
 CYLINDER: Final = "cylinder"                # namespace of the cylinder's topics
 JOINT_STATES: Final = "joint_states"        # out, sensor_msgs/JointState: prismatic joint, m, m/s, N
 CHAMBER_PRESSURE: Final = "pressure_{}"     # out, sensor_msgs/FluidPressure, Pa, chamber a | b (= its valve's)
 FAULTS: Final = "faults"                    # in, std_msgs/String: {fault: coil_open, valve: left} (YAML)
+EVENTS: Final = "rig/events"                # in bags only, std_msgs/String: the rig's log (faults, watchdog, reset)
 EXTERNAL_FORCE: Final = "external_force"    # in, std_msgs/Float64, N on the rod, + extending (under cylinder/)
 
 # A scenario whose controller is a ROS node (`pcv_sim.node.scenario_host`), relative to its namespace:
@@ -168,6 +184,16 @@ EMULATOR_INTERFACE: Final = (
     Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
     Endpoint("out", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
+)
+#: The valve options' topics (docs/model.md R33-R35), each present when its option is on. The
+#: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the node does not serve
+#: them yet.
+OPTION_INTERFACE: Final = (
+    Endpoint("in", AMBIENT_TEMPERATURE, FLOAT64, "K", COMMAND_QOS),
+    Endpoint("in", OIL_TEMPERATURE, FLOAT64, "K", COMMAND_QOS),
+    Endpoint("out", COIL_TEMPERATURE, FLOAT64, "K", SENSOR_DATA_QOS),
+    Endpoint("out", COIL_RESISTANCE, FLOAT64, "ohm", SENSOR_DATA_QOS),
+    Endpoint("out", CORE_POSITION, FLOAT64, "m", SENSOR_DATA_QOS),
 )
 #: Beside each valve's outputs and duty_cycle under ``<valve>/`` (:func:`valve_topic`).
 RIG_INTERFACE: Final = (

@@ -13,7 +13,10 @@ State, inputs and outputs are float arrays (SI units):
     w  workspace: the last coil current (A), the Newton start of the next Eq. 2 solve
 
 Options beyond the paper's bench (docs/model.md R33-R35), each off by default and then absent
-from the layout (the paper's model, bit for bit), each appending to it when on (`layout`):
+from the layout (the paper's model, bit for bit), each appending to it when on (`layout`). A
+valve with any option on runs its own functions (`rhs_options`, ...; `functions` names them):
+numba compiles a function with everything it inlines, so the paper's valve, compiled alone,
+compiles none of the options' code (the first start's compile stays the paper's).
 
     coil heating (R33)      state coil_temperature (K); input ambient_temperature (K);
                             outputs coil_temperature (K), coil_resistance (ohm)
@@ -53,15 +56,21 @@ __all__ = [
     "core_position",
     "edges",
     "edges_in",
+    "functions",
     "layout",
     "oil_properties",
     "option_inputs",
     "option_states",
     "output",
+    "output_options",
     "pack",
     "project",
+    "project_options",
     "rhs",
+    "rhs_options",
+    "spool_rate",
     "state_output",
+    "state_output_options",
     "static_force",
 ]
 
@@ -100,9 +109,15 @@ OIL, IU_OIL, T_REF_OIL, WALTHER_A, WALTHER_B, EXPANSION, BETA_SLOPE = 52, 53, 54
 # Core-spool separation (R35): flag, core mass (kg), core damping (Ns/m), the core's stop (m),
 # where its states sit in x and its output in y.
 SEPARATION, M_CORE, B_CORE, XC_MIN, IX_CORE, IY_CORE = 59, 60, 61, 62, 63, 64
-# 1 when any option is on: the paper's model runs its own code path, bit for bit as without them.
+# 1 when any option is on: the valve then runs the `*_options` functions (`functions`), the
+# paper's valve `rhs`, `output`, ... which hold none of the options' code (bit for bit, and numba
+# compiles only the path a valve runs).
 OPTIONS = 65
-N_PARAMS = 66
+# The spool's damping pole D(T) / m (1/s) at the oil's temperature (R34), with the core attached:
+# the exponential integrator takes the spool velocity's linear decay exactly at this rate
+# (`spool_rate`; 0: the velocity is integrated explicitly, as in the paper's valve).
+V_RATE = 66
+N_PARAMS = 67
 
 # --- the tables f ---------------------------------------------------------------------------
 T_F1, T_F2, T_F3, T_PD, T_FORCE, T_GAP, T_HOLE, T_HOLE_EXP, T_TANK, T_TANK_EXP, T_PUMP_JET, T_TANK_JET = range(12)
@@ -137,6 +152,14 @@ def layout(params: ValveParams, kind: str) -> Layout:
         outputs += ("core_position",)
         state_outputs += ("core_position",)
     return Layout(states, inputs, outputs, state_outputs)
+
+
+def functions(params: ValveParams) -> tuple[str, str, str, str]:
+    """The names of the kernel functions (rhs, state_output, output, project) a valve with these
+    options runs: the paper's, or with any option on the `*_options` ones."""
+    if params.solenoid.coil_thermal or params.fluid.oil_temperature_model or params.spool.core_separation:
+        return "rhs_options", "state_output_options", "output_options", "project_options"
+    return "rhs", "state_output", "output", "project"
 
 
 def option_inputs(params: ValveParams) -> tuple[float, ...]:
@@ -228,11 +251,23 @@ def pack(params: ValveParams, kind: str) -> tuple[np.ndarray, tuple[np.ndarray, 
             fl.reference_temperature_c)
         p[WALTHER_A], p[WALTHER_B] = _walther(params)
         p[EXPANSION], p[BETA_SLOPE] = fl.thermal_expansion, fl.bulk_modulus_temperature_coefficient
+        if not sp.core_separation:
+            p[V_RATE] = spool_rate(kelvin(fl.oil_temperature_c), p)
     if sp.core_separation:
         p[SEPARATION], p[M_CORE], p[B_CORE] = 1.0, sp.core_mass, sp.core_damping
         p[XC_MIN] = sp.core_stroke_min_mm / MM_PER_M
         p[IX_CORE], p[IY_CORE] = names.states.index("core_position"), names.outputs.index("core_position")
     return p, f
+
+
+def spool_rate(temperature: float, p: np.ndarray) -> float:
+    """The spool's damping pole D(T) / m (1/s) in oil at `temperature` (K) (R34): the viscous
+    friction and, in the full model, the damping chamber's share A_cc^2 / K_d (the chamber sits
+    on its slow manifold, p_c = p - A_cc v / K_d), both laminar, so both scale with mu / mu_ref.
+    At -20 degC (mu ~110x) it is ~8e5 1/s: h lambda ~ 80 at the 0.1 ms step, which no explicit
+    method survives and the exponential integrator takes exactly (Cox & Matthews' ETD2RK)."""
+    damping = p[DAMPING] + (p[A_CC] ** 2 / p[K_D] if p[FULL] != 0.0 else 0.0)
+    return float(damping * oil_properties(temperature, p)[3] / p[MASS])
 
 
 @jit(inline=True)
@@ -364,9 +399,6 @@ def rhs(t, x, u, p, f, w, dx):
     are inelastic: at a stop with the force pushing into it the spool stays (`project` does
     the impact).
     """
-    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
-        _rhs_options(t, x, u, p, f, w, dx)
-        return
     lam, xs, v, pl = x[0], x[1], x[2], x[3]
     duty, q_l, p_s = u[0], u[1], u[2]
     v_s = coil_voltage(duty, t, p)
@@ -411,7 +443,7 @@ def rhs(t, x, u, p, f, w, dx):
 
 
 @jit(inline=True)
-def _rhs_options(t, x, u, p, f, w, dx):
+def rhs_options(t, x, u, p, f, w, dx):
     """d(state)/dt into dx; the coil current into w[0]. Eqs. 1-3 (solenoid), 14 (spool), 15 and
     28-29 (continuity, chamber).
 
@@ -532,15 +564,12 @@ def chamber_rate(p):
 @jit(inline=True)
 def state_output(t, x, p, f, y):
     """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
-    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
-        _state_output_options(t, x, p, f, y)
-        return
     y[0] = x[3]
     y[2] = x[1]
 
 
 @jit(inline=True)
-def _state_output_options(t, x, p, f, y):
+def state_output_options(t, x, p, f, y):
     """The outputs that depend on the state alone: pressure y[0], spool position y[2] and the
     options' (coil temperature and resistance, core position)."""
     y[0] = x[3]
@@ -562,16 +591,13 @@ def _option_outputs(x, p, y):
 def output(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
-    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
-        _output_options(t, x, u, p, f, w, y)
-        return
     y[0] = x[3]
     y[1] = coil_current(x[0], x[1], coil_voltage(u[0], t, p), w[0], p, f)
     y[2] = x[1]
 
 
 @jit(inline=True)
-def _output_options(t, x, u, p, f, w, y):
+def output_options(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
     y[0] = x[3]
@@ -585,15 +611,12 @@ def _output_options(t, x, u, p, f, w, y):
 def project(x, p):
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
     not below the cavitation floor (R32)."""
-    if p[OPTIONS] != 0.0:             # an option beyond the paper's bench (R33-R35)
-        _project_options(x, p)
-        return
     stops.impact(x, 1, 2, p[X_MIN], p[X_MAX])
     x[3] = max(x[3], p[P_CAVITATION])
 
 
 @jit(inline=True)
-def _project_options(x, p):
+def project_options(x, p):
     """Keep (x, v) inside the stroke: an inelastic impact at a stop (Sec. 4.2); the load pressure
     not below the cavitation floor (R32); the core (R35) not past the spool."""
     if p[SEPARATION] != 0.0:

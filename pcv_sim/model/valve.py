@@ -66,6 +66,7 @@ class ValveModel:
         self.params = params
         self.kind: ModelKind = kind
         self.p, self.f = kernel.pack(params, kind)
+        self._rhs = getattr(kernel, kernel.functions(params)[0])     # the paper's, or with the options
         s = params.solenoid
         self.f1, self.f2, self.f3 = self.f[kernel.T_F1], self.f[kernel.T_F2], self.f[kernel.T_F3]
         self.pd = s.dissipating
@@ -160,14 +161,14 @@ class ValveModel:
         supply_pressure: float,
         i_guess: float,
     ) -> tuple[tuple[float, ...], float]:
-        """d(state)/dt and the coil current: `pcv_sim.model.kernel.rhs` (Eqs. 1-3, 14, 15, 28-29)
+        """d(state)/dt and the coil current: `pcv_sim.model.kernel.rhs` (or `rhs_options`) (Eqs. 1-3, 14, 15, 28-29)
         for one state given as a tuple, as the analysis and the stiff reference use it."""
         x, u, w, dx = self._x, self._u, self._w, self._dx
         x[:] = state
         u[0], u[1], u[2] = duty, load_flow, supply_pressure
         u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
         w[0] = i_guess
-        kernel.rhs(t, x, u, self.p, self.f, w, dx)
+        self._rhs(t, x, u, self.p, self.f, w, dx)
         return tuple(float(v) for v in dx), float(w[0])
 
     def project(self, x: float, v: float) -> tuple[float, float]:

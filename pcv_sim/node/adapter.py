@@ -56,9 +56,9 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, Protocol
+from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
@@ -67,7 +67,7 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from pcv_sim.device.diagnostics import DiagnosticsBuilder
+from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
 from pcv_sim.device.settings import (
     MODEL_PREFIX,
     NODE_PARAMETERS,
@@ -79,7 +79,7 @@ from pcv_sim.device.settings import (
 )
 from pcv_sim.device.valve import Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
+from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
     CURRENT,
@@ -99,8 +99,8 @@ from pcv_sim.node.base import (
     LOCKSTEP_RESEND,
     SAMPLE_HINT,
     DeviceNode,
+    StopFlag,
     freeze_heap,
-    tighten_timer_slack,
 )
 from pcv_sim.node.polling import drain
 from pcv_sim.params import ValveParams, load_params
@@ -110,7 +110,7 @@ from pcv_sim.simulation.clock import (
     SimulatedSchedule,
 )
 
-__all__ = ["EmulatorNode", "StopFlag"]
+__all__ = ["EmulatorNode"]
 
 NODE_NAME = "emulator"
 SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
@@ -119,14 +119,11 @@ _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the 
                  "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
 
 
-class StopFlag(Protocol):
-    """Set from outside (the signal handlers of `pcv_sim.node.emulator.main`); the loops poll it."""
-
-    requested: bool
-
-
 class EmulatorNode(DeviceNode):
     """ROS parameters in, `ValveDevice` out. Construct, then `run(stop)`."""
+
+    device: ValveDevice
+    _diag: DiagnosticsBuilder
 
     unknown_hint = _UNKNOWN_HINT
 
@@ -155,7 +152,6 @@ class EmulatorNode(DeviceNode):
         self._duty_messages = 0                      # valid or not: the lockstep handshake counts them
         self.samples_published = 0
         self._switch_interval = sys.getswitchinterval()
-        self._last_input_step: dict[str, int] = {}   # per input topic: the step its last valid value acts at
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
         out, sensor = self._output_events, qos_profile_sensor_data
@@ -271,11 +267,7 @@ class EmulatorNode(DeviceNode):
         dev.set_safe_duty(settings.safe_duty)
         dev.sample_every = settings.sample_every(dev.dt)
         self._msg_pressure.header.frame_id = settings.frame_id
-        if self._schedule is not None:
-            self._schedule.late_threshold = settings.late_threshold
-            self._schedule.max_catchup_steps = int(settings.catchup_bound / dev.dt)
-        if self._sim is not None and self._sim.factor != settings.real_time_factor:
-            self._sim.set_factor(settings.real_time_factor)
+        self._retime(settings)
         if stepper is not None:
             what = dev.install(stepper)
             self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
@@ -329,31 +321,14 @@ class EmulatorNode(DeviceNode):
 
     # --- inputs ------------------------------------------------------------------------------
 
-    def _at_step(self, info: Any) -> int | None:
-        """The step at which an input received at `info['received_timestamp']` takes effect."""
-        if self._schedule is None:
-            return None          # simulated time: at the present model time (the next chunk's start)
-        dev = self.device
-        # The message was received by now at the latest: the first step at or after this instant
-        # of the monotonic clock (the schedule's), immune to steps of the system clock.
-        taken = -(-round((time.monotonic() - self._schedule.t0) * 1e9) // dev.dt_ns)
-        r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
-        if not r_ns:
-            return taken
-        # ceil: the first step stamped at or after the DDS reception time (system clock, as the stamps).
-        # Never later than `taken` (a system clock stepped forward); never earlier than the reception,
-        # whatever the wake-up lag (the schedule's slot may be far behind `now` under load).
-        return min(-(-(r_ns - dev.origin_ns) // dev.dt_ns), taken)
-
     def _input(self, name: str, value: float, info: Any) -> None:
-        # Two inputs on one topic never act at the same step (a starved DDS thread can receive
-        # several at once): the later acts one step after the earlier, so none is lost unseen.
-        at = max(self._at_step(info) or 0, self._last_input_step.get(name, -1) + 1, self.device.steps + 1)
-        reason = self.device.submit(name, value, at)
+        dev = self.device
+        at = self.acting_step(dev.timing, name, dev.steps + 1, dev.origin_ns, info)
+        reason = dev.submit(name, value, at)
         if reason is not None:
             self._log_rejection(name, reason)
         else:
-            self._last_input_step[name] = at
+            dev.timing.took(name, at)
 
     def _on_duty(self, msg: Float64, info: Any = None) -> None:
         self._duty_messages += 1
@@ -478,93 +453,17 @@ class EmulatorNode(DeviceNode):
         assert self._pub_clock is not None          # created in simulated time, the only caller
         self._pub_clock.publish(msg)
 
-    def diagnostics(self, now: float) -> list[DiagnosticStatus]:
+    def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """The device's health, one status per concern (see pcv_sim.device.diagnostics)."""
-        rec = self.recorder.status() if self.recorder is not None else None
-        out = []
-        for st in self._diag.build(now, device=self.device, settings=self.settings, schedule=self._schedule,
-                                   recorder=rec, samples_published=self.samples_published,
-                                   time_mode="external_clock" if self.external_clock else None):
-            msg = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message,
-                                   hardware_id=st.hardware_id)
-            msg.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
-            out.append(msg)
-        return out
-
-    def _publish_diagnostics(self, now: float) -> None:
-        msg = DiagnosticArray()
-        # The node's ROS clock is not updated without an executor; the model time is the device's clock.
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
-            self.device.stamp_ns() if self.simulated or self.external_clock else time.time_ns(), 1_000_000_000)
-        msg.status = self.diagnostics(now)
-        self._pub_diag.publish(msg)
+        return self._diag.build(now, device=self.device, settings=self.settings, schedule=self._schedule,
+                                recorder=recorder, samples_published=self.samples_published,
+                                time_mode="external_clock" if self.external_clock else None)
 
     # --- loops -------------------------------------------------------------------------------
 
-    def run(self, stop: StopFlag) -> None:
-        """Run until stop.requested (SIGINT/SIGTERM)."""
-        try:
-            if self.simulated:
-                self._run_simulated(stop)
-            elif self.external_clock:
-                self._run_external_clock(stop)
-            else:
-                self._run_real_time(stop)
-        finally:
-            self._worker.shutdown(wait=True, cancel_futures=True)
-            self._stop_recording()
-
-    def _run_real_time(self, stop: StopFlag) -> None:
-        """Wake on the grid, take inputs, run the due steps, publish; see RealTimeSchedule."""
-        s, dev = self.settings, self.device
-        sched = RealTimeSchedule(dev.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
-                                 max_catchup=s.catchup_bound)
-        self._schedule = sched
-        tighten_timer_slack()
-        # The worker thread (rest states) competes for the interpreter lock: hand it back within one
-        # wake period rather than the default 5 ms.
-        sys.setswitchinterval(SWITCH_INTERVAL)
-        if s.realtime_priority:
-            self.set_realtime_priority(s.realtime_priority)
-        freeze_heap()
-        mono = time.monotonic
-        sched.start()
-        dev.origin_ns = self.get_clock().now().nanoseconds
-        self._start_recording()
-        self._diag.restart(mono(), dev.steps)
-        next_diag = mono() + s.diagnostics_period
-        self._publish([dev.sample()])
-        wake = 0
-        cpu = time.thread_time
-        while not stop.requested:
-            now = mono()
-            c0 = cpu()
-            self._drain()
-            plan = sched.plan(now)
-            if plan.skipped:
-                dev.skip(plan.skipped)
-                st = self.settings
-                bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
-                         else "one wake period, overrun: skip")
-                self.get_logger().warning(
-                    f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
-                    f"skipped {plan.skipped} steps, the model state was held over them",
-                    throttle_duration_sec=1.0)
-            if plan.steps:
-                self._publish(self._run_steps(plan.steps))
-            sched.finish()
-            wake += 1
-            if wake % SERVICE_POLL_EVERY == 0:
-                self._poll_services()
-            elif self._job is not None:
-                self._pump()
-            sched.note_wake_cpu(cpu() - c0)
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            delay = sched.next_wake() - mono()
-            if delay > 0.0:
-                time.sleep(delay)
+    def _finish(self) -> None:
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        self._stop_recording()
 
     def _run_simulated(self, stop: StopFlag) -> None:
         """Simulated time: model time from 0, chunks of one publish period, /clock published.
@@ -633,20 +532,10 @@ class EmulatorNode(DeviceNode):
 
     # --- the device under the node base's loops ----------------------------------------------
 
-    @property
-    def model_steps(self) -> int:
-        return self.device.steps
-
     def _begin(self, origin_ns: int) -> None:
         self.device.origin_ns = origin_ns
         self._start_recording()
         self._publish([self.device.sample()])
-
-    def _set_origin(self, origin_ns: int) -> None:
-        self.device.origin_ns = origin_ns
-
-    def _skip(self, n: int) -> None:
-        self.device.skip(n)
 
     def _compute(self, n: int) -> None:
         self._publish(self._run_steps(n))

@@ -15,8 +15,11 @@
 - One /clock: a simulated-time node refuses to start beside another /clock publisher.
 - Refused inputs are counted by the device and logged at most once per reject_log_period per input.
 - Recording: the recorder closed at the end, with what it wrote.
-- The external-clock loop (use_sim_time), over the device hooks `model_steps`, `_begin`,
-  `_set_origin`, `_skip`, `_compute`, `_halted`, `_tick_services`.
+- Inputs act at the step `acting_step` gives (the device's `InputTiming`: from the DDS reception
+  time in real time, from the first step not shown otherwise).
+- The real-time loop and the external-clock loop (use_sim_time), written once over the node's
+  `device` (`pcv_sim.device.device.Device`: steps, origin, skip, fault) and the hooks `_begin`,
+  `_compute`, `_halted`, `_tick_services`, `_drain`, `_publish_diagnostics`.
 """
 
 from __future__ import annotations
@@ -29,8 +32,9 @@ import os
 import sys
 import time
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, Protocol
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
@@ -38,6 +42,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSPolicyKind, QoSProfile
 
+from pcv_sim.device.device import Device
+from pcv_sim.device.diagnostics import PeriodDiagnostics, Status
+from pcv_sim.device.inputs import InputTiming
 from pcv_sim.device.parameters import (
     Override,
     check_params_files,
@@ -49,13 +56,20 @@ from pcv_sim.device.parameters import (
     unknown_parameters_message,
 )
 from pcv_sim.errors import ParameterError
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.polling import linger_for_rosout
-from pcv_sim.simulation.clock import NO_CLOCK_YET, SIM_TIME_CONFLICT, ExternalClock
+from pcv_sim.simulation.clock import (
+    NO_CLOCK_YET,
+    SIM_TIME_CONFLICT,
+    ExternalClock,
+    RealTimeSchedule,
+    SimulatedSchedule,
+)
 
 __all__ = [
     "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_RESEND",
-    "DeviceNode", "freeze_heap", "ros_value", "tighten_timer_slack",
+    "DeviceNode", "StopFlag", "freeze_heap", "ros_value", "tighten_timer_slack",
 ]
 
 COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
@@ -67,6 +81,12 @@ LOCKSTEP_RESEND = 0.5                       # s without a command: publish the l
 SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
                "ros2 topic echo --qos-reliability best_effort)")
 COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
+
+
+class StopFlag(Protocol):
+    """Set from outside (the signal handlers of `pcv_sim.node.process`); the loops poll it."""
+
+    requested: bool
 
 
 def ros_value(value: Any) -> Any:
@@ -81,8 +101,14 @@ class DeviceNode(Node):
     #: What the unknown-name message adds (where the other parameters are set).
     unknown_hint = ""
     settings: Any
-    _diag: Any
+    device: Device
+    simulated: bool                 # time_mode simulated (else real: the wall clock, or an external /clock)
+    recorder: Any                   # the bag recorder (record.enabled), or None
+    _diag: PeriodDiagnostics
+    _pub_diag: Any
     _external: ExternalClock
+    _schedule: RealTimeSchedule | None
+    _sim: SimulatedSchedule | None
 
     def __init__(self, node_name: str, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -211,6 +237,15 @@ class DeviceNode(Node):
         tail = f" ({more} more rejected since the last message)" if more else ""
         self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
 
+    def acting_step(self, timing: InputTiming, name: str, first: int, origin_ns: int, info: Any) -> int:
+        """The step an input of `name` taken now acts from (`InputTiming`, the devices' one rule; `first`:
+        the first step not shown): in real time from its DDS reception time, otherwise from `first`."""
+        sched = self._schedule
+        if sched is None:
+            return timing.step(name, first)
+        r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
+        return timing.step(name, first, received_ns=r_ns, origin_ns=origin_ns, elapsed=time.monotonic() - sched.t0)
+
     def publisher_of(self, topic: str, info: Any) -> str:
         """The node that published a message, from the publisher's GID in its MessageInfo (where DDS
         gives it) against the topic's publishers."""
@@ -288,9 +323,90 @@ class DeviceNode(Node):
             if info is not None and getattr(info, "total_count_change", 0) > 0:
                 handler.callback(info)
 
+    # --- the loops -------------------------------------------------------------------------------
+
+    def run(self, stop: StopFlag) -> None:
+        """Run the loop of the node's time mode until stop.requested (SIGINT/SIGTERM); then `_finish`
+        (the bag of record.enabled finalised)."""
+        try:
+            if self.simulated:
+                self._run_simulated(stop)
+            elif self.external_clock:
+                self._run_external_clock(stop)
+            else:
+                self._run_real_time(stop)
+        finally:
+            self._finish()
+
+    def _run_simulated(self, stop: StopFlag) -> None:
+        raise NotImplementedError
+
+    def _finish(self) -> None:
+        """After the loop: the recorder closed."""
+        self.close_recorder(self.recorder)
+
+    def _run_real_time(self, stop: StopFlag) -> None:
+        """Real time: wake on a fixed grid of the monotonic clock (`wake_period`), take the inputs, run the
+        steps due by wall time (`RealTimeSchedule`: model time never ahead of wall time, never drifting),
+        publish the samples that fell due. Falling behind: the backlog is computed up to the catch-up
+        bound (`overrun`, `max_catchup`), beyond it skipped (the model state held over it)."""
+        s, dev = self.settings, self.device
+        sched = RealTimeSchedule(dev.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
+                                 max_catchup=s.catchup_bound)
+        self._schedule = sched
+        tighten_timer_slack()
+        # Another Python thread (a worker computing rest states, a recorder) competes for the
+        # interpreter lock: hand it back within one wake period rather than the default 5 ms.
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        if s.realtime_priority:
+            self.set_realtime_priority(s.realtime_priority)
+        freeze_heap()
+        mono = time.monotonic
+        sched.start()
+        self._begin(self.get_clock().now().nanoseconds)
+        self._diag.restart(mono(), dev.steps)
+        next_diag = mono() + s.diagnostics_period
+        wake = 0
+        cpu = time.thread_time
+        while not stop.requested:
+            now = mono()
+            c0 = cpu()
+            self._drain()
+            if not self._halted():
+                plan = sched.plan(now)
+                if plan.skipped:
+                    self._skip(plan.skipped)
+                    st = self.settings
+                    bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
+                             else "one wake period, overrun: skip")
+                    self.get_logger().warning(
+                        f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
+                        f"skipped {plan.skipped} steps, the model state was held over them",
+                        throttle_duration_sec=1.0)
+                if plan.steps:
+                    self._compute(plan.steps)
+                sched.finish()
+            wake += 1
+            self._tick_services(wake)
+            sched.note_wake_cpu(cpu() - c0)
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
+            delay = sched.next_wake() - mono()
+            if delay > 0.0:
+                time.sleep(delay)
+
+    def _retime(self, settings: Any) -> None:
+        """Changed settings into the running loop's schedule (late threshold, catch-up bound, pace)."""
+        if self._schedule is not None:
+            self._schedule.late_threshold = settings.late_threshold
+            self._schedule.max_catchup_steps = int(settings.catchup_bound / self.device.dt)
+        if self._sim is not None and self._sim.factor != settings.real_time_factor:
+            self._sim.set_factor(settings.real_time_factor)
+
     # --- the external-clock loop -----------------------------------------------------------------
 
-    def _run_external_clock(self, stop: Any) -> None:
+    def _run_external_clock(self, stop: StopFlag) -> None:
         """use_sim_time: model time follows an external /clock (e.g. a Gazebo simulation).
 
         Model time 0 is the first /clock received (stamps = that clock); whenever /clock advances,
@@ -338,12 +454,27 @@ class DeviceNode(Node):
     @property
     def model_steps(self) -> int:
         """The device's model steps computed (or skipped) so far."""
-        raise NotImplementedError
+        return self.device.steps
 
     def _drain(self) -> int:
         raise NotImplementedError
 
     def _publish_diagnostics(self, now: float) -> None:
+        """/diagnostics: the device's statuses (`_statuses`), stamped with the model time in simulated
+        time and with an external clock (the node's ROS clock is not updated without an executor),
+        with wall time in real time."""
+        msg = DiagnosticArray()
+        model_clock = self.simulated or self.external_clock
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+            self.device.stamp_ns() if model_clock else time.time_ns(), 1_000_000_000)
+        for st in self._statuses(now, self.recorder.status() if self.recorder is not None else None):
+            d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
+            d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
+            msg.status.append(d)
+        self._pub_diag.publish(msg)
+
+    def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
+        """The device's statuses (`recorder`: the recording's status, record.enabled)."""
         raise NotImplementedError
 
     def _begin(self, origin_ns: int) -> None:
@@ -351,11 +482,11 @@ class DeviceNode(Node):
         raise NotImplementedError
 
     def _set_origin(self, origin_ns: int) -> None:
-        raise NotImplementedError
+        self.device.origin_ns = origin_ns
 
     def _skip(self, n: int) -> None:
         """n steps of model time pass uncomputed (the state held)."""
-        raise NotImplementedError
+        self.device.skip(n)
 
     def _compute(self, n: int) -> None:
         """n model steps computed, their samples published."""

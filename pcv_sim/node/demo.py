@@ -28,6 +28,7 @@ from rclpy.utilities import remove_ros_args, try_shutdown
 
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.node.client import EmulatorClient, PressureSample
+from pcv_sim.units import PA_PER_BAR
 
 __all__ = ["exit_status", "main", "measure_steps", "run_demo"]
 
@@ -84,7 +85,7 @@ def measure_steps(steps: list[tuple[float, int, int]], samples: list[PressureSam
             row["reason"] = "no sample before the step: the pressure it started from is unknown"
             continue
         t = (t_all[a - 1:b] - t0) / 1e9
-        m = step_metrics(t, p_all[a - 1:b] / 1e5, 0.0)
+        m = step_metrics(t, p_all[a - 1:b] / PA_PER_BAR, 0.0)
         row.update(settled_bar=m.final, rise_time_ms=m.rise_time * 1e3, overshoot_percent=m.overshoot_percent)
         if math.isfinite(rate) and b - a < 0.5 * (t1 - t0) * 1e-9 * rate:
             row["note"] = f"only {b - a} samples{expected}"

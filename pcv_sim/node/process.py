@@ -21,7 +21,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "StartInterrupted", "Stop", "main_process", "serve"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "StartInterrupted", "Stop", "main_process", "parameter_help",
+           "run_node", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
@@ -62,13 +63,61 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
     try:
         try:
             return run(list(sys.argv if args is None else args), stop)
-        except StartInterrupted:
+        except BaseException as exc:
+            if not _interrupted(exc):
+                raise
             stop.starting = False
             print(f"stopped on {stop.name} while starting", file=sys.stderr)
             return EXIT_OK
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether `exc` is the start-up interruption, or an error raised because of it: a signal that
+    lands while an extension module initialises (pybind11's, e.g. scipy's HiGHS) comes out as
+    "ImportError: initialization failed" with the StartInterrupted as its cause."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, StartInterrupted):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def run_node(prog: str, argv: list[str], stop: Stop, *, description: str, epilog: Callable[[], str],
+             make_node: Callable[[list[str]], Any],
+             check: Callable[[list[str]], str | None] | None = None) -> int:
+    """An executable's whole run: its command line checked (`--help` with `description` and the
+    `epilog()` parameter list; `check(argv)`: its own test of the params files), then `serve`."""
+    import argparse
+
+    from pcv_sim.node.command_line import command_line_problem
+
+    parser = argparse.ArgumentParser(prog=prog, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=epilog(), description=description)
+    reason = command_line_problem(argv, parser, check)
+    if reason is not None:
+        print(f"{prog}: invalid parameters: {reason}", file=sys.stderr)
+        return EXIT_INVALID_PARAMETERS
+    if stop.requested:
+        print(f"{prog}: stopped on {stop.name} while starting", file=sys.stderr)
+        return EXIT_OK
+    return serve(prog, argv, stop, make_node)
+
+
+def parameter_help(specs: Any, params_file: str, *tail: str) -> str:
+    """The parameter list of an executable's --help: each declared parameter with its default, unit,
+    read-only flag and description, then the lines of `tail`."""
+    lines = [f"parameters (--ros-args -p NAME:=VALUE, or --params-file {params_file}):"]
+    for spec in specs:
+        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]{' (read-only)' if spec.read_only else ''}")
+        lines.append(f"      {spec.description}")
+    lines.extend(f"  {line}" for line in tail)
+    return "\n".join(lines)
 
 
 def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]], Any]) -> int:

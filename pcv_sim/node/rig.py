@@ -12,21 +12,23 @@ top: SIGINT/SIGTERM handling is installed first, so a signal at any moment is a 
 from __future__ import annotations
 
 import sys
+from typing import Any
 
-from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
+from pcv_sim.node.process import main_process, parameter_help, run_node
 
 __all__ = ["main"]
 
+DESCRIPTION = ("Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics per valve: "
+               "in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; cylinder/joint_states, "
+               "cylinder/pressure_a|b; in faults, cylinder/external_force; service reset; /diagnostics, /clock (out "
+               "in simulated time, in with use_sim_time); record.enabled records a bag.")
 
-def _parameter_help() -> str:
+
+def _epilog() -> str:
     from pcv_sim.node.rig_settings import RIG_PARAMETERS
 
-    lines = ["parameters (--ros-args -p NAME:=VALUE, or --params-file FILE):"]
-    for spec in RIG_PARAMETERS:
-        lines.append(f"  {spec.name} = {spec.default!r} [{spec.unit}]{' (read-only)' if spec.read_only else ''}")
-        lines.append(f"      {spec.description}")
-    lines.append("  the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
-    return "\n".join(lines)
+    return parameter_help(RIG_PARAMETERS, "FILE",
+                          "the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
 
 
 def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
@@ -48,33 +50,16 @@ def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
     return None
 
 
-def main(args: list[str] | None = None) -> int:
-    """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
-    return main_process(_run, args)
-
-
-def _run(argv: list[str], stop: Stop) -> int:
-    import argparse
-
-    from pcv_sim.node.command_line import command_line_problem
-
-    parser = argparse.ArgumentParser(
-        prog="rig", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_parameter_help(),
-        description="Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics "
-                    "per valve: in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; "
-                    "cylinder/joint_states, cylinder/pressure_a|b; in faults, cylinder/external_force; service reset; "
-                    "/diagnostics, /clock (out in simulated time, in with use_sim_time); record.enabled records "
-                    "a bag.")
-    reason = command_line_problem(argv, parser, _rig_yaml_as_params_file)
-    if reason is not None:
-        print(f"rig: invalid parameters: {reason}", file=sys.stderr)
-        return EXIT_INVALID_PARAMETERS
-    if stop.requested:
-        print(f"rig: stopped on {stop.name} while starting", file=sys.stderr)
-        return EXIT_OK
+def _node(argv: list[str]) -> Any:
     from pcv_sim.node.rig_node import RigNode
 
-    return serve("rig", argv, stop, lambda argv: RigNode(argv=argv))
+    return RigNode(argv=argv)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
+    return main_process(lambda argv, stop: run_node("rig", argv, stop, description=DESCRIPTION, epilog=_epilog,
+                                                    make_node=_node, check=_rig_yaml_as_params_file), args)
 
 
 if __name__ == "__main__":

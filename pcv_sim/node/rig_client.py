@@ -41,10 +41,12 @@ from pcv_sim.io.topics import (
     CYLINDER,
     DIAGNOSTICS,
     DUTY_CYCLE,
+    EXTERNAL_FORCE,
     FAULTS,
     JOINT_STATES,
     PRESSURE,
     RESET,
+    cylinder_topic,
     valve_topic,
 )
 from pcv_sim.node.client import sample_qos
@@ -88,7 +90,7 @@ class RigClient:
         self.duty_pubs = {v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
         self._duty_msg = Float64()
         self.fault_pub = node.create_publisher(String, FAULTS, cmd)
-        self.force_pub = node.create_publisher(Float64, f"{CYLINDER}/external_force", cmd)
+        self.force_pub = node.create_publisher(Float64, cylinder_topic(EXTERNAL_FORCE), cmd)
         # Services on a node of their own, made at the first call and spun only while a call waits
         # (spinning self.node would take the samples that `poll` takes): (node, client, executor).
         self._srv: tuple[Any, Any, SingleThreadedExecutor] | None = None
@@ -100,7 +102,7 @@ class RigClient:
             if currents:
                 self._subs.append((node.create_subscription(Float64, valve_topic(v, CURRENT), _ignore, qos),
                                    self._current(v)))
-        joint = (node.create_subscription(JointState, f"{CYLINDER}/{JOINT_STATES}", _ignore, qos), self._joint)
+        joint = (node.create_subscription(JointState, cylinder_topic(JOINT_STATES), _ignore, qos), self._joint)
         self._subs.append(joint)
         self._completing = [joint]           # the rig publishes it last: it completes a period
         self._waiter = Waiter([joint[0]], node.context)

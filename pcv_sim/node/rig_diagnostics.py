@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from pcv_sim.device.diagnostics import ERROR, OK, WARN, Status, recording_status
+from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Status, recording_status
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.rig.rig import Rig
 from pcv_sim.simulation.clock import RealTimeSchedule
@@ -43,23 +43,10 @@ class RigCounts:
     samples_published: int = 0
 
 
-class RigDiagnostics:
-    """Keeps the counts of the previous period; `build` once per diagnostics period."""
+class RigDiagnostics(PeriodDiagnostics):
+    """One status per valve and one for the rig; `build` once per diagnostics period."""
 
-    def __init__(self, node_name: str, now: float) -> None:
-        self.node_name = node_name
-        self._wall = now
-        self._steps = 0
-        self._prev: dict[str, int] = {}
-        self._recorder: RecorderStatus | None = None          # of the build in progress
-        self._dropped = 0
-
-    def restart(self, now: float, steps: int) -> None:
-        self._wall, self._steps = now, steps
-
-    def _status(self, concern: str, level: int, problems: list[str], ok: str, values: dict[str, Any]) -> Status:
-        return Status(f"{self.node_name}: {concern}", self.node_name, level, "; ".join(problems) if problems else ok,
-                      {k: str(v) for k, v in values.items()})
+    _recorder: RecorderStatus | None = None          # of the build in progress
 
     def build(self, now: float, *, rig: Rig, counts: RigCounts, time_mode: str, lockstep: bool,
               schedule: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
@@ -68,16 +55,10 @@ class RigDiagnostics:
         here: computing outputs moves the coil solve's Newton start, and a run must not depend on
         when the wall-clock diagnostics came. `recorder`: the recording's status (record.enabled)."""
         self._recorder = recorder
-        wall = max(now - self._wall, 1e-9)
-        period_steps = rig.steps - self._steps
         totals = {f"rejected.{v}": n for v, n in counts.rejected.items()}
         totals["rejected.faults"] = counts.faults_rejected
         totals["rejected.external_force"] = counts.force_rejected
-        if schedule is not None:
-            totals["late_steps"] = schedule.late_steps
-            totals["skipped_steps"] = schedule.skipped_steps
-        new = {k: v - self._prev.get(k, 0) for k, v in totals.items()}
-        self._wall, self._steps, self._prev = now, rig.steps, totals
+        wall, period_steps, new = self._period(now, rig.steps, totals, schedule)
         statuses = [self._valve(rig, v, counts, new, last) for v in rig.valve_names]
         statuses.append(self._rig(rig, counts, new, time_mode, lockstep, schedule, failure, waiting_for,
                                   period_steps * rig.dt / wall))

@@ -48,7 +48,7 @@ stay monotonic; in simulated time the run after it is a fresh start's, shifted i
 at the present step in simulated time and with an external clock (the next sample shows it), in
 real time at the step an input received at the request would act at.
 
-Recording (`record.enabled`): a `pcv_sim.io.recorder.RigRecorder` (the emulator's BagRecorder
+Recording (`record.enabled`): a `pcv_sim.rig.bag.RigRecorder` (the emulator's BagRecorder
 machinery: writer process, never overwrites, finalised by SIGINT/SIGTERM) from the first sample
 (the rig at rest) on: each valve's topics under `<namespace>/<valve>/` as the emulator records
 them (inputs duty_cycle, supply_pressure on change, stamped at the step they act; load_flow the
@@ -69,7 +69,7 @@ from collections.abc import Callable
 from functools import partial
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
@@ -77,8 +77,9 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
+from pcv_sim.device.diagnostics import Status
 from pcv_sim.errors import BagError, CommandError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, RigRecorder
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
     CURRENT,
@@ -91,9 +92,12 @@ from pcv_sim.io.topics import (
     RESET,
     SPOOL_POSITION,
     chamber_topic,
+    cylinder_topic,
     valve_topic,
 )
-from pcv_sim.node.adapter import StopFlag
+from pcv_sim.io.topics import (
+    EXTERNAL_FORCE as EXTERNAL_FORCE_ROLE,
+)
 from pcv_sim.node.base import (
     CLOCK_QOS,
     COMMAND_HINT,
@@ -102,6 +106,7 @@ from pcv_sim.node.base import (
     LOCKSTEP_RESEND,
     SAMPLE_HINT,
     DeviceNode,
+    StopFlag,
     freeze_heap,
     tighten_timer_slack,
 )
@@ -116,6 +121,7 @@ from pcv_sim.node.rig_settings import (
     settings_from,
 )
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
+from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
     ExternalClock,
@@ -124,19 +130,20 @@ from pcv_sim.simulation.clock import (
 )
 from pcv_sim.simulation.duty import check_duty
 
-__all__ = ["JOINT_NAME", "NODE_NAME", "RigNode"]
+__all__ = ["NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
-JOINT_NAME = "steering"
-SERVICE_POLL_EVERY = 10
 _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
 LOCKSTEP_FULL_POLL = 1e-3       # s (wall) between polls of every input while the lockstep waits for its answers
 SERVICE_POLL_PERIOD = 0.01      # s (wall) between polls for service requests (reset, parameters)
-EXTERNAL_FORCE_TOPIC = f"{CYLINDER}/external_force"
+EXTERNAL_FORCE_TOPIC = cylinder_topic(EXTERNAL_FORCE_ROLE)
 
 
 class RigNode(DeviceNode):
     """ROS parameters in, `Rig` out. Construct, then `run(stop)`."""
+
+    device: Rig
+    _diag: RigDiagnostics
 
     unknown_hint = "; the physics is set in the rig YAML (rig_config)"
 
@@ -149,19 +156,16 @@ class RigNode(DeviceNode):
         s = self.settings = self._declare_parameters()
         loaded = load_rig(s.rig_config or None)
         rig_params = s.check(loaded).rig_params(loaded)
-        self.rig = rig = Rig(rig_params, seed=s.seed)
+        self.device = rig = Rig(rig_params, seed=s.seed)
         self.simulated = s.time_mode == "simulated"
         self.per = rig_params.steps_per_period
-        self.dt_ns = round(rig.dt * 1e9)
-        self.origin_ns = 0
+        self.dt_ns = rig.dt_ns
         self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
-        self.failure: str | None = None
         self._schedule: RealTimeSchedule | None = None
         self._next_service_poll = 0.0                      # monotonic s of the next service poll
         self._sim: SimulatedSchedule | None = None
         self._staged: RigNodeSettings | None = None        # parameters checked, about to be applied
         self._shown = 0                                     # last step whose sample was published
-        self._last_input: dict[str, int] = {}               # per input: the step its last value acts at
         self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
@@ -188,7 +192,7 @@ class RigNode(DeviceNode):
             subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
         if s.faults_enabled:                                # any node on the domain could break the bench
             subscription(String, FAULTS, self._on_fault)
-        self._pub_joint = publisher(JointState, f"{CYLINDER}/{JOINT_STATES}")
+        self._pub_joint = publisher(JointState, cylinder_topic(JOINT_STATES))
         #: (publisher, index of the valve's pressure in the samples, its message) per chamber
         self._chamber_pubs = [(publisher(FluidPressure, chamber_topic(v.chamber)),
                                rig.signals.index(f"{v.name}.pressure"),
@@ -233,26 +237,14 @@ class RigNode(DeviceNode):
 
     # --- inputs --------------------------------------------------------------------------------
 
-    def _at_step(self, info: Any) -> int:
-        """The step an input takes effect at: never one whose sample was shown (in lockstep the step
-        after the sample the controller answers, as `run_lockstep`); in real time the first step
-        stamped at or after its DDS reception."""
-        rig = self.rig
-        first = max(rig.steps, self._shown + 1)
-        sched = self._schedule
-        if sched is None:
-            return first
-        taken = -(-round((time.monotonic() - sched.t0) * 1e9) // self.dt_ns)
-        r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
-        at = min(-(-(r_ns - self.origin_ns) // self.dt_ns), taken) if r_ns else taken
-        return max(at, first)
-
     def _when(self, key: str, info: Any, action: Callable[[], None]) -> None:
-        """Run `action` at its step, scheduled in the rig (two inputs on one topic never act at the
-        same step, so none is lost unseen)."""
-        at = max(self._at_step(info), self._last_input.get(key, -1) + 1)
-        self._last_input[key] = at
-        self.rig.schedule(at * self.rig.dt, action)
+        """Run `action` at the step an input taken now acts from (`InputTiming`), scheduled in the rig:
+        never a step whose sample was shown (in lockstep the step after the sample the controller
+        answers, as `run_lockstep`); in real time the first step stamped at or after its DDS reception."""
+        rig = self.rig
+        at = self.acting_step(rig.timing, key, max(rig.steps, self._shown + 1), rig.origin_ns, info)
+        rig.timing.took(key, at)
+        rig.schedule_step(at, action)
 
     def _on_duty(self, valve: str, msg: Float64, info: Any = None) -> None:
         self._answered.add(valve)
@@ -334,7 +326,7 @@ class RigNode(DeviceNode):
         sampling moves the sensor faults' state and the coil solve's Newton start). The messages
         are made once and refilled (publish serializes them at once)."""
         y = self._last_sample
-        sec, nsec = divmod(self.origin_ns + self._shown * self.dt_ns, 1_000_000_000)
+        sec, nsec = divmod(self.rig.stamp_ns(self._shown), 1_000_000_000)
         isfinite = math.isfinite
         published = 0
         msg_p, msg_f = self._msg_pressure, self._msg_float
@@ -374,23 +366,15 @@ class RigNode(DeviceNode):
         assert self._pub_clock is not None              # created in simulated time, the only caller
         self._pub_clock.publish(msg)
 
-    def _publish_diagnostics(self, now: float) -> None:
-        waiting = tuple(v for v in self.rig.valve_names if v not in self._answered) \
+    def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
+        """One status per valve and one for the rig (see pcv_sim.node.rig_diagnostics)."""
+        rig = self.rig
+        waiting = tuple(v for v in rig.valve_names if v not in self._answered) \
             if self.simulated and self.settings.lockstep else ()
-        msg = DiagnosticArray()
-        model_clock = self.simulated or self.external_clock
-        stamp_ns = self.origin_ns + self.rig.steps * self.dt_ns if model_clock else time.time_ns()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         time_mode = "external_clock" if self.external_clock else self.settings.time_mode
-        rec = self.recorder.status() if self.recorder is not None else None
-        for st in self._diag.build(now, rig=self.rig, counts=self.counts, time_mode=time_mode,
-                                   lockstep=self.settings.lockstep, schedule=self._schedule, failure=self.failure,
-                                   waiting_for=waiting, last=dict(zip(self.rig.signals, self._last_sample)),
-                                   recorder=rec):
-            d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
-            d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]
-            msg.status.append(d)
-        self._pub_diag.publish(msg)
+        return self._diag.build(now, rig=rig, counts=self.counts, time_mode=time_mode, lockstep=self.settings.lockstep,
+                                schedule=self._schedule, failure=rig.fault, waiting_for=waiting,
+                                last=dict(zip(rig.signals, self._last_sample)), recorder=recorder)
 
     def _forward_log(self) -> None:
         """What the rig did that a user must hear about (watchdog, faults), once per event."""
@@ -422,7 +406,6 @@ class RigNode(DeviceNode):
                     self._publish_clock()
                 self._publish_samples()
         except RigError as err:
-            self.failure = str(err)
             self.get_logger().error(f"{err}: the rig stopped; restart it")
             return False
         finally:
@@ -430,18 +413,6 @@ class RigNode(DeviceNode):
         return True
 
     # --- loops ---------------------------------------------------------------------------------
-
-    def run(self, stop: StopFlag) -> None:
-        """Run until stop.requested (SIGINT/SIGTERM); the bag (record.enabled) is finalised then."""
-        try:
-            if self.simulated:
-                self._run_simulated(stop)
-            elif self.external_clock:
-                self._run_external_clock(stop)
-            else:
-                self._run_real_time(stop)
-        finally:
-            self._stop_recording()
 
     def _wait_for_controllers(self, stop: StopFlag) -> None:
         """Lockstep: before the first sample, until every valve's duty_cycle has a matched publisher
@@ -478,8 +449,8 @@ class RigNode(DeviceNode):
         waiter = Waiter([sub for sub, _ in answers], self.context)
         next_full = 0.0
         while not stop.requested:
-            partial = lock and len(self._answered) < valves and mono() < next_full
-            if partial:
+            answers_only = lock and len(self._answered) < valves and mono() < next_full
+            if answers_only:
                 drain(answers)               # waiting: the answers alone, blocked in `waiter` between
                                              # (BENCHMARKS.md, "Where a 1 kHz lockstep period goes")
             else:
@@ -489,7 +460,7 @@ class RigNode(DeviceNode):
             if now >= next_diag:
                 self._publish_diagnostics(now)
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if self.failure is not None:
+            if self.rig.fault is not None:
                 time.sleep(1e-2)
                 continue
             if lock:
@@ -512,7 +483,7 @@ class RigNode(DeviceNode):
                 if ready > now:
                     time.sleep(min(ready - now, 1e-3))
                     continue
-            if partial:
+            if answers_only:
                 self._drain()                # what came with the answers acts from the same step as before
             target = rig.steps + self.per
             if self.hook is not None:
@@ -526,41 +497,6 @@ class RigNode(DeviceNode):
             if self._advance(target):
                 sim.advance(self.per)
             published = mono()
-
-    def _run_real_time(self, stop: StopFlag) -> None:
-        s, rig = self.settings, self.rig
-        sched = RealTimeSchedule(rig.dt, wake_period=s.wake_period, late_threshold=s.late_threshold,
-                                 max_catchup=s.max_catchup)
-        tighten_timer_slack()
-        freeze_heap()
-        mono = time.monotonic
-        sched.start()
-        self.origin_ns = self.get_clock().now().nanoseconds
-        self._schedule = sched
-        self._diag.restart(mono(), rig.steps)
-        next_diag = mono() + s.diagnostics_period
-        self._publish_samples()
-        while not stop.requested:
-            now = mono()
-            self._drain()
-            if self.failure is None:
-                plan = sched.plan(now)
-                if plan.skipped:
-                    # The process was stopped or starved beyond max_catchup: the model is held over
-                    # the backlog (its state unchanged, model time jumps to wall time), as the emulator.
-                    rig.skip(plan.skipped)
-                    self.get_logger().warning(f"{plan.lag * 1e3:.1f} ms behind wall time (more than max_catchup "
-                                              f"{self.settings.max_catchup * 1e3:g} ms): skipped {plan.skipped} steps, the model "
-                                              "state was held over them", throttle_duration_sec=1.0)
-                if plan.steps:
-                    self._advance(rig.steps + plan.steps)
-                sched.finish()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            delay = sched.next_wake() - mono()
-            if delay > 0.0:
-                time.sleep(delay)
 
     # --- external force, reset, external clock, recording ------------------------------------
 
@@ -612,11 +548,7 @@ class RigNode(DeviceNode):
         if settings is None:
             return
         self.settings = settings
-        if self._schedule is not None:
-            self._schedule.late_threshold = settings.late_threshold
-            self._schedule.max_catchup_steps = int(settings.max_catchup / self.rig.dt)
-        if self._sim is not None and self._sim.factor != settings.real_time_factor:
-            self._sim.set_factor(settings.real_time_factor)
+        self._retime(settings)
         self.get_logger().info(f"parameters changed: {', '.join(f'{p.name} = {p.value!r}' for p in parameters)}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -638,13 +570,13 @@ class RigNode(DeviceNode):
         return response
 
     def _reset_rig(self) -> None:
+        failure = self.rig.fault
         self.rig.reset(keep_time=True)
         self.counts.resets += 1
         if self.recorder is not None:
             self.recorder.restart_flows()            # the piston jumped: no mean flow across the reset
-        if self.failure is not None:
-            self.get_logger().info(f"reset: the model runs again (it had stopped: {self.failure})")
-            self.failure = None
+        if failure is not None:
+            self.get_logger().info(f"reset: the model runs again (it had stopped: {failure})")
         self._forward_log()
 
     def _on_clock(self, msg: Clock, _info: Any = None) -> None:
@@ -653,24 +585,23 @@ class RigNode(DeviceNode):
     # --- the rig under the node base's loops ---------------------------------------------------
 
     @property
-    def model_steps(self) -> int:
-        return self.rig.steps
+    def rig(self) -> Rig:
+        return self.device
+
+    @property
+    def failure(self) -> str | None:
+        """Why the model stopped (it ran away), until a reset; None while it runs."""
+        return self.device.fault
 
     def _begin(self, origin_ns: int) -> None:
-        self.origin_ns = origin_ns
+        self.rig.origin_ns = origin_ns
         self._publish_samples()
-
-    def _set_origin(self, origin_ns: int) -> None:
-        self.origin_ns = origin_ns
-
-    def _skip(self, n: int) -> None:
-        self.rig.skip(n)
 
     def _compute(self, n: int) -> None:
         self._advance(self.rig.steps + n)
 
     def _halted(self) -> bool:
-        return self.failure is not None
+        return self.rig.fault is not None
 
     def _make_recorder(self) -> RigRecorder | None:
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
@@ -694,7 +625,7 @@ class RigNode(DeviceNode):
         """Rig.on_input: an input in force from `step` (the duty after the watchdog, a supply, the force)."""
         rec = self.recorder
         if rec is not None:
-            rec.input(self.origin_ns + step * self.dt_ns, name, value)
+            rec.input(self.rig.stamp_ns(step), name, value)
 
     def _record_sample(self) -> None:
         """The sample just published (and the load flows, the rig's new log entries) into the bag;
@@ -703,7 +634,7 @@ class RigNode(DeviceNode):
         if rec is None:
             return
         rig = self.rig
-        t_ns = self.origin_ns + self._shown * self.dt_ns
+        t_ns = rig.stamp_ns(self._shown)
         if not rec.started:
             rec.start(t_ns, rig.input_values())
             if rec.threaded:
@@ -715,14 +646,12 @@ class RigNode(DeviceNode):
         while self._rec_logged < len(log):
             t, text = log[self._rec_logged]
             self._rec_logged += 1
-            rec.text(rec.events_topic, self.origin_ns + round(t / rig.dt) * self.dt_ns, text)
+            rec.text(rec.events_topic, rig.stamp_ns(round(t / rig.dt)), text)
 
     def _record_text(self, kind: str, text: str) -> None:
         """A fault command (`kind` faults) at the step it acted."""
         rec = self.recorder
         if rec is not None:
             rec.text(rec.faults_topic if kind == "faults" else rec.events_topic,
-                     self.origin_ns + self.rig.steps * self.dt_ns, text)
+                     self.rig.stamp_ns(), text)
 
-    def _stop_recording(self) -> None:
-        self.close_recorder(self.recorder)

@@ -25,12 +25,12 @@ from typing import Any
 import yaml
 
 from pcv_sim.device.settings import (
+    CommonSettings,
     any_value,
     bag_name_check,
     non_negative,
     one_of,
     parameters_of,
-    positive,
     real_time_factor,
 )
 from pcv_sim.errors import ParameterError
@@ -47,8 +47,8 @@ _seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
 
 
 @dataclass(frozen=True)
-class RigNodeSettings:
-    """The rig node's parameters (the physics is in the rig YAML)."""
+class RigNodeSettings(CommonSettings):
+    """The rig node's parameters (the physics is in the rig YAML; the loops' as every node's)."""
 
     rig_config: str = setting(
         "", "-", "rig YAML (valves, cylinder, timing); '' = the shipped config/rig.yaml", any_value, "str",
@@ -67,20 +67,8 @@ class RigNodeSettings:
     control_period: float = setting(
         0.0, "s", "samples out and commands in every control period (model time); 0 = the rig YAML's "
         "rig.control_period; a whole multiple of rig.time_step", non_negative, read_only=True)
-    wake_period: float = setting(
-        1e-3, "s", "real time: the loop wakes every wake_period of the monotonic clock and computes the steps "
-        "due", positive, read_only=True)
-    late_threshold: float = setting(
-        1e-3, "s", "real time: a step is late when the wake that computes it comes more than this after its "
-        "scheduled wake", non_negative)
-    max_catchup: float = setting(
-        0.05, "s", "real time: a backlog longer than this is skipped (model held), not computed", positive)
     seed: int = setting(0, "-", "seed of the sensor-noise faults (a run repeats bit for bit)", _seed, "int",
                         read_only=True)
-    diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
-    reject_log_period: float = setting(
-        1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
-        non_negative)
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo) stops the node at start (exit 2); true: "
         "warn and ignore it", any_value, "bool", read_only=True)
@@ -93,15 +81,9 @@ class RigNodeSettings:
         "fault commands and the rig's events to a rosbag2/MCAP bag from the start (the rig at rest) until "
         "SIGINT/SIGTERM; outputs at every published sample (control_period), inputs on change at the step they "
         "act", any_value, "bool", name="record.enabled", read_only=True)
-    record_directory: str = setting(
-        ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
-        name="record.directory", read_only=True)
     record_name: str = setting(
         "", "-", "bag directory name; '' = rig[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
         "overwritten", bag_name_check, "str", name="record.name", read_only=True)
-    record_split_size_mb: float = setting(
-        0.0, "MB", "start a new .mcap file of the bag at this size (10^6 bytes); 0 = one file", non_negative,
-        name="record.split_size_mb", read_only=True)
 
     def check(self, rig: RigParams) -> RigNodeSettings:
         """Cross-checks against the rig (step multiples); returns self or raises ParameterError."""
@@ -112,9 +94,7 @@ class RigNodeSettings:
             steps_per(self.wake_period, dt, what="wake_period")
         except ValueError as err:
             raise ParameterError(f"{err} (rig.time_step of the rig YAML)") from None
-        if self.max_catchup < self.wake_period:
-            raise ParameterError(f"max_catchup: got {self.max_catchup!r}; accepted is a number >= wake_period "
-                                 f"({self.wake_period:g} s)")
+        self.check_loop()
         return self
 
     def rig_params(self, rig: RigParams) -> RigParams:

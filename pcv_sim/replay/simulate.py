@@ -33,6 +33,7 @@ import numpy.typing as npt
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE
 from pcv_sim.jit import backend
+from pcv_sim.model import kernel
 from pcv_sim.model.statics import EquilibriumError
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
@@ -227,9 +228,11 @@ def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: n
     values: dict[int, tuple[float, float, float]] = {}
     if params.command.duty_fall_rate_limit is None:
         # The whole run in compiled code: the emulator's steps, its inputs at their steps.
-        volume = np.full(len(tl.duty), params.circuit.load_volume)
-        rows = st.sim.run(cmd_step, np.stack([tl.duty, tl.load_flow, tl.supply_pressure, volume], axis=1), needed)
-        for step, (p, i, x) in zip(needed.tolist(), rows.tolist()):
+        # The recording's inputs, the load volume and the valve options' temperatures (held at
+        # their configured values: a recording carries none), in the model's input order.
+        held = [np.full(len(tl.duty), v) for v in (params.circuit.load_volume, *kernel.option_inputs(params))]
+        rows = st.sim.run(cmd_step, np.stack([tl.duty, tl.load_flow, tl.supply_pressure, *held], axis=1), needed)
+        for step, (p, i, x) in zip(needed.tolist(), rows[:, :3].tolist()):
             values[step] = (p, i, x)
     else:   # the limiter ramps the duty step by step (RealTimeStepper.advance)
         k_cmd, n_cmd = 0, len(tl)

@@ -28,41 +28,28 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
-from pcv_sim.io.topics import (
-    CURRENT,
-    DUTY_CYCLE,
-    JOINT_STATES,
-    PRESSURE,
-    ROLE_TYPES,
-    SETPOINT,
-    SPOOL_POSITION,
-    bag_topic,
-    chamber_topic,
-    cylinder_topic,
-    valve_topic,
-)
+from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, PRESSURE, ROLE_TYPES, SETPOINT, SPOOL_POSITION, bag_topic
+from pcv_sim.rig.bag import JOINT_NAME, JOINT_STATE, STRING, RigBagLayout
 from pcv_sim.rig.lockstep import RigRun
+from pcv_sim.rig.rig import CYLINDER_SIGNALS
 
 __all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", "write_csv"]
 
-JOINT_STATE = "sensor_msgs/msg/JointState"
-STRING = "std_msgs/msg/String"
 _NS = 1_000_000_000
-JOINTS = bag_topic(cylinder_topic(JOINT_STATES))
-EVENTS = "/rig/events"          # the run's log and refused commands (offline bags only)
 
 
 def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None = None) -> Path:
-    """Write `run` as a rosbag2/MCAP bag at `path` (must not exist); `chambers` maps valve -> a|b."""
+    """Write `run` as a rosbag2/MCAP bag at `path` (must not exist); `chambers` maps valve -> a|b.
+    The topics are the rig's bag layout (`pcv_sim.rig.bag.RigBagLayout`, the live recording's)."""
     chambers = chambers or {}
+    layout = RigBagLayout()
     topics: dict[str, str] = {}
     for v in run.valves:
-        topics.update({bag_topic(valve_topic(v, role)): ROLE_TYPES[role]
-                       for role in (DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION)})
+        topics.update({layout.valve(v, role): ROLE_TYPES[role] for role in (DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION)})
         if v in chambers:
-            topics[bag_topic(chamber_topic(chambers[v]))] = FLUID_PRESSURE
-    topics[JOINTS] = JOINT_STATE
-    topics[EVENTS] = STRING
+            topics[layout.chamber(chambers[v])] = FLUID_PRESSURE
+    topics[layout.joint_states] = JOINT_STATE
+    topics[layout.events] = STRING
     has_sp = bool(np.any(np.isfinite(run.setpoint)))
     if has_sp:
         topics[bag_topic(SETPOINT)] = FLOAT64
@@ -78,29 +65,29 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
 
     with BagWriter(path, topics=topics, flush_thread=False) as w:
         for k, v in enumerate(run.valves):
-            column(bag_topic(valve_topic(v, DUTY_CYCLE)), run.duties[:, k], w)
+            column(layout.valve(v, DUTY_CYCLE), run.duties[:, k], w)
             p = m[:, run.signals.index(f"{v}.pressure")]
-            column(bag_topic(valve_topic(v, PRESSURE)), p, w, "load_port")
+            column(layout.valve(v, PRESSURE), p, w, "load_port")
             if v in chambers:
-                column(bag_topic(chamber_topic(chambers[v])), p, w, f"chamber_{chambers[v]}")
-            column(bag_topic(valve_topic(v, CURRENT)), m[:, run.signals.index(f"{v}.current")], w)
-            column(bag_topic(valve_topic(v, SPOOL_POSITION)), m[:, run.signals.index(f"{v}.spool_position")], w)
+                column(layout.chamber(chambers[v]), p, w, f"chamber_{chambers[v]}")
+            column(layout.valve(v, CURRENT), m[:, run.signals.index(f"{v}.current")], w)
+            column(layout.valve(v, SPOOL_POSITION), m[:, run.signals.index(f"{v}.spool_position")], w)
         if has_sp:
             column(bag_topic(SETPOINT), run.setpoint, w)
         for flag, values in run.flags.items():
             column(f"/controller/{flag.removeprefix('controller.')}", values, w)
-        pos, vel, eff = (m[:, run.signals.index(f"cylinder.{s}")] for s in ("position", "velocity", "effort"))
+        pos, vel, eff = (m[:, run.signals.index(f"cylinder.{s}")] for s in CYLINDER_SIGNALS)
         for j in range(len(t_ns)):
             # A dropped signal is left out of the message (JointState allows empty arrays per field).
             fields = [(a[j],) if math.isfinite(a[j]) else () for a in (pos, vel, eff)]
             sec, nsec = divmod(int(t_ns[j]), _NS)
-            w.write(JOINTS, int(t_ns[j]), {
+            w.write(layout.joint_states, int(t_ns[j]), {
                 "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"},
-                "name": ["steering"],
+                "name": [JOINT_NAME],
                 "position": np.array(fields[0], dtype=np.float64), "velocity": np.array(fields[1], dtype=np.float64),
                 "effort": np.array(fields[2], dtype=np.float64)})
         for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
-            w.write(EVENTS, round(t * _NS), {"data": text})
+            w.write(layout.events, round(t * _NS), {"data": text})
     return Path(path)
 
 

@@ -16,7 +16,8 @@ rig starts with each valve at rest at its `initial_duty`, its watchdog waiting f
 
 Faults (`pcv_sim.rig.faults`) are injected and cleared at the present step; scheduled inputs
 (`schedule`) act at the first step at or after their time. Everything is deterministic: the same
-inputs at the same steps give the same numbers bit for bit.
+inputs at the same steps give the same numbers bit for bit. A state that runs away (non-finite)
+raises RigError and is the device's fault state (`fault`, `pcv_sim.device.device`) until `reset`.
 """
 
 from __future__ import annotations
@@ -24,11 +25,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
-from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
+from pcv_sim.device.device import MODEL_FAILURES, Device
+from pcv_sim.device.inputs import InputQueue, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
@@ -40,7 +42,7 @@ from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
-from pcv_sim.simulation.valve import valve_system
+from pcv_sim.simulation.valve import valve_integrator, valve_system
 
 __all__ = [
     "CYLINDER_SIGNALS",
@@ -108,12 +110,16 @@ class RigStatus:
     rejected: int                         # commands refused since reset
 
 
-class Rig:
+class Rig(Device):
     """N valves + one cylinder at one fixed step (see the module docstring)."""
 
+    queue: InputQueue[Callable[[], None]]      # scheduled inputs: actions run at their step
+
     def __init__(self, params: RigParams, *, seed: int = 0) -> None:
-        self.params = params
         valves = params.valves
+        super().__init__(params.timing.time_step, [v.name for v in valves],
+                         round(params.timing.watchdog_timeout / params.timing.time_step))
+        self.params = params
         self.valve_names = tuple(v.name for v in valves)
         kind = valves[0].params.simulation.model
         self.kind = kind
@@ -127,8 +133,9 @@ class Rig:
             wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
                       (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
         self.plant = compose(systems, wires)
-        self.dt = params.timing.time_step
-        self.sim = Simulator(self.plant, self.dt, valves[0].params.simulation.method)
+        # One integrator for all: erk2 when a valve's spool pole needs it (oil temperature, R34).
+        methods = {valve_integrator(v.params, kind) for v in valves}
+        self.sim = Simulator(self.plant, self.dt, "erk2" if "erk2" in methods else valves[0].params.simulation.method)
         plant = self.plant
         self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in self.valve_names]
         self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in self.valve_names]
@@ -142,13 +149,15 @@ class Rig:
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
                           for v in valves]
         self._volumes = [v.params.circuit.load_volume for v in valves]
+        #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
+        #: values: (input index, value) per valve that has them.
+        self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
+                               for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
+                                                      kernel.option_inputs(v.params), strict=True)]
         self._state_off = plant.offsets("states")
         self._healthy = [s.p.copy() for s in systems[:-1]]
         self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
-        wd_steps = round(params.timing.watchdog_timeout / self.dt)
-        self.watchdogs = {name: Watchdog(wd_steps) for name in self.valve_names}
-        self._events: InputQueue[Callable[[], None]] = InputQueue()
         self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
         #: Called whenever an input of the model (a duty in force, a supply pressure, the external
@@ -195,8 +204,11 @@ class Rig:
         sim.u[self._force_i] = 0.0
         for i_flow, i_volume, volume in self._own_volume:
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
+        for i, value in self._option_inputs:
+            sim.u[i] = value
         for watchdog in self.watchdogs.values():
             watchdog.restart()
+        self.clear_fault()
         self.faults: dict[tuple[str, str], Fault] = {}
         self.sensors.reset()
         if keep_time:
@@ -205,7 +217,7 @@ class Rig:
         else:
             self.rejected: list[tuple[float, str]] = []
             self.log: list[tuple[float, str]] = []
-            self._events.clear()
+            self.queue.clear()
         self._inputs_changed()
 
     def _inputs_changed(self) -> None:
@@ -233,19 +245,14 @@ class Rig:
     def steps(self) -> int:
         return self.sim.steps
 
+    @steps.setter
+    def steps(self, steps: int) -> None:
+        self.sim.steps = steps
+
     @property
     def watchdog_fired(self) -> dict[str, bool]:
         """Per valve: has its watchdog fired (and no command come since)."""
         return {name: w.state == WatchdogState.FIRED for name, w in self.watchdogs.items()}
-
-    def skip(self, n: int) -> None:
-        """Let n steps of model time pass without computing them (the model state is held): a real-time
-        loop that fell too far behind, an external clock that jumped."""
-        self.sim.steps += n
-
-    @property
-    def time(self) -> float:
-        return self.sim.time
 
     def status(self) -> RigStatus:
         return RigStatus(self.time, dict(self.commands), dict(self.duties), dict(self.watchdog_fired),
@@ -382,8 +389,12 @@ class Rig:
     def schedule(self, t: float, action: Callable[[], None]) -> int:
         """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s); returns
         that step."""
-        step = max(self.sim.steps, math.ceil(t / self.dt - 1e-9))
-        self._events.push(step, action)
+        return self.schedule_step(math.ceil(t / self.dt - 1e-9), action)
+
+    def schedule_step(self, step: int, action: Callable[[], None]) -> int:
+        """Run `action` at `step` (the present one if that has passed); returns the step."""
+        step = max(self.sim.steps, step)
+        self.queue.push(step, action)
         return step
 
     # --- stepping ------------------------------------------------------------------------------
@@ -396,7 +407,10 @@ class Rig:
             self._due()
             if sim.steps >= step:
                 break
-            sim.advance(min(step, self._next_due()) - sim.steps)
+            try:
+                sim.advance(min(step, self._next_due()) - sim.steps)
+            except MODEL_FAILURES as err:
+                self._fail(f"model step failed ({type(err).__name__}: {err})")
             self._check_finite()
 
     def advance_sample(self, step: int, after: int = 0) -> np.ndarray:
@@ -409,7 +423,11 @@ class Rig:
         self._due()                                    # inputs due now act over the whole stretch
         if step >= sim.steps and self._next_due() > step + after:
             out = np.empty(len(self._signal_i))
-            if not math.isfinite(sim.advance_sample(step - sim.steps, self._signal_i, out, after)):
+            try:
+                norm = sim.advance_sample(step - sim.steps, self._signal_i, out, after)
+            except MODEL_FAILURES as err:
+                self._fail(f"model step failed ({type(err).__name__}: {err})")
+            if not math.isfinite(norm):
                 self._check_finite()                   # raises, naming the time and the faults
             return out
         self.advance_to(step)
@@ -418,18 +436,23 @@ class Rig:
     def _next_due(self) -> int:
         """The first step after the present one at which a scheduled input or a watchdog deadline
         falls (a large number if none): where a batch of compiled steps must stop."""
-        nxt = min(self._events.next_step, *(w.deadline for w in self.watchdogs.values()))
-        return max(nxt, self.sim.steps + 1)
+        return max(self.next_due(), self.sim.steps + 1)
 
     def _check_finite(self) -> None:
         x = self.sim.x
         if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
-            raise RigError(f"the model state ran away (non-finite) before t = {self.sim.time:.6g} s; "
-                           f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
+            self._fail("the model state ran away (non-finite)")
+
+    def _fail(self, problem: str) -> NoReturn:
+        """The fault state (`fault`, until a reset) and RigError, naming the time and the active faults."""
+        reason = (f"{problem} before t = {self.sim.time:.6g} s; "
+                  f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
+        self.set_fault(reason)
+        raise RigError(reason)
 
     def _due(self) -> None:
         steps = self.sim.steps
-        while (action := self._events.pop_due(steps)) is not None:
+        while (action := self.queue.pop_due(steps)) is not None:
             action()
         for k, name in enumerate(self.valve_names):
             if self.watchdogs[name].check(steps):

@@ -22,7 +22,9 @@ Integrators (all fixed step, inputs held over a step: zero-order hold):
             N(x), one more evaluation each), so that a state slaved to the others (the chamber
             pressure to the spool velocity) sits on its slow manifold at every stage: 4
             evaluations per step with stiff states, 2 (Heun exactly) without. This is what runs
-            the full model at 0.1 ms.
+            the full model at 0.1 ms. A state may take its rate from the parameters instead
+            (`System.rate_parameters`: the valve's spool velocity, damped by oil of a changing
+            temperature); it is integrated exponentially at that rate, without the relaxation.
 """
 
 from __future__ import annotations
@@ -239,7 +241,17 @@ def generate_source(plant: Composite) -> str:
              f"{view('W', ws, k)}, {view('Y', ys, k)})" for k in range(len(plant.systems))]
     body += ["", "", "@jit(nrt=False)", "def project(x, P):"]
     body += [f"    proj_{k}({view('x', xs, k)}, {view('P', ps, k)})" for k in range(len(plant.systems))]
-    return "\n".join(lines + body) + _LOOPS + "".join(_RUN.format(name=n) + _SAMPLE.format(name=n)
+    loops = _LOOPS
+    if plant.rate_parameters:
+        # States whose rate is a parameter (set at run time): erk2 reads it where it splits off
+        # the linear part; the relaxation stays with the declared (constant) stiff states.
+        body += ["", "", "@jit(inline=True)", "def lam(i, P):"]
+        for i, j in plant.rate_parameters:
+            body += [f"    if i == {i}:", f"        return P[{j}]"]
+        body += ["    return LAM[i]"]
+        loops = loops.replace("s1[i] += LAM[i] * x[i]", "s1[i] += lam(i, P) * x[i]").replace(
+            "s2[i] += LAM[i] * xt[i]", "s2[i] += lam(i, P) * xt[i]")
+    return "\n".join(lines + body) + loops + "".join(_RUN.format(name=n) + _SAMPLE.format(name=n)
                                                      for n in INTEGRATORS)
 
 

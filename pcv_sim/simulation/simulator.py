@@ -49,8 +49,20 @@ class Simulator:
         self.Y = np.zeros(len(plant.outputs))
         self.U = np.zeros(sum(len(s.inputs) for s in systems))
         self._scratch = tuple(np.zeros(nx) for _ in range(5))
-        self._weights = exponential_weights(plant.rates, self.dt)
+        self._weights = exponential_weights(self.rates(), self.dt)
         self.steps = 0
+
+    def rates(self) -> np.ndarray:
+        """Each state's linear decay rate (1/s) for the exponential integrator: the declared stiff
+        rates, and those read from the parameters (`System.rate_parameters`) as they are now."""
+        rates = self.plant.rates.copy()
+        for i, j in self.plant.rate_parameters:
+            rates[i] = self.P[j]
+        return rates
+
+    def refresh_rates(self) -> None:
+        """Recompute the exponential weights after a rate parameter changed (in `P`)."""
+        self._weights = exponential_weights(self.rates(), self.dt)
 
     def copy(self) -> Simulator:
         """An independent simulator in the same state (its own arrays, the same compiled code)."""
@@ -132,3 +144,4 @@ class Simulator:
         if len(p) != off[system + 1] - off[system]:
             raise ValueError("parameter vector of another length than the system's")
         self.P[off[system]:off[system + 1]] = p
+        self.refresh_rates()

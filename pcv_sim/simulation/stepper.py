@@ -23,7 +23,7 @@ from pcv_sim.simulation.duty import DutyProfile, FallRateLimiter, check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
-from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_system
+from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_integrator, valve_system
 from pcv_sim.units import KELVIN_AT_0C, M3S_PER_LPM, PA_PER_BAR, bar, kelvin
 
 __all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure", "check_temperature"]
@@ -98,8 +98,7 @@ class RealTimeStepper:
             raise ValueError(f"model kind {self.kind!r}: accepted are {', '.join(KINDS)}")
         self.model = ValveModel(params, self.kind)  # type: ignore[arg-type]
         self.dt = params.simulation.time_step
-        name = integrator or (params.simulation.method if self.kind == params.simulation.model
-                              else ("erk2" if self.kind == "full" else "rk2"))
+        name = integrator or valve_integrator(params, self.kind)
         if name not in INTEGRATORS:
             raise ValueError(f"integrator {name!r}: accepted are {', '.join(INTEGRATORS)}")
         self.integrator = name
@@ -204,13 +203,19 @@ class RealTimeStepper:
         value = check_temperature(name.replace("_", " "), value)
         if name == "oil_temperature":
             self._check_oil(value)
+            if self.sim.plant.rate_parameters:
+                self.sim.P[kernel.V_RATE] = kernel.spool_rate(value, self.sim.P[: kernel.N_PARAMS])
+                self.sim.refresh_rates()
         self.sim.u[inputs.index(f"valve.{name}")] = value
         self._current_step = -1
 
     def _check_oil(self, temperature: float) -> None:
         """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
-        outgrows the explicit step (Heun's and erk2's bound on the real axis is h lambda = 2).
-        Refused with what would run it, rather than integrated into a diverging state."""
+        outgrows an explicit step (Heun's bound on the real axis is h lambda = 2). erk2 takes the
+        pole exactly when the core is attached (`valve_system`); otherwise the temperature is
+        refused with what would run it, rather than integrated into a diverging state."""
+        if self.integrator == "erk2" and self.sim.plant.rate_parameters:
+            return
         p = self.sim.P[: kernel.N_PARAMS]
         mu_ratio = float(kernel.oil_properties(temperature, p)[3])
         sp = self.params.spool
@@ -223,8 +228,11 @@ class RealTimeStepper:
             raise CommandError(
                 f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
                 f"reference's) makes the spool's damping pole {z / self.dt:.3g} 1/s, beyond what the "
-                f"{self.dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, or "
-                f"simulation.time_step <= {limit:.2g} s for this temperature")
+                f"{self.dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, "
+                f"simulation.time_step <= {limit:.2g} s for this temperature"
+                + (", or simulation.integrator: erk2 (or auto), which takes the pole exactly"
+                   if not self.params.spool.core_separation else
+                   " (with spool.core: separate the spool and the core each have their own pole)"))
 
     def output(self, name: str) -> float:
         """An output by its name at the present state (e.g. coil_temperature, core_position)."""

@@ -75,6 +75,11 @@ class System:
     stops: tuple[Stop, ...] = ()
     #: Initial workspace values (default zeros).
     w0: tuple[float, ...] = ()
+    #: (state, parameter) pairs: the state's linear decay rate (1/s) is p[parameter], which may
+    #: change at run time (the valve's spool in oil of a changing temperature; 0 = explicit).
+    #: Such a state is integrated exponentially by `erk2` but, unlike `stiff_rates`, not relaxed
+    #: onto a slow manifold (its rate is that of the state itself, so its own update is exact).
+    rate_parameters: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
@@ -137,6 +142,13 @@ class Composite:
     @property
     def rates(self) -> np.ndarray:
         return np.concatenate([s.rates for s in self.systems])
+
+    @property
+    def rate_parameters(self) -> tuple[tuple[int, int], ...]:
+        """(state, parameter) pairs in the composite's state and parameter vectors: the states
+        whose decay rate is read from the parameters at run time (`System.rate_parameters`)."""
+        xs, ps = self.offsets("states"), self.offsets("p")
+        return tuple((i + xs[k], j + ps[k]) for k, s in enumerate(self.systems) for i, j in s.rate_parameters)
 
 
 def _split(signal: str) -> tuple[str, str]:

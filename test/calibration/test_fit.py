@@ -234,3 +234,33 @@ def test_a_preload_looks_like_a_pressure_offset(preload_bag: Path) -> None:
     res = calibrate([load_recording(preload_bag)], p0, [fit_parameter(p0, "spool.spring_preload")],
                     roles=["pressure"], lag_bounds=None, time_constant_bounds=None, solver="fast")
     assert any("spool.spring_preload is correlated with the pressure offset of bag 0" in w for w in res.warnings)
+
+
+def test_thermal_constants_from_a_long_recording_at_constant_duty(tmp_path: Path) -> None:
+    """docs/model.md R33: at constant duty the coil heats and its current falls (copper's R(T));
+    the fall's depth gives the thermal resistance (the steady rise P R_th), its pace the time
+    constant R_th C_th. A 150 s recording at 90 % of a coil whose constants are not the defaults
+    (3 K/W, 50 J/K: tau 150 s) gives both back within the intervals the fit reports."""
+    def coil(**changes: float):
+        p = replace_param(default_params(), "solenoid.coil_temperature", "lumped")
+        for key, value in changes.items():
+            p = replace_param(p, f"solenoid.{key}", value)
+        return p
+
+    truth = coil(coil_thermal_resistance=3.0, coil_heat_capacity=50.0)
+    csv = write_rig_csv(tmp_path / "hot.csv", truth, [0.9], hold_s=150.0, rate_hz=5.0,
+                        noise={"pressure": 0.3e5, "current": 0.002, "spool_position": 0.003e-3}, seed=3,
+                        broken_rows=0)
+    import_csv(csv, tmp_path / "hot", skip_bad_rows=True)
+    rec = load_recording(tmp_path / "hot")
+    current = rec.measured["current"].value
+    assert current[0] - current[-1] > 0.1            # the current falls by > 0.1 A as the coil heats
+    p0 = coil()
+    res = calibrate([rec], p0, [fit_parameter(p0, "solenoid.coil_thermal_resistance"),
+                                fit_parameter(p0, "solenoid.coil_heat_capacity")],
+                    lag_bounds=None, time_constant_bounds=None)
+    r_th, c_th = res.parameters
+    assert (r_th.initial, c_th.initial) == (2.5, 200.0)
+    assert abs(r_th.value - 3.0) <= r_th.half_width_95 < 0.1
+    assert abs(c_th.value - 50.0) <= c_th.half_width_95 < 5.0
+    assert res.warnings == ()

@@ -329,3 +329,29 @@ def test_progress_on_a_terminal_only(capsys, monkeypatch):
     assert not _interactive(argparse.Namespace(json=True))
     monkeypatch.setenv("CI", "true")
     assert not _interactive(argparse.Namespace(json=False))
+
+
+def test_campaign_over_oil_temperature_runs(write_campaign, tmp_path, capsys):
+    """The valves' oil temperature (docs/model.md R34) as a campaign variable: a sweep over
+    `valves.fluid.oil_temperature_c` with the valves' oil temperature an input runs every variant
+    (-20 degC at the rig's step: the spool's pole taken exactly), and the cold oil shows in the
+    tracking (a slower valve)."""
+    rig = yaml.safe_load((REPO / "config" / "rig.yaml").read_text())
+    for name in rig["valves"]:
+        valve = yaml.safe_load((REPO / "config" / "valve.yaml").read_text())
+        valve["fluid"]["temperature"] = "input"
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(valve))
+        rig["valves"][name]["config"] = str(tmp_path / f"{name}.yaml")
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig))
+    scenario = {**SCENARIO, "rig": str(tmp_path / "rig.yaml")}
+    path = write_campaign({"sweep": {"parameters": {"valves.fluid.oil_temperature_c": [-20.0, 40.0]}}, "worst": 0},
+                          scenario)
+    assert run_campaign(path, tmp_path / "out", "--workers", "1") in (0, 1)
+    capsys.readouterr()
+    rows = read_rows(tmp_path / "out" / "results.csv")
+    assert len(rows) == 2
+    assert {r["status"] for r in rows} <= {"passed", "failed"}      # every variant ran (no error)
+    cold, warm = sorted(rows, key=lambda r: float(r["left.fluid.oil_temperature_c"]))
+    assert float(cold["left.fluid.oil_temperature_c"]) == -20.0
+    assert all(math.isfinite(float(r["tracks.value"])) for r in rows)
+    assert float(cold["tracks.value"]) > float(warm["tracks.value"])  # the cold valves track worse

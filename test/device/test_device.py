@@ -336,3 +336,28 @@ def test_node_settings_cross_checks():
     with pytest.raises(ParameterError, match='max_catchup'):
         settings_with(ok, {'max_catchup': 1e-4}).check(PARAMS)
     assert settings_with(ok, {'publish_rate': 1000}).publish_rate == 1000.0
+
+
+def test_the_options_signals_are_among_the_devices_signals():
+    """docs/model.md R33-R35: a valve with its options on gives their inputs and outputs as signals
+    (the registry's OPTION_INTERFACE names), the model's values; the paper's valve has none."""
+    from pcv_sim.device.valve import OPTION_SIGNALS
+    from pcv_sim.io.topics import OPTION_INTERFACE
+    from pcv_sim.params import replace_param
+    from pcv_sim.units import kelvin
+
+    assert {e.name for e in OPTION_INTERFACE} == set(OPTION_SIGNALS)
+    assert not set(OPTION_SIGNALS) & set(device().signals())
+    params = PARAMS
+    for key, value in (("solenoid.coil_temperature", "lumped"), ("fluid.temperature", "input"),
+                       ("spool.core", "separate")):
+        params = replace_param(params, key, value)
+    dev = ValveDevice(params, safe_duty=0.9, watchdog_timeout=0.0)
+    dev.stepper.set_input("oil_temperature", kelvin(50.0))
+    dev.stepper.advance(10_000)                     # 1 s at 90 %: the coil warms
+    signals = dev.signals()
+    assert signals["oil_temperature"] == kelvin(50.0)
+    assert signals["ambient_temperature"] == kelvin(params.solenoid.ambient_temperature_c)
+    assert signals["coil_temperature"] == dev.stepper.output("coil_temperature") > kelvin(40.0)
+    assert signals["coil_resistance"] == dev.stepper.output("coil_resistance") > params.solenoid.coil_resistance
+    assert signals["core_position"] == dev.stepper.output("core_position") == dev.stepper.spool_position

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from pcv_sim.io.topics import EMULATOR_INTERFACE, RIG_INTERFACE, SCENARIO_INTERFACE, Endpoint
+from pcv_sim.io.topics import EMULATOR_INTERFACE, OPTION_INTERFACE, RIG_INTERFACE, SCENARIO_INTERFACE, Endpoint
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "interface.md"
 
@@ -73,11 +73,12 @@ def mismatches(endpoints: tuple[Endpoint, ...], rows: list[list[str]]) -> list[s
     return found
 
 
-@pytest.mark.parametrize(("k", "endpoints"), [(0, EMULATOR_INTERFACE), (1, RIG_INTERFACE), (2, SCENARIO_INTERFACE)],
-                         ids=["emulator", "rig", "scenario"])
+@pytest.mark.parametrize(("k", "endpoints"), [(0, EMULATOR_INTERFACE), (1, RIG_INTERFACE), (2, SCENARIO_INTERFACE),
+                                               (3, OPTION_INTERFACE)],
+                         ids=["emulator", "rig", "scenario", "options"])
 def test_the_document_matches_the_registry(k, endpoints):
     tables = doc_tables(DOC.read_text(encoding="utf-8"))
-    assert len(tables) == 3
+    assert len(tables) == 4
     assert mismatches(endpoints, tables[k]) == []
 
 

@@ -20,8 +20,9 @@ from mcap.reader import make_reader
 
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import BagRecorder, RigRecorder
+from pcv_sim.io.recorder import BagRecorder
 from pcv_sim.io.writer_process import HIGH_WATER, LOW_WATER
+from pcv_sim.rig.bag import RigRecorder
 
 T0 = 1_700_000_000_000_000_000
 DT = 100_000

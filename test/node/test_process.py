@@ -92,3 +92,27 @@ def test_the_entry_module_imports_nothing_heavy_before_main_installs_the_handler
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, env=clean_child_env(),
                          timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == '[]', out
+
+
+def test_a_signal_inside_an_extension_modules_initialisation_is_still_a_clean_stop(capfd):
+    """pybind11 turns whatever a module's initialisation raises into "ImportError: initialization
+    failed" with the original as its cause: a SIGINT landing while scipy's HiGHS module loads came
+    out as that ImportError (a traceback, exit 1) under CPU load. The start-up interruption is
+    recognised through the chain; an unrelated ImportError still propagates."""
+    from pcv_sim.node.process import EXIT_OK, StartInterrupted, main_process
+
+    def starting(_argv, _stop):
+        try:
+            signal.raise_signal(signal.SIGINT)      # the handler raises StartInterrupted here
+        except StartInterrupted as exc:
+            raise ImportError("initialization failed") from exc
+        return 5
+
+    assert main_process(starting, ['emulator']) == EXIT_OK
+    assert 'stopped on SIGINT while starting' in capfd.readouterr().err
+
+    def broken(_argv, _stop):
+        raise ImportError("no module named spam")
+
+    with pytest.raises(ImportError, match="spam"):
+        main_process(broken, ['emulator'])

@@ -232,7 +232,7 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
         node._on_duty('left', Float64(data=0.8), {'received_timestamp': 1})    # long ago: at step 21
         response = node._on_reset(Trigger.Request(), Trigger.Response())
         assert response.success and 'at the next step' in response.message
-        reset_at = node._last_input['reset']
+        reset_at = rig.timing.last('reset')
         assert reset_at >= 24                            # not before its reception (~2.4 ms)
         node._on_external_force(Float64(data=300.0), {'received_timestamp': 10**12})  # after it: it stays
         rig.advance_to(reset_at + 10)

@@ -225,6 +225,27 @@ def test_settings_cross_check_the_rig_step_and_override_the_control_period():
         RigNodeSettings(max_catchup=5e-4).check(rig)
 
 
+def test_the_rig_declares_every_setting_all_nodes_share_as_the_emulator_does():
+    """One declaration (pcv_sim.device.settings.CommonSettings): the real-time loop's settings (overrun
+    and realtime_priority too), diagnostics, the rejection log and the bag's place."""
+    import dataclasses
+
+    from pcv_sim.device.settings import NODE_PARAMETERS, CommonSettings
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value
+
+    common = [f.metadata["name"] or f.name for f in dataclasses.fields(CommonSettings)]
+    rig, emulator = {p.name: p for p in RIG_PARAMETERS}, {p.name: p for p in NODE_PARAMETERS}
+    assert {"overrun", "realtime_priority", "wake_period", "max_catchup"} <= set(common)
+    for name in common:
+        assert (rig[name].default, rig[name].unit, rig[name].description, rig[name].read_only) == \
+               (emulator[name].default, emulator[name].unit, emulator[name].description, emulator[name].read_only)
+    assert RigNodeSettings().catchup_bound == 0.05
+    assert RigNodeSettings(overrun="skip").catchup_bound == 1e-3            # one wake period
+    with pytest.raises(ParameterError, match=r"realtime_priority: got 100; accepted is an integer 0..99"):
+        check_rig_value("realtime_priority", 100)
+
+
 def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
     """The rule of the emulator, on the node itself (in this process; the step an input is given
     is what decides it): the first step stamped at or after the DDS reception, after the last
@@ -240,18 +261,18 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
         rig = node.rig
         node._schedule = sched = RealTimeSchedule(rig.dt)
         sched.start(time.monotonic() - 1.0)            # 1 s of wall time since the start: nothing is "future"
-        node.origin_ns = 1_000_000_000_000
+        rig.origin_ns = 1_000_000_000_000
         node._shown = 20                               # the sample at step 20 has been published
         steps = []
 
         def acted_at(valve, received_ns):
             node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
-            steps.append(node._last_input[valve])          # the step the one just given acts at
+            steps.append(rig.timing.last(valve))           # the step the one just given acts at
 
-        acted_at('left', node.origin_ns + 2_345_000)    # received at 2.345 ms: step 24 (2.4 ms), not 23
-        acted_at('left', node.origin_ns + 2_345_000)    # the same instant again: the step after
-        acted_at('right', node.origin_ns + 500_000)     # received before the last sample shown: step 21
-        acted_at('right', node.origin_ns + 3_000_000)   # exactly on step 30
+        acted_at('left', rig.origin_ns + 2_345_000)     # received at 2.345 ms: step 24 (2.4 ms), not 23
+        acted_at('left', rig.origin_ns + 2_345_000)     # the same instant again: the step after
+        acted_at('right', rig.origin_ns + 500_000)      # received before the last sample shown: step 21
+        acted_at('right', rig.origin_ns + 3_000_000)    # exactly on step 30
         assert steps == [24, 25, 21, 30]
         rig.advance_to(40)
         assert rig.commands == {'left': 0.7, 'right': 0.7}

@@ -275,3 +275,34 @@ def test_the_controller_gets_the_time_a_node_reads_from_the_stamp(rig):
     stamps_ns = [k * rig.params.steps_per_period * 100_000 for k in range(len(seen))]
     assert seen == [s * 1e-9 for s in stamps_ns]
     assert any(s * 1e-9 != k * rig.params.steps_per_period * rig.dt for k, s in enumerate(stamps_ns))
+
+
+def test_a_state_that_runs_away_is_the_rigs_fault_state_until_a_reset(rig):
+    """The rig is a device (pcv_sim.device.device): a state that runs away (here one the coil current
+    cannot be solved for) raises RigError naming the time and is kept as `fault`; a reset that keeps the
+    time clears it and the rig steps again."""
+    from pcv_sim.rig import RigError
+
+    rig.advance_to(100)
+    assert rig.fault is None
+    rig.sim.x[0] = np.nan
+    with pytest.raises(RigError, match=r"model step failed \(ArithmeticError: no coil current solves Eq\. 2") as err:
+        rig.advance_to(200)
+    assert rig.fault == str(err.value) and rig.fault_step is not None
+    rig.reset(keep_time=True)
+    assert rig.fault is None and rig.fault_step is None and rig.steps >= 100
+    rig.advance_to(rig.steps + 100)
+    assert np.isfinite(rig.sample()).all()
+
+
+def test_inputs_act_at_their_step_in_the_order_they_came(rig):
+    """The rig's queue is the devices' one (pcv_sim.device.inputs.InputQueue): an input scheduled for a
+    step acts there, two for one step act in their order, one for a past step at the present one."""
+    rig.advance_to(10)
+    rig.schedule_step(20, lambda: rig.set_duty("left", 0.6))
+    rig.schedule_step(20, lambda: rig.set_duty("left", 0.7))
+    assert rig.schedule_step(5, lambda: rig.set_duty("right", 0.4)) == 10
+    rig.advance_to(19)
+    assert rig.commands["left"] == 0.5 and rig.commands["right"] == 0.4
+    rig.advance_to(20)
+    assert rig.commands["left"] == 0.7 and rig.watchdogs["left"].command_step == 20

@@ -11,9 +11,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from pcv_sim.cli import main
-from pcv_sim.io.recorder import RigRecorder
 from pcv_sim.params import load_params
 from pcv_sim.replay import ReplayError, load_recording, replay
+from pcv_sim.rig.bag import RigRecorder
 
 DT_NS = 100_000
 NS = "/bench/rig"
@@ -100,7 +100,7 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     """As on the wire: a dropped (NaN) sample has no message, a JointState leaves a dropped field
     empty; the joint states written from the template are the generic serializer's bytes."""
     from pcv_sim.io.bag import cdr
-    from pcv_sim.io.recorder import JOINT_STATE
+    from pcv_sim.rig.bag import JOINT_STATE
 
     rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
                       signals=rig.signals, writer="inline")
