@@ -116,7 +116,7 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
 
     def sampled(self, true, measured):            # the hook runs before the samples go out
         node = self.node
-        stamp = node.origin_ns + node.rig.steps * node.dt_ns
+        stamp = node.rig.origin_ns + node.rig.steps * node.dt_ns
         shown[0] = stamp
         trace[stamp] = [mono_ns(), 0, 0, time.process_time_ns()]
         orig_sampled(self, true, measured)
