@@ -32,7 +32,9 @@ work runs is the ``writer`` argument:
   signals); every ``batch_period`` s (or 4096 items) the loop pickles the list into a
   shared-memory ring (~25 µs for 200 items) and a writer process (:mod:`pcv_sim.io.writer_process`)
   does the rest with this same class's writing side. The node's interpreter lock is then the
-  loop's alone.
+  loop's alone, and the writer runs under SCHED_IDLE: on a busy machine it waits for idle CPU and
+  the ring (``max_queue_s`` of items) holds the backlog; past half of it the writer works at normal
+  priority.
 - ``thread``: the same queue taken by a writer thread every ``batch_period`` s, serialising the
   output samples as whole numpy arrays (``BagWriter.write_samples``, ~0.2 µs per message). Python
   threads share one interpreter lock: the loop waits whenever it wakes while the writer holds it,

@@ -18,12 +18,24 @@ The pieces:
   with the ring and a control pipe, sends it how to build the recorder's writing side
   (class and arguments; the child builds the same recorder class with ``writer="inline"``, so the
   bytes on disk are the same code's), and waits until the bag is open (or the reason it is not).
-- :func:`main`: the writer process: every ``batch_period`` it writes what the ring holds; its
+- :func:`main`: the writer process: it writes what the ring holds, one record at a time; its
   counters (items taken, messages, drops, error) live in the ring's header. It stops after the
   node's close request, and also when the control pipe reaches end of file (the node died, even
   by SIGKILL): it then writes what it had and finalizes the bag, which is complete up to the
-  node's last batch. It ignores SIGINT and SIGTERM and has its own session: a Ctrl-C or a
-  process group's SIGTERM reaches the node, which closes the bag after its last samples.
+  node's last batch. It ignores SIGINT, SIGTERM and SIGHUP and has its own process group: a
+  Ctrl-C or a process group's SIGTERM reaches the node, which closes the bag after its last
+  samples.
+
+Scheduling: the writer takes only CPU that nothing else wants. It writes from a thread under
+SCHED_IDLE (nice 19 where that is refused): a waking thread of normal priority, the node's loop,
+preempts it at once, where a writer of normal priority made the loop wait for the rest of its
+slice (BENCHMARKS.md, "Recording on a busy machine"). On a machine busy with other work it falls
+behind and the ring holds the backlog. When the ring is more than HIGH_WATER full, and at close,
+the process's main thread (normal priority) writes until the backlog is down to LOW_WATER (or
+empty): a recording loses data only when the ring fills even so, and then the node counts every
+message it could not hand over as dropped (its diagnostics go WARN, the close says how many).
+The process stays in the node's session (Linux's autogroup scheduling then counts it in the
+node's group, not as a group of its own).
 
 A writer process that dies is seen by the node at its next batch or status (``failed`` with the
 exit code): later items are counted as dropped, the loop never waits for it.
@@ -41,6 +53,7 @@ import signal
 import struct
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final
@@ -65,6 +78,9 @@ CLOSED: Final = 3
 START_TIMEOUT: Final = 60.0
 #: s without progress after which closing gives up on the writer process and kills it.
 STALL_TIMEOUT: Final = 20.0
+#: Fill of the ring (fraction) above which the writer writes at normal priority, down to LOW_WATER.
+HIGH_WATER: Final = 0.5
+LOW_WATER: Final = 0.25
 
 
 class Ring:
@@ -99,16 +115,20 @@ class Ring:
         self.counters[_HEAD] = head + size
         return True
 
-    def take(self) -> list[bytes]:
-        """Every record there is now (consumer), oldest first."""
+    def used(self) -> int:
+        """Bytes written and not yet taken."""
         c = self.counters
-        tail, head = int(c[_TAIL]), int(c[_HEAD])
-        out = []
-        while tail < head:
-            (n,) = _LEN.unpack(self._read(tail, _LEN.size))
-            out.append(self._read(tail + _LEN.size, n))
-            tail += _LEN.size + (n + 7) // 8 * 8
-        c[_TAIL] = tail
+        return int(c[_HEAD] - c[_TAIL])
+
+    def take_one(self) -> bytes | None:
+        """The oldest record (consumer); None when there is none."""
+        c = self.counters
+        tail = int(c[_TAIL])
+        if tail >= int(c[_HEAD]):
+            return None
+        (n,) = _LEN.unpack(self._read(tail, _LEN.size))
+        out = self._read(tail + _LEN.size, n)
+        c[_TAIL] = tail + _LEN.size + (n + 7) // 8 * 8
         return out
 
     def _write(self, at: int, data: bytes) -> None:
@@ -165,8 +185,8 @@ class WriterProcess:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "pcv_sim.io.writer_process", str(self.ring.fd), str(read_end),
                  str(self.ring.capacity), repr(batch_period)],
-                pass_fds=(self.ring.fd, read_end), stdin=subprocess.DEVNULL, start_new_session=True,
-                close_fds=True)
+                pass_fds=(self.ring.fd, read_end), stdin=subprocess.DEVNULL, close_fds=True,
+                process_group=0)      # not a session of its own: that would be a scheduling group of its own
         except OSError as exc:
             os.close(self._control)
             self.ring.close()
@@ -267,10 +287,10 @@ def _read_spec(fd: int) -> tuple[str, str, dict[str, Any]]:
 
 def main(argv: list[str]) -> int:
     """``python -m pcv_sim.io.writer_process RING_FD CONTROL_FD CAPACITY BATCH_PERIOD``."""
-    for sig in (signal.SIGINT, signal.SIGTERM):        # the node decides when the bag ends
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):    # the node decides when the bag ends
         signal.signal(sig, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))   # never SCHED_FIFO, even if the node is
     ring_fd, control, capacity, batch_period = int(argv[0]), int(argv[1]), int(argv[2]), float(argv[3])
     ring = Ring(ring_fd, capacity)
     c = ring.counters
@@ -281,22 +301,18 @@ def main(argv: list[str]) -> int:
         ring.set_error(str(exc) if isinstance(exc, BagError) else f"{type(exc).__name__}: {exc}")
         c[_STATE] = FAILED
         return 1
+    turns = _Turns(ring, rec)
     c[_STATE] = READY
+    background = threading.Thread(target=turns.background, args=(batch_period,), name="bag writer (idle)", daemon=True)
+    background.start()
     done = False
     while not done:
         ready, _, _ = select.select([control], [], [], batch_period)
         if ready:
             data = os.read(control, 4096)
             done = not data or b"c" in data          # end of file: the node is gone; "c": close
-        for payload in ring.take():
-            items = pickle.loads(payload)
-            rec.write_items(items)
-            c[_TAKEN] += len(items)
-        st = rec.status()
-        c[_MESSAGES], c[_DROPPED] = st.messages, st.dropped
-        if st.error:
-            ring.set_error(st.error)
-            c[_STATE] = FAILED
+        if done or ring.used() > HIGH_WATER * ring.capacity:
+            turns.take_over(until=0 if done else LOW_WATER * ring.capacity)
     st = rec.close()
     c[_MESSAGES], c[_DROPPED] = st.messages, st.dropped
     if st.error:
@@ -305,6 +321,65 @@ def main(argv: list[str]) -> int:
         return 1
     c[_STATE] = CLOSED
     return 0
+
+
+class _Turns:
+    """Who writes: the background thread under SCHED_IDLE, or the main thread at normal priority
+    when the ring is filling up (a machine busy for longer than the ring holds) and at close (the
+    node waits for the bag). An unprivileged process cannot raise a thread's priority again, hence
+    two threads. A turn is one record (one batch of the node's, ~1-2 ms of writing); the main
+    thread waits for the background thread's record in progress and for the interpreter lock it
+    may hold, which on a saturated machine takes up to a few seconds (the idle thread gets a slice
+    every ~1 s): HIGH_WATER leaves half the ring for that."""
+
+    def __init__(self, ring: Ring, rec: Any) -> None:
+        self.ring, self.rec = ring, rec
+        self.work = threading.Lock()
+        self.go = threading.Event()       # the background thread may write
+        self.go.set()
+
+    def turn(self) -> bool:
+        """Write the oldest record in the ring (False: there was none)."""
+        payload = self.ring.take_one()
+        if payload is None:
+            return False
+        items = pickle.loads(payload)
+        self.rec.write_items(items)
+        c = self.ring.counters
+        c[_TAKEN] += len(items)
+        st = self.rec.status()
+        c[_MESSAGES], c[_DROPPED] = st.messages, st.dropped
+        if st.error:
+            self.ring.set_error(st.error)
+            c[_STATE] = FAILED
+        return True
+
+    def background(self, batch_period: float) -> None:
+        _lowest_priority()
+        while True:
+            self.go.wait()                # no timeout: parked without the interpreter lock while the main thread writes
+            with self.work:
+                wrote = self.go.is_set() and self.turn()
+            if not wrote:
+                time.sleep(batch_period)
+
+    def take_over(self, until: float) -> None:
+        """Write at normal priority until at most `until` bytes are waiting in the ring."""
+        self.go.clear()
+        with self.work:                   # the background thread's record in progress, if any
+            while self.ring.used() > until and self.turn():
+                pass
+        if until > 0:
+            self.go.set()
+
+
+def _lowest_priority() -> None:
+    """This thread to SCHED_IDLE, else (refused) to nice 19."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (OSError, AttributeError):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, 19)       # this thread's (Linux: per thread)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from typing import Any
 
 from rclpy.exceptions import InvalidHandle
 
-__all__ = ["ROSOUT_LINGER", "ROSOUT_LINGER_ENV", "drain", "linger_for_rosout"]
+__all__ = ["ROSOUT_LINGER", "ROSOUT_LINGER_ENV", "Waiter", "drain", "linger_for_rosout"]
 
 ROSOUT_LINGER = 3.0                          # s a node that cannot start waits for a /rosout subscriber
 ROSOUT_LINGER_ENV = "PCV_SIM_ROSOUT_LINGER"  # another budget (s): discovery on a loaded machine may take longer
@@ -32,6 +32,29 @@ def drain(subscriptions: Iterable[tuple[Any, Callable[..., None]]]) -> int:
             handler(*got)
             taken += 1
     return taken
+
+
+class Waiter:
+    """Blocks until one of `subscriptions` has a message (or `timeout` s pass), without the
+    interpreter lock and without using a core: an rcl wait set made once, woken by the DDS
+    listener. For the one topic a lockstep waits for; the others are then taken by `drain`."""
+
+    def __init__(self, subscriptions: Iterable[Any], context: Any) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        self._subs = list(subscriptions)
+        self._ws = _rclpy.WaitSet(len(self._subs), 0, 0, 0, 0, 0, context.handle)
+
+    def wait(self, timeout: float) -> None:
+        ws = self._ws
+        ws.clear_entities()
+        try:
+            for sub in self._subs:
+                with sub.handle:
+                    ws.add_subscription(sub.handle)
+            ws.wait(max(0, int(timeout * 1e9)))
+        except InvalidHandle:                # destroyed during shutdown
+            time.sleep(timeout)
 
 
 def linger_for_rosout(node: Any) -> None:

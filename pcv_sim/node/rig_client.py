@@ -1,8 +1,9 @@
 """A lockstep controller of the rig node over DDS: a starting point for a controller in Python.
 
-Used by the tests and `bench/rig_dds.py`. Like the node it polls its subscriptions with
-`take_message` instead of spinning an executor (~125 us per `spin_once`, against a control period
-of 1 ms), so what it measures is the rig and DDS, not rclpy's executor.
+Used by the tests and `bench/rig_dds.py`. Like the node it takes its messages with `take_message`
+instead of spinning an executor (~125 us per `spin_once`, against a control period of 1 ms), so
+what it measures is the rig and DDS, not rclpy's executor; between periods it blocks in an rcl
+wait set on `joint_states` alone (`pcv_sim.node.polling.Waiter`).
 
 A control period is complete when the cylinder's `joint_states` stamped with its model time has
 arrived (the rig publishes it last) and the topics published before it have been taken once more;
@@ -49,12 +50,11 @@ from pcv_sim.io.topics import (
     valve_topic,
 )
 from pcv_sim.node.client import sample_qos
-from pcv_sim.node.polling import drain
+from pcv_sim.node.polling import Waiter, drain
 
 __all__ = ["Period", "RigClient"]
 
-POLL = 2e-5             # s between polls; with the default 50 us timer slack a sleep lasts ~100 us
-                        # (the caller may tighten it, as bench/rig_dds.py does)
+FULL_POLL = 1e-2        # s between polls of every topic while waiting for a period's last one
 RigController = Callable[[float, Mapping[str, float]], Mapping[str, Any]]
 
 
@@ -88,6 +88,7 @@ class RigClient:
         self.history = history
         cmd = QoSProfile(depth=10)
         self.duty_pubs = {v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
+        self._duty_msg = Float64()
         self.fault_pub = node.create_publisher(String, FAULTS, cmd)
         self.force_pub = node.create_publisher(Float64, cylinder_topic(EXTERNAL_FORCE), cmd)
         # Services on a node of their own, made at the first call and spun only while a call waits
@@ -101,8 +102,10 @@ class RigClient:
             if currents:
                 self._subs.append((node.create_subscription(Float64, valve_topic(v, CURRENT), _ignore, qos),
                                    self._current(v)))
-        self._subs.append((node.create_subscription(JointState, cylinder_topic(JOINT_STATES), _ignore, qos),
-                           self._joint))
+        joint = (node.create_subscription(JointState, cylinder_topic(JOINT_STATES), _ignore, qos), self._joint)
+        self._subs.append(joint)
+        self._completing = [joint]           # the rig publishes it last: it completes a period
+        self._waiter = Waiter([joint[0]], node.context)
         if history:
             self._subs.append((node.create_subscription(DiagnosticArray, DIAGNOSTICS, _ignore, QoSProfile(depth=50)),
                                self._diagnostic))
@@ -204,12 +207,21 @@ class RigClient:
         answered = self.answered
         first = len(self.periods)
         goal = math.inf if periods is None else answered + periods
+        next_full = 0.0
         while self.answered < goal and not (stop is not None and stop.requested):
-            if time.monotonic() > end:
+            now = time.monotonic()
+            if now > end:
                 raise TimeoutError(f"rig lockstep: {self.answered - answered} of {periods} periods answered in "
                                    f"{timeout} s")
-            if not self.poll():
-                time.sleep(POLL)
+            # Waiting, for the period's last topic only, blocked in an rcl wait set (not polling: two
+            # polling processes kept both cores busy, ~1 ms of CPU a period each, and the DDS threads
+            # that deliver the messages waited for a core); every topic once it came, and every
+            # FULL_POLL s whatever came.
+            if not drain(self._completing) and now < next_full:
+                self._waiter.wait(next_full - now)
+                continue
+            next_full = now + FULL_POLL
+            if not self.poll() and not self._partial:
                 continue
             for stamp, values in self._take_complete():
                 if self._currents:
@@ -241,8 +253,10 @@ class RigClient:
         return self.periods[first:]
 
     def _send(self, duties: Mapping[str, float]) -> None:
+        msg = self._duty_msg                 # refilled: publish serializes it at once
         for v, d in duties.items():
-            self.duty_pubs[v].publish(Float64(data=d))
+            msg.data = d
+            self.duty_pubs[v].publish(msg)
 
     def send_fault(self, text: str) -> None:
         self.fault_pub.publish(String(data=text))

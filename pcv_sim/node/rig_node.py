@@ -110,7 +110,7 @@ from pcv_sim.node.base import (
     freeze_heap,
     tighten_timer_slack,
 )
-from pcv_sim.node.polling import drain
+from pcv_sim.node.polling import Waiter, drain
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.node.rig_settings import (
     RIG_PARAMETERS,
@@ -134,9 +134,7 @@ __all__ = ["NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
 _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
-# s between polls for the controller's commands: polling beat an rcl wait set here (a wake through
-# rmw_wait took longer than a 20 us sleep; bench/rig_dds.py, BENCHMARKS.md "Rig")
-LOCKSTEP_POLL = 2e-5
+LOCKSTEP_FULL_POLL = 1e-3       # s (wall) between polls of every input while the lockstep waits for its answers
 SERVICE_POLL_PERIOD = 0.01      # s (wall) between polls for service requests (reset, parameters)
 EXTERNAL_FORCE_TOPIC = cylinder_topic(EXTERNAL_FORCE_ROLE)
 
@@ -203,6 +201,7 @@ class RigNode(DeviceNode):
         self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
         self._msg_float = Float64()
         self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
+        self._msg_clock = Clock()
         self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
         if self.simulated:
             self.refuse_a_second_clock("stop the other simulation, or run this rig with time_mode real")
@@ -362,7 +361,7 @@ class RigNode(DeviceNode):
         self.counts.samples_published += published
 
     def _publish_clock(self) -> None:
-        msg = Clock()
+        msg = self._msg_clock
         msg.clock.sec, msg.clock.nanosec = divmod(self.rig.steps * self.dt_ns, 1_000_000_000)
         assert self._pub_clock is not None              # created in simulated time, the only caller
         self._pub_clock.publish(msg)
@@ -433,7 +432,7 @@ class RigNode(DeviceNode):
         s, rig = self.settings, self.rig
         lock = s.lockstep
         sim = self._sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
-        tighten_timer_slack()         # the lockstep wait polls in 20 us sleeps: 50 us of slack would triple them
+        tighten_timer_slack()         # the free-running wait sleeps to its period's wall time
         freeze_heap()
         mono = time.monotonic
         if lock:
@@ -446,8 +445,17 @@ class RigNode(DeviceNode):
         published = mono()
         self._answered.clear()
         valves = len(rig.valve_names)
+        answers = self._inputs[:valves]      # the duty_cycle subscriptions (made first)
+        waiter = Waiter([sub for sub, _ in answers], self.context)
+        next_full = 0.0
         while not stop.requested:
-            self._drain()
+            answers_only = lock and len(self._answered) < valves and mono() < next_full
+            if answers_only:
+                drain(answers)               # waiting: the answers alone, blocked in `waiter` between
+                                             # (BENCHMARKS.md, "Where a 1 kHz lockstep period goes")
+            else:
+                self._drain()
+                next_full = mono() + LOCKSTEP_FULL_POLL
             now = mono()
             if now >= next_diag:
                 self._publish_diagnostics(now)
@@ -468,13 +476,15 @@ class RigNode(DeviceNode):
                         self._publish_clock()
                         self._send_samples()
                         published = now
-                    time.sleep(LOCKSTEP_POLL)
+                    waiter.wait(max(0.0, next_full - now))       # woken by an answer
                     continue
             else:
                 ready = sim.ready_at(self.per)
                 if ready > now:
                     time.sleep(min(ready - now, 1e-3))
                     continue
+            if answers_only:
+                self._drain()                # what came with the answers acts from the same step as before
             target = rig.steps + self.per
             if self.hook is not None:
                 # The answers act from the step after the sample (scheduled there): take that one

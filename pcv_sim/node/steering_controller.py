@@ -8,7 +8,7 @@ in-process (examples/steering.py): the node only moves its inputs and outputs ov
 to the rig node (`ros2 run pcv_sim rig`) in its namespace, in lockstep: every control period it
 takes the samples the rig published (stamped with their model time), calls the controller with
 them and answers with both valves' duties (`pcv_sim.node.rig_client.RigClient`, no executor:
-`take_message` polling, as the rig). Topics, relative to the namespace:
+`take_message` and a wait set, as the rig). Topics, relative to the namespace:
 
     in   <valve>/pressure        sensor_msgs/FluidPressure   Pa, stamp = model time (left, right)
     in   <valve>/current         std_msgs/Float64            A
@@ -131,6 +131,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
+            self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
             ts = getattr(self, "_time_source", None)
             clock_sub = getattr(ts, "_clock_sub", None)
             if self.get_parameter("use_sim_time").value and clock_sub is not None:
@@ -179,17 +180,21 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             return self._control
 
         def _publish_flags(self, stamp_ns: int, flags: Mapping[str, float]) -> None:
-            msg = DiagnosticArray()
+            # One message refilled every period (publish serializes it at once): building the
+            # array, its status and key-values anew cost more than the control law.
+            msg, st = self._msg_flags, self._msg_flags.status[0]
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             fault = flags.get("fault_detected", 0.0) != 0.0
-            st = DiagnosticStatus(level=DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK, name=STATUS_NAME,
-                                  message="coil fault detected" if fault else "ok")
-            st.values = [KeyValue(key=k, value=repr(v)) for k, v in flags.items()]
-            msg.status.append(st)
+            st.level = DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK
+            st.message = "coil fault detected" if fault else "ok"
+            if [kv.key for kv in st.values] != list(flags):
+                st.values = [KeyValue(key=k) for k in flags]
+            for kv, v in zip(st.values, flags.values()):
+                kv.value = repr(v)
             self._pub_flags.publish(msg)
 
         def run(self, stop: Stop) -> None:
-            tighten_timer_slack()        # the lockstep polls in 20 us sleeps, as the rig node's
+            tighten_timer_slack()        # wait-set timeouts land on time
             freeze_heap()                # no 17 ms collection over rclpy's objects in a period
             self.client.run(self._control, None, timeout=None, stop=stop, on_flags=self._publish_flags,
                             rewind=self._rewind)

@@ -6,6 +6,7 @@ Real processes and real MCAP files, read back with the `mcap` package's reader.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -20,6 +21,7 @@ from mcap.reader import make_reader
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
 from pcv_sim.io.recorder import BagRecorder
+from pcv_sim.io.writer_process import HIGH_WATER, LOW_WATER
 from pcv_sim.rig.bag import RigRecorder
 
 T0 = 1_700_000_000_000_000_000
@@ -156,3 +158,102 @@ def test_the_writer_process_ignores_sigint(tmp_path: Path) -> None:
     st = rec.close()
     assert (st.state, st.dropped) == ("closed", 0)
     assert len(read_bag(tmp_path / "b")["/pressure"]) == 201
+
+
+def _threads(pid: int) -> dict[int, int]:
+    """Scheduling policy of every thread of process `pid`, by thread id."""
+    out = {}
+    for tid in map(int, os.listdir(f"/proc/{pid}/task")):
+        with contextlib.suppress(ProcessLookupError):
+            out[tid] = os.sched_getscheduler(tid)
+    return out
+
+
+def _autogroup(pid: int | str) -> str:
+    with open(f"/proc/{pid}/autogroup") as f:
+        return f.read().split()[0]
+
+
+def test_the_writer_shares_the_node_s_scheduling_group_and_writes_only_on_idle_cpu(tmp_path: Path) -> None:
+    """A session of its own would be an autogroup of its own, weighing as much as the node's whole
+    group; in the node's session its writing thread runs under SCHED_IDLE (any thread that wants
+    the CPU preempts it), its main thread (close, a filling ring) at normal priority."""
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    try:
+        assert rec._proc is not None
+        pid = rec._proc.proc.pid
+        assert os.getsid(pid) == os.getsid(0)
+        assert os.getpgid(pid) == pid != os.getpgid(0)       # its own process group: a Ctrl-C is the node's
+        if os.path.exists("/proc/self/autogroup"):
+            assert _autogroup(pid) == _autogroup("self")
+        end = time.monotonic() + 10
+        while os.SCHED_IDLE not in _threads(pid).values() and time.monotonic() < end:
+            time.sleep(0.01)
+        policies = _threads(pid)
+        assert policies.pop(pid) == os.SCHED_OTHER, policies
+        assert list(policies.values()).count(os.SCHED_IDLE) == 1, policies
+    finally:
+        rec.close()
+
+
+def test_under_cpu_load_the_ring_keeps_every_batch_until_close(tmp_path: Path, cpu_load) -> None:
+    """Two CPU burners in this session: the idle writer falls behind (how far depends on how often
+    a core idles between the burners' slices: not asserted), the ring holds what the loop handed
+    over, and closing (at normal priority) writes all of it."""
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    assert rec._proc is not None
+    feed(rec, 0, 20_000)                                   # 2 s of 10 kHz samples, ~1 MB in the ring
+    time.sleep(rec.batch_period)
+    rec.status()                                           # hands over the batch in progress
+    assert rec._proc.shipped == 4 + 20_001
+    time.sleep(1.0)
+    st = rec.status()
+    assert (st.state, st.dropped) == ("recording", 0)
+    for h in cpu_load:
+        h.kill()
+    st = rec.close()
+    assert (st.state, st.dropped, st.messages) == ("closed", 0, 4 + 3 * 20_001), st
+    assert len(read_bag(tmp_path / "b")["/pressure"]) == 20_001
+
+
+def test_a_ring_filled_past_half_is_written_by_the_normal_priority_thread_under_cpu_load(tmp_path: Path,
+                                                                                          cpu_load) -> None:
+    """Beside two burners the idle writer gets little; once the ring is more than HIGH_WATER full
+    the process's main thread (normal priority) writes it down to LOW_WATER, so a long busy spell
+    costs no data while the ring has room. Nothing is dropped, all is written. (Which thread wrote
+    is not asserted: the idle one gets CPU whenever a core idles between the burners' slices.)"""
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", max_queue_s=3.0)
+    assert rec._proc is not None
+    ring = rec._proc.ring
+    feed(rec, 0, 0)
+    n = 0
+    while ring.used() <= HIGH_WATER * ring.capacity:      # as fast as this side can: past half within ~0.3 s
+        feed(rec, n + 1, n + 1000)
+        n += 1000
+        rec._ship()
+    end = time.monotonic() + 60
+    while ring.used() > LOW_WATER * ring.capacity and time.monotonic() < end:
+        time.sleep(0.05)
+    assert ring.used() <= LOW_WATER * ring.capacity, f"{ring.used()} of {ring.capacity} bytes still waiting"
+    st = rec.close()
+    assert (st.state, st.dropped, st.messages) == ("closed", 0, 4 + 3 * (n + 1) - (n < 3000) * 1), st
+
+
+def test_a_full_ring_drops_whole_batches_and_counts_every_message(tmp_path: Path) -> None:
+    """A writer that takes nothing (stopped): batches that do not fit are counted as dropped, the
+    ones that fit are written at close: bag + dropped = everything recorded."""
+    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", max_queue_s=0.05)
+    assert rec._proc is not None
+    rec._proc.proc.send_signal(signal.SIGSTOP)
+    try:
+        feed(rec, 0, 5000)
+        time.sleep(rec.batch_period)
+        st = rec.status()
+        assert st.dropped > 0 and st.state == "recording", st
+    finally:
+        rec._proc.proc.send_signal(signal.SIGCONT)
+    st = rec.close()
+    assert st.state == "closed" and st.messages > 0, st
+    assert st.messages + st.dropped == 4 + 3 * 5001, st
+    bag = read_bag(tmp_path / "b")
+    assert sum(len(bag[t]) for t in bag.topics) == st.messages
