@@ -7,34 +7,36 @@ handling as the first thing a process does, before rclpy, numpy and the model ar
 
 Two phases. While the process starts (imports, rclpy, the node's construction: kernels loaded
 or compiled, rest states solved, which takes a minute on a busy machine with an empty kernel
-cache) a signal *interrupts* that work at once (`StartInterrupted`, raised by the handler) and
-the process exits 0: a flag alone would only be looked at once the start-up is done. From
+cache) a signal *abandons* that work at once: the handler says so and ends the process (exit 0)
+with `os._exit`. A flag alone would only be looked at once the start-up is done, and an
+exception raised from the handler is not safe there: inside a ctypes callback of the kernel
+compiler it is swallowed ("Exception ignored") and leaves numba's cache half written, inside
+an extension module's initialisation it becomes an ImportError. Nothing of the start-up needs
+closing: no bag is open yet, the kernel cache is written by rename. From
 `node.run` on, the signal only sets the flag, which the loop checks at every wake: it finishes
 the wake and closes the bag with everything up to the stop.
 """
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
+import os
 import signal
 import sys
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "StartInterrupted", "Stop", "main_process", "parameter_help",
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main_process", "parameter_help",
            "run_node", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
 
 
-class StartInterrupted(BaseException):  # not an Exception: the stop the user asked for
-    """A signal arrived while the process was starting (see the module docstring)."""
-
-
 class Stop:
     """Set by SIGINT/SIGTERM; the node's loop checks it at every wake. While `starting`, the
-    handler also raises StartInterrupted (once) to abandon the start-up."""
+    handler abandons the start-up (see the module docstring)."""
 
     def __init__(self) -> None:
         self.requested = False
@@ -46,7 +48,7 @@ class Stop:
         self.signal = signum
         if self.starting:
             self.starting = False
-            raise StartInterrupted
+            _abandon(self.name)
 
     @property
     def name(self) -> str:
@@ -61,31 +63,19 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
     for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports is a clean stop
         previous[sig] = signal.signal(sig, stop)
     try:
-        try:
-            return run(list(sys.argv if args is None else args), stop)
-        except BaseException as exc:
-            if not _interrupted(exc):
-                raise
-            stop.starting = False
-            print(f"stopped on {stop.name} while starting", file=sys.stderr)
-            return EXIT_OK
+        return run(list(sys.argv if args is None else args), stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
 
-def _interrupted(exc: BaseException) -> bool:
-    """Whether `exc` is the start-up interruption, or an error raised because of it: a signal that
-    lands while an extension module initialises (pybind11's, e.g. scipy's HiGHS) comes out as
-    "ImportError: initialization failed" with the StartInterrupted as its cause."""
-    seen: set[int] = set()
-    e: BaseException | None = exc
-    while e is not None and id(e) not in seen:
-        if isinstance(e, StartInterrupted):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return False
+def _abandon(name: str) -> None:
+    """End the process now, exit 0, saying why (what was printed before is flushed first)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):     # the handler may have interrupted a write to it
+            stream.flush()
+    os.write(2, f"stopped on {name} while starting\n".encode())
+    os._exit(EXIT_OK)
 
 
 def run_node(prog: str, argv: list[str], stop: Stop, *, description: str, epilog: Callable[[], str],
