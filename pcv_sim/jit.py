@@ -3,7 +3,7 @@
 Every function of the physics that the simulation core runs is written once, in the subset of
 Python that numba compiles (floats, tuples and numpy arrays, `math`), and decorated with `jit`.
 With numba the decorator compiles it on first use and caches the machine code on disk (under
-`cache_root()`, keyed by a digest of the package's sources), so a process that starts later
+`cache_root()`, keyed by a digest of the sources the kernels depend on), so a process that starts later
 loads it instead of compiling; without
 numba, or with the environment variable `PCV_SIM_JIT=0`, the same function runs as written. A
 test runs both paths on the same inputs and checks that they agree to rounding.
@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["ENV_VAR", "backend", "cache_root", "enabled", "jit", "source_digest"]
+__all__ = ["ENV_VAR", "backend", "cache_root", "enabled", "jit", "kernel_sources", "source_digest"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -40,15 +40,58 @@ def cache_root() -> Path:
 
 
 def source_digest() -> str:
-    """A digest of pcv_sim's own sources. numba's cache only notices changes in the file that
-    defines a function, not in the functions it calls; keying the cache directory on every
-    source file means an edit anywhere in the package can never run stale machine code."""
+    """A digest of the sources compiled code can depend on. numba's cache only notices changes in
+    the file that defines a function, not in the functions it calls or the constants it reads, so
+    the cache directory is keyed on every module that defines a kernel and every pcv_sim module
+    those import, transitively (`kernel_sources`). An edit there can never run stale machine code;
+    an edit elsewhere (a node, a command, a report) keeps the compiled kernels."""
     h = hashlib.sha1()
     pkg = Path(__file__).resolve().parent
-    for path in sorted(pkg.rglob("*.py")):
+    for path in kernel_sources():
         h.update(str(path.relative_to(pkg)).encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
+
+
+def kernel_sources() -> list[Path]:
+    """The package's modules that define a `jit` function, and the pcv_sim modules they import
+    (from the import statements, transitively, with their parent packages), sorted."""
+    pkg = Path(__file__).resolve().parent
+    modules = {_module_name(pkg, p): p for p in pkg.rglob("*.py")}
+    texts = {m: p.read_text(encoding="utf-8") for m, p in modules.items()}
+    todo = [m for m, t in texts.items() if "@jit" in t or "jit(" in t]
+    seen: set[str] = set()
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo.extend(_imported(m, modules[m], texts[m], modules))
+    return sorted(modules[m] for m in seen)
+
+
+def _module_name(pkg: Path, path: Path) -> str:
+    parts = (pkg.name, *path.relative_to(pkg).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imported(name: str, path: Path, text: str, modules: dict[str, Path]) -> set[str]:
+    import ast
+
+    here = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(here[:len(here) - node.level + 1] + [node.module or ""]).strip(".") \
+                if node.level else (node.module or "")
+            found.add(base)
+            found.update(f"{base}.{a.name}" for a in node.names)
+    out: set[str] = set()
+    for m in found:
+        parts = m.split(".")
+        out.update(q for q in (".".join(parts[:i]) for i in range(1, len(parts) + 1)) if q in modules)
+    return out
 
 
 def _numba() -> Any:
