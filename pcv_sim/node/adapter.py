@@ -21,15 +21,15 @@ The loop (no rclpy timer, no executor: both cost far more than the work at 1 kHz
     Real time: one thread sleeps until the next wake on a fixed grid of the monotonic clock
     (`wake_period`, 1 ms), then: takes every pending input message (`take_message` polling),
     asks the `RealTimeSchedule` which 0.1 ms steps are due (model time = steps * dt, never ahead of
-    wall time, never drifting), runs them, publishes the samples that fell due, and every 10th
-    wake takes pending service requests: parameter sets and reset go to a worker thread that
+    wall time, never drifting), runs them, publishes the samples that fell due, and every 10 ms
+    takes pending service requests: parameter sets and reset go to a worker thread that
     validates them and computes the new rest state (25-60 ms), the loop swaps the result in at
     its next wake and answers (`_pump`); the rest is answered at once. An input takes effect at
     the first model step whose stamp is at or after the input's DDS reception time (and after
     the previous input on its topic). Stamps are model time anchored to the ROS clock at start,
     so they are wall-consistent. Falling behind: `overrun` (catch_up up to max_catchup, or skip).
-    Simulated time: model time starts at 0 and runs in chunks of one publish period; see
-    `_run_simulated` for when an input takes effect.
+    Simulated time: model time starts at 0 and runs in chunks of one publish period, in lockstep
+    with the duty_cycle answers or free running, as the rig's (`DeviceNode._run_simulated`).
     External clock (use_sim_time): the steps up to each new /clock run when it arrives; see
     `_run_external_clock`.
 
@@ -77,7 +77,7 @@ from pcv_sim.device.settings import (
     params_with,
     settings_with,
 )
-from pcv_sim.device.valve import Recorder, Sample, ValveDevice, WatchdogState
+from pcv_sim.device.valve import VALVE, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, RecorderStatus
 from pcv_sim.io.topics import (
@@ -96,24 +96,17 @@ from pcv_sim.node.base import (
     COMMAND_HINT,
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
-    LOCKSTEP_RESEND,
     SAMPLE_HINT,
     DeviceNode,
-    StopFlag,
-    freeze_heap,
 )
-from pcv_sim.node.polling import drain
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.clock import (
     ExternalClock,
-    RealTimeSchedule,
-    SimulatedSchedule,
 )
 
 __all__ = ["EmulatorNode"]
 
 NODE_NAME = "emulator"
-SERVICE_POLL_EVERY = 10                     # wakes between service polls (10 ms at 1 kHz)
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
                  "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
@@ -126,6 +119,7 @@ class EmulatorNode(DeviceNode):
     _diag: DiagnosticsBuilder
 
     unknown_hint = _UNKNOWN_HINT
+    lockstep_keys = (VALVE,)
 
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, argv=argv, **kwargs)
@@ -147,10 +141,8 @@ class EmulatorNode(DeviceNode):
         self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
         self._pending: tuple[NodeSettings, ValveParams] | None = None   # staged within the running job
         self._staged: tuple[NodeSettings, ValveParams, Any] | None = None
-        self._schedule: RealTimeSchedule | None = None
-        self._sim: SimulatedSchedule | None = None
-        self._duty_messages = 0                      # valid or not: the lockstep handshake counts them
         self.samples_published = 0
+        self._last_published: Sample | None = None
         self._switch_interval = sys.getswitchinterval()
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
@@ -166,7 +158,7 @@ class EmulatorNode(DeviceNode):
         self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
                            if self.simulated else None)
         inp = self.input_events
-        self._inputs: list[tuple[Any, Callable[..., None]]] = [
+        self._inputs += [
             (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
                                       event_callbacks=inp(DUTY_CYCLE)), self._on_duty),
             (self.create_subscription(Float64, LOAD_FLOW, self._on_load_flow, COMMAND_QOS,
@@ -331,11 +323,8 @@ class EmulatorNode(DeviceNode):
             dev.timing.took(name, at)
 
     def _on_duty(self, msg: Float64, info: Any = None) -> None:
-        self._duty_messages += 1
+        self._answered.add(VALVE)                   # valid or not: the lockstep's answer
         self._input(DUTY_CYCLE, msg.data, info)
-
-    def _on_clock(self, msg: Clock, _info: Any = None) -> None:
-        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
         self._input(LOAD_FLOW, msg.data, info)
@@ -345,10 +334,6 @@ class EmulatorNode(DeviceNode):
 
     def _log_rejection(self, name: str, reason: str) -> None:
         self.log_rejection(name, name, reason, "the last valid value stays in force", self.settings.reject_log_period)
-
-    def _drain(self) -> int:
-        """Take every pending input message (no executor: `take_message` polling)."""
-        return drain(self._inputs)
 
     def _defer(self, srv: Any, request: Any, header: Any) -> None:
         """Parameter sets and reset: to the worker thread, in arrival order (`_pump`)."""
@@ -433,25 +418,35 @@ class EmulatorNode(DeviceNode):
         return samples
 
     def _publish(self, samples: list[Sample]) -> None:
-        dev = self.device
+        """The samples (simulated time: /clock first, at the present step, the last sample's)."""
+        if not samples:
+            return
+        if self._pub_clock is not None:
+            self._publish_clock()
         for s in samples:
-            self._stamp(dev.stamp_ns(s.step))
-            self._msg_pressure.fluid_pressure = s.pressure
-            self._msg_current.data = s.current
-            self._msg_spool.data = s.spool_position
-            self._pub_pressure.publish(self._msg_pressure)
-            self._pub_current.publish(self._msg_current)
-            self._pub_spool.publish(self._msg_spool)
-        self.samples_published += len(samples)
+            self._send(s)
+        self._last_published = samples[-1]
+        self._shown = samples[-1].step
+
+    def _send(self, s: Sample) -> None:
+        self._stamp(self.device.stamp_ns(s.step))
+        self._msg_pressure.fluid_pressure = s.pressure
+        self._msg_current.data = s.current
+        self._msg_spool.data = s.spool_position
+        self._pub_pressure.publish(self._msg_pressure)
+        self._pub_current.publish(self._msg_current)
+        self._pub_spool.publish(self._msg_spool)
+        self.samples_published += 1
+
+    def _send_samples(self) -> None:
+        if self._last_published is not None:
+            self._send(self._last_published)
+
+    def _sample_period(self) -> int:
+        return self.device.sample_every
 
     def _output_events(self, topic: str) -> PublisherEventCallbacks:
         return self.output_events(topic, SAMPLE_HINT if topic in (PRESSURE, CURRENT, SPOOL_POSITION) else COMMAND_HINT)
-
-    def _publish_clock(self) -> None:
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
-        assert self._pub_clock is not None          # created in simulated time, the only caller
-        self._pub_clock.publish(msg)
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """The device's health, one status per concern (see pcv_sim.device.diagnostics)."""
@@ -465,71 +460,6 @@ class EmulatorNode(DeviceNode):
         self._worker.shutdown(wait=True, cancel_futures=True)
         self._stop_recording()
 
-    def _run_simulated(self, stop: StopFlag) -> None:
-        """Simulated time: model time from 0, chunks of one publish period, /clock published.
-
-        Each chunk: publish /clock and the sample at model time T, take the pending inputs, which
-        take effect at T + dt (the sample at T has shown the inputs in force at T), then compute
-        [T, T + 1/publish_rate].
-        With `lockstep` (default) the node waits, before computing a chunk, for one duty_cycle
-        message received after the last sample was published: a controller that answers every
-        sample with one command sees exactly the same run each time (its command for the sample
-        at T acts from T + dt on). Without lockstep the chunks run back to back (paced by
-        real_time_factor) and an input acts from the chunk after its arrival, which depends on
-        wall-clock timing. If a sample goes unanswered for 0.5 s (e.g. the controller was not yet
-        connected) it is published again.
-        """
-        s, dev = self.settings, self.device
-        sim = SimulatedSchedule(dev.dt, factor=s.real_time_factor)
-        self._sim = sim
-        freeze_heap()
-        mono = time.monotonic
-        dev.origin_ns = 0
-        self._start_recording()
-        sim.start()
-        self._diag.restart(mono(), dev.steps)
-        next_diag = mono() + s.diagnostics_period
-        answered = self._duty_messages
-
-        def publish_now() -> float:
-            self._publish_clock()
-            if dev.fault is None:
-                self._publish([dev.sample()])
-            return mono()
-
-        published = publish_now()
-        loops = 0
-        while not stop.requested:
-            loops += 1
-            self._drain()
-            now = mono()
-            waiting = self.settings.lockstep and self._duty_messages == answered
-            if waiting or dev.fault is not None or loops % SERVICE_POLL_EVERY == 0:
-                self._poll_services()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if dev.fault is not None:
-                time.sleep(1e-3)          # model time stands still until reset
-                continue
-            if waiting:
-                if now - published > LOCKSTEP_RESEND:
-                    published = publish_now()
-                time.sleep(1e-4)
-                continue
-            chunk = dev.sample_every - dev.steps % dev.sample_every
-            ready = sim.ready_at(chunk)
-            if ready > now:
-                time.sleep(min(ready - now, 1e-3))
-                continue
-            answered = self._duty_messages
-            samples = self._run_steps(chunk)
-            sim.advance(chunk)
-            self._publish_clock()
-            self._publish(samples)
-            published = mono()
-
-
     # --- the device under the node base's loops ----------------------------------------------
 
     def _begin(self, origin_ns: int) -> None:
@@ -539,9 +469,3 @@ class EmulatorNode(DeviceNode):
 
     def _compute(self, n: int) -> None:
         self._publish(self._run_steps(n))
-
-    def _tick_services(self, loops: int) -> None:
-        if loops % SERVICE_POLL_EVERY == 0:
-            self._poll_services()
-        elif self._job is not None:
-            self._pump()

@@ -19,7 +19,10 @@
   time in real time, from the first step not shown otherwise).
 - The real-time loop and the external-clock loop (use_sim_time), written once over the node's
   `device` (`pcv_sim.device.device.Device`: steps, origin, skip, fault) and the hooks `_begin`,
-  `_compute`, `_halted`, `_tick_services`, `_drain`, `_publish_diagnostics`.
+  `_compute`, `_halted`, `_send_samples`, `_sample_period`; the simulated loop (lockstep or free
+  running) too, waiting in lockstep for the `lockstep_keys` commands.
+- Inputs taken by `_drain` (`take_message` polling of `_inputs`), services polled with them every
+  SERVICE_POLL_PERIOD of wall time.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSPolicyKind, QoSProfile
+from rosgraph_msgs.msg import Clock
 
 from pcv_sim.device.device import Device
 from pcv_sim.device.diagnostics import PeriodDiagnostics, Status
@@ -58,7 +62,7 @@ from pcv_sim.device.parameters import (
 from pcv_sim.errors import ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import CLOCK
-from pcv_sim.node.polling import linger_for_rosout
+from pcv_sim.node.polling import Waiter, drain, linger_for_rosout
 from pcv_sim.simulation.clock import (
     NO_CLOCK_YET,
     SIM_TIME_CONFLICT,
@@ -68,7 +72,8 @@ from pcv_sim.simulation.clock import (
 )
 
 __all__ = [
-    "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_RESEND",
+    "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_FULL_POLL",
+    "LOCKSTEP_RESEND", "SERVICE_POLL_PERIOD",
     "DeviceNode", "StopFlag", "freeze_heap", "ros_value", "tighten_timer_slack",
 ]
 
@@ -78,6 +83,8 @@ CLOCK_QOS = QoSProfile(depth=10)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
+LOCKSTEP_FULL_POLL = 1e-3                   # s (wall) between polls of every input while the lockstep waits for its answers
+SERVICE_POLL_PERIOD = 0.01                  # s (wall) between polls for service requests (reset, parameters)
 SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
                "ros2 topic echo --qos-reliability best_effort)")
 COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
@@ -109,6 +116,10 @@ class DeviceNode(Node):
     _external: ExternalClock
     _schedule: RealTimeSchedule | None
     _sim: SimulatedSchedule | None
+    _pub_clock: Any                 # the /clock publisher (simulated time), or None
+    #: The keys a lockstep waits for, one per answering command: its subscription is `_inputs[k]`
+    #: (made first), its handler adds the key to `_answered`.
+    lockstep_keys: tuple[str, ...] = ()
 
     def __init__(self, node_name: str, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -121,6 +132,17 @@ class DeviceNode(Node):
         self._polls = 0
         self._last_reject_log: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
+        self._inputs: list[tuple[Any, Any]] = []    # (subscription, handler(msg, info)), taken by `_drain`
+        self._next_service_poll = 0.0               # monotonic s of the next service poll
+        self._answered: set[str] = set()            # lockstep: keys heard since the last sample
+        self._shown = 0                             # the last step whose sample was published
+        self._schedule = None
+        self._sim = None
+        self._pub_clock = None
+        self._msg_clock = Clock()
+        #: a scenario's hook (pcv_sim.node.scenario_host): `sampled(true, measured)` before each period's
+        #: samples are published, `answered(k)` when every key answered, before the next period
+        self.hook: Any = None
         try:
             check_params_files(self._argv)
             self._cli = command_line_overrides(self._argv, self.get_name())
@@ -338,8 +360,119 @@ class DeviceNode(Node):
         finally:
             self._finish()
 
+    def _wait_for_controllers(self, stop: StopFlag, subs: list[Any]) -> None:
+        """Lockstep: before the first sample, until every answering command has a matched publisher
+        (a command sent before that is lost); the 0.5 s re-publication covers what is left."""
+        start = time.monotonic()
+        told = False
+        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
+            if not told and time.monotonic() - start > 2.0:
+                missing = [sub.topic_name for sub in subs if sub.get_publisher_count() == 0]
+                self.get_logger().info(f"lockstep: waiting for a controller publishing {', '.join(missing)}")
+                told = True
+            time.sleep(0.01)
+
     def _run_simulated(self, stop: StopFlag) -> None:
+        """Simulated time: model time from 0, in periods of one sample (`_sample_period` steps), /clock
+        published with each sample.
+
+        Lockstep (default): publish /clock and the samples at T, wait until every `lockstep_keys`
+        command has had a message since then, apply them from T + dt, the first step not shown (the
+        sample at T shows the inputs in force at T), compute to the next sample, repeat: a controller
+        that answers every sample the same way sees bit for bit the same run. A sample left
+        unanswered for 0.5 s is published again (a controller not yet connected, a lost command).
+        Without lockstep the periods run back to back, paced by real_time_factor, and an input acts
+        from the period after it was taken, which depends on wall-clock timing."""
+        s, dev = self.settings, self.device
+        lock = s.lockstep
+        sim = self._sim = SimulatedSchedule(dev.dt, factor=s.real_time_factor)
+        tighten_timer_slack()         # the free-running wait sleeps to its period's wall time
+        freeze_heap()
+        mono = time.monotonic
+        keys = self.lockstep_keys
+        answers = self._inputs[:len(keys)]      # the answering subscriptions (made first)
+        if lock:
+            self._wait_for_controllers(stop, [sub for sub, _ in answers])
+        sim.start()
+        self._diag.restart(mono(), dev.steps)
+        next_diag = mono() + s.diagnostics_period
+        self._begin(0)
+        published = mono()
+        self._answered.clear()
+        waiter = Waiter([sub for sub, _ in answers], self.context)
+        next_full = 0.0
+        while not stop.requested:
+            answers_only = lock and len(self._answered) < len(keys) and mono() < next_full
+            if answers_only:
+                drain(answers)               # waiting: the answers alone, blocked in `waiter` between
+                                             # (BENCHMARKS.md, "Where a 1 kHz lockstep period goes")
+            else:
+                self._drain()
+                next_full = mono() + LOCKSTEP_FULL_POLL
+            now = mono()
+            if now >= next_diag:
+                self._publish_diagnostics(now)
+                next_diag = max(next_diag + self.settings.diagnostics_period, now)
+            if dev.fault is not None:
+                time.sleep(1e-3)             # model time stands still until reset
+                continue
+            period = self._sample_period()
+            if lock:
+                if len(self._answered) < len(keys):
+                    if now - published > LOCKSTEP_RESEND:
+                        missing = [k for k in keys if k not in self._answered]
+                        # A command was lost (sent before its publisher matched) or the controller is
+                        # slow: an answer to both copies may count for the next period, so such a run
+                        # is not promised to repeat bit for bit; say so.
+                        self.get_logger().warning(
+                            f"lockstep: no duty_cycle from {', '.join(missing)} for {LOCKSTEP_RESEND:g} s after the "
+                            f"sample at t = {dev.time:.4f} s: published again", throttle_duration_sec=5.0)
+                        self._publish_clock()
+                        self._send_samples()
+                        published = now
+                    waiter.wait(max(0.0, next_full - now))       # woken by an answer
+                    continue
+            else:
+                ready = sim.ready_at(period)
+                if ready > now:
+                    time.sleep(min(ready - now, 1e-3))
+                    continue
+            if answers_only:
+                self._drain()                # what came with the answers acts from the same step as before
+            chunk = period - dev.steps % period
+            target = dev.steps + chunk
+            if self.hook is not None:
+                # The answers act from the step after the sample (scheduled there): take that one
+                # step first, so the hook sees the inputs in force after the instant.
+                k = self._shown // period
+                self._compute(1)
+                if dev.fault is not None:
+                    continue
+                self.hook.answered(k)
+            self._answered.clear()
+            self._compute(target - dev.steps)
+            if dev.fault is None:
+                sim.advance(chunk)
+            published = mono()
+
+    def _sample_period(self) -> int:
+        """Model steps between two samples."""
         raise NotImplementedError
+
+    def _send_samples(self) -> None:
+        """Publish the last sample again (a lockstep re-publication: not computed anew)."""
+        raise NotImplementedError
+
+    def _publish_clock(self) -> None:
+        """/clock at the present model step (simulated time: the one clock of the domain)."""
+        msg = self._msg_clock
+        msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
+        assert self._pub_clock is not None              # created in simulated time, the only caller
+        self._pub_clock.publish(msg)
+
+    def _on_clock(self, msg: Clock, _info: Any = None) -> None:
+        """use_sim_time: the latest external /clock."""
+        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _finish(self) -> None:
         """After the loop: the recorder closed."""
@@ -366,7 +499,6 @@ class DeviceNode(Node):
         self._begin(self.get_clock().now().nanoseconds)
         self._diag.restart(mono(), dev.steps)
         next_diag = mono() + s.diagnostics_period
-        wake = 0
         cpu = time.thread_time
         while not stop.requested:
             now = mono()
@@ -386,8 +518,6 @@ class DeviceNode(Node):
                 if plan.steps:
                     self._compute(plan.steps)
                 sched.finish()
-            wake += 1
-            self._tick_services(wake)
             sched.note_wake_cpu(cpu() - c0)
             if now >= next_diag:
                 self._publish_diagnostics(now)
@@ -424,7 +554,6 @@ class DeviceNode(Node):
             loops += 1
             self._drain()
             now = mono()
-            self._tick_services(loops)
             if now >= next_diag:
                 self._publish_diagnostics(now)
                 next_diag = max(next_diag + self.settings.diagnostics_period, now)
@@ -457,7 +586,17 @@ class DeviceNode(Node):
         return self.device.steps
 
     def _drain(self) -> int:
-        raise NotImplementedError
+        """Take every pending input message (no executor: `take_message` polling); every
+        SERVICE_POLL_PERIOD also the service requests, and in between a deferred request's answer
+        if one is ready (`_pump`)."""
+        n = drain(self._inputs)
+        now = time.monotonic()
+        if now >= self._next_service_poll:
+            self._next_service_poll = now + SERVICE_POLL_PERIOD
+            self._poll_services()
+        else:
+            self._pump()
+        return n
 
     def _publish_diagnostics(self, now: float) -> None:
         """/diagnostics: the device's statuses (`_statuses`), stamped with the model time in simulated
@@ -495,9 +634,6 @@ class DeviceNode(Node):
     def _halted(self) -> bool:
         """True while the model stands still (it ran away) until a reset."""
         return False
-
-    def _tick_services(self, loops: int) -> None:
-        """Called at every pass of a loop (a node that polls its services in `_drain` does nothing)."""
 
     # --- recording and scheduling ----------------------------------------------------------------
 

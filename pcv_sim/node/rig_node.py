@@ -103,14 +103,9 @@ from pcv_sim.node.base import (
     COMMAND_HINT,
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
-    LOCKSTEP_RESEND,
     SAMPLE_HINT,
     DeviceNode,
-    StopFlag,
-    freeze_heap,
-    tighten_timer_slack,
 )
-from pcv_sim.node.polling import Waiter, drain
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.node.rig_settings import (
     RIG_PARAMETERS,
@@ -125,8 +120,6 @@ from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
     ExternalClock,
-    RealTimeSchedule,
-    SimulatedSchedule,
 )
 from pcv_sim.simulation.duty import check_duty
 
@@ -134,8 +127,6 @@ __all__ = ["NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
 _FAULTS_KEY = "faults"          # the reject-log key of the faults topic
-LOCKSTEP_FULL_POLL = 1e-3       # s (wall) between polls of every input while the lockstep waits for its answers
-SERVICE_POLL_PERIOD = 0.01      # s (wall) between polls for service requests (reset, parameters)
 EXTERNAL_FORCE_TOPIC = cylinder_topic(EXTERNAL_FORCE_ROLE)
 
 
@@ -161,21 +152,13 @@ class RigNode(DeviceNode):
         self.per = rig_params.steps_per_period
         self.dt_ns = rig.dt_ns
         self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
-        self._schedule: RealTimeSchedule | None = None
-        self._next_service_poll = 0.0                      # monotonic s of the next service poll
-        self._sim: SimulatedSchedule | None = None
+        self.lockstep_keys = rig.valve_names
         self._staged: RigNodeSettings | None = None        # parameters checked, about to be applied
-        self._shown = 0                                     # last step whose sample was published
-        self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
-        #: a scenario's hook (pcv_sim.node.scenario_host): `sampled(true, measured)` before each period's
-        #: samples are published, `answered()` when every valve answered, before the next period
-        self.hook: Any = None
 
         sensor = qos_profile_sensor_data
         self._valve_pubs = []
-        self._inputs: list[tuple[Any, Callable[..., None]]] = []
         def publisher(msg_type: Any, topic: str, qos: Any = sensor, hint: str = SAMPLE_HINT) -> Any:
             return self.create_publisher(msg_type, topic, qos, event_callbacks=self.output_events(topic, hint))
 
@@ -201,7 +184,6 @@ class RigNode(DeviceNode):
         self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
         self._msg_float = Float64()
         self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
-        self._msg_clock = Clock()
         self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
         if self.simulated:
             self.refuse_a_second_clock("stop the other simulation, or run this rig with time_mode real")
@@ -298,21 +280,14 @@ class RigNode(DeviceNode):
         self._inputs.append((sub, handler))
         return sub
 
-    def _drain(self) -> int:
-        """Take every pending input message (no executor: `take_message` polling); every
-        SERVICE_POLL_PERIOD also the service requests."""
-        n = drain(self._inputs)
-        now = time.monotonic()
-        if now >= self._next_service_poll:
-            self._next_service_poll = now + SERVICE_POLL_PERIOD
-            self._poll_services()
-        return n
-
     # --- outputs -------------------------------------------------------------------------------
 
     def _publish_samples(self) -> None:
-        """The measured samples at the present step (sensor faults applied; non-finite: not published)."""
+        """The measured samples at the present step (sensor faults applied; non-finite: not published);
+        in simulated time /clock first."""
         rig = self.rig
+        if self._pub_clock is not None:
+            self._publish_clock()
         true = rig.sample()
         self._last_sample = rig.sensors.measure(rig.time, true).tolist()
         self._shown = rig.steps
@@ -360,12 +335,6 @@ class RigNode(DeviceNode):
         self._pub_joint.publish(joint)
         self.counts.samples_published += published
 
-    def _publish_clock(self) -> None:
-        msg = self._msg_clock
-        msg.clock.sec, msg.clock.nanosec = divmod(self.rig.steps * self.dt_ns, 1_000_000_000)
-        assert self._pub_clock is not None              # created in simulated time, the only caller
-        self._pub_clock.publish(msg)
-
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """One status per valve and one for the rig (see pcv_sim.node.rig_diagnostics)."""
         rig = self.rig
@@ -402,8 +371,6 @@ class RigNode(DeviceNode):
                     rig.advance_to(step)
                     break
                 rig.advance_to(boundary)
-                if self._pub_clock is not None:
-                    self._publish_clock()
                 self._publish_samples()
         except RigError as err:
             self.get_logger().error(f"{err}: the rig stopped; restart it")
@@ -413,90 +380,6 @@ class RigNode(DeviceNode):
         return True
 
     # --- loops ---------------------------------------------------------------------------------
-
-    def _wait_for_controllers(self, stop: StopFlag) -> None:
-        """Lockstep: before the first sample, until every valve's duty_cycle has a matched publisher
-        (a command sent before that is lost); the 0.5 s re-publication covers what is left."""
-        subs = [sub for sub, _ in self._inputs[:len(self.rig.valve_names)]]
-        start = time.monotonic()
-        told = False
-        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
-            if not told and time.monotonic() - start > 2.0:
-                missing = [v for v, sub in zip(self.rig.valve_names, subs) if sub.get_publisher_count() == 0]
-                self.get_logger().info(f"lockstep: waiting for a controller publishing "
-                                       f"{', '.join(valve_topic(v, DUTY_CYCLE) for v in missing)}")
-                told = True
-            time.sleep(0.01)
-
-    def _run_simulated(self, stop: StopFlag) -> None:
-        s, rig = self.settings, self.rig
-        lock = s.lockstep
-        sim = self._sim = SimulatedSchedule(rig.dt, factor=s.real_time_factor)
-        tighten_timer_slack()         # the free-running wait sleeps to its period's wall time
-        freeze_heap()
-        mono = time.monotonic
-        if lock:
-            self._wait_for_controllers(stop)
-        sim.start()
-        self._diag.restart(mono(), rig.steps)
-        next_diag = mono() + s.diagnostics_period
-        self._publish_clock()
-        self._publish_samples()
-        published = mono()
-        self._answered.clear()
-        valves = len(rig.valve_names)
-        answers = self._inputs[:valves]      # the duty_cycle subscriptions (made first)
-        waiter = Waiter([sub for sub, _ in answers], self.context)
-        next_full = 0.0
-        while not stop.requested:
-            answers_only = lock and len(self._answered) < valves and mono() < next_full
-            if answers_only:
-                drain(answers)               # waiting: the answers alone, blocked in `waiter` between
-                                             # (BENCHMARKS.md, "Where a 1 kHz lockstep period goes")
-            else:
-                self._drain()
-                next_full = mono() + LOCKSTEP_FULL_POLL
-            now = mono()
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            if self.rig.fault is not None:
-                time.sleep(1e-2)
-                continue
-            if lock:
-                if len(self._answered) < valves:
-                    if now - published > LOCKSTEP_RESEND:
-                        missing = [v for v in rig.valve_names if v not in self._answered]
-                        # A command was lost (sent before its publisher matched) or the controller is
-                        # slow: an answer to both copies may count for the next period, so such a run
-                        # is not promised to repeat bit for bit; say so.
-                        self.get_logger().warning(
-                            f"lockstep: no duty_cycle from {', '.join(missing)} for {LOCKSTEP_RESEND:g} s after the "
-                            f"sample at t = {rig.time:.4f} s: published again", throttle_duration_sec=5.0)
-                        self._publish_clock()
-                        self._send_samples()
-                        published = now
-                    waiter.wait(max(0.0, next_full - now))       # woken by an answer
-                    continue
-            else:
-                ready = sim.ready_at(self.per)
-                if ready > now:
-                    time.sleep(min(ready - now, 1e-3))
-                    continue
-            if answers_only:
-                self._drain()                # what came with the answers acts from the same step as before
-            target = rig.steps + self.per
-            if self.hook is not None:
-                # The answers act from the step after the sample (scheduled there): take that one
-                # step first, so the hook sees the duties in force after the instant.
-                k = self._shown // self.per
-                if not self._advance(rig.steps + 1):
-                    continue
-                self.hook.answered(k)
-            self._answered.clear()
-            if self._advance(target):
-                sim.advance(self.per)
-            published = mono()
 
     # --- external force, reset, external clock, recording ------------------------------------
 
@@ -579,9 +462,6 @@ class RigNode(DeviceNode):
             self.get_logger().info(f"reset: the model runs again (it had stopped: {failure})")
         self._forward_log()
 
-    def _on_clock(self, msg: Clock, _info: Any = None) -> None:
-        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
-
     # --- the rig under the node base's loops ---------------------------------------------------
 
     @property
@@ -599,6 +479,9 @@ class RigNode(DeviceNode):
 
     def _compute(self, n: int) -> None:
         self._advance(self.rig.steps + n)
+
+    def _sample_period(self) -> int:
+        return self.per
 
     def _halted(self) -> bool:
         return self.rig.fault is not None
