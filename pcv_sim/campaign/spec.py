@@ -49,10 +49,10 @@ from typing import Any
 from pcv_sim.campaign.sensitivity import METHODS, Dimension, Sensitivity
 from pcv_sim.campaign.sensitivity import size as sensitivity_size
 from pcv_sim.campaign.targets import Base, CampaignError, Target, load_base, parse_target, scenario_path
+from pcv_sim.device.faults import CYLINDER, CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS
 from pcv_sim.errors import PcvSimError
 from pcv_sim.keys import check_keys
 from pcv_sim.params import read_yaml
-from pcv_sim.rig.faults import CYLINDER, CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS
 from pcv_sim.units import UnitError, quantity, value_kind
 
 __all__ = ["Campaign", "Distribution", "FaultMatrix", "MonteCarlo", "Sweep", "campaign_from_mapping", "load_campaign"]

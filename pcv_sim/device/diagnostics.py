@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pcv_sim.device.settings import NodeSettings
-from pcv_sim.device.valve import INPUTS, ValveDevice, WatchdogState
+from pcv_sim.device.valve import ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.simulation.clock import RealTimeSchedule
 from pcv_sim.units import bar
@@ -136,6 +136,8 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         problems = []
         if dev.watchdog_state == WatchdogState.FIRED:
             problems.append(f"watchdog: no duty command for {s.watchdog_timeout:g} s, safe duty {dev.safe_duty:g}")
+        if dev.faults:
+            problems.append("faults active: " + ", ".join(f"{k}@{t}" for t, k in dev.faults))
         rejected = {k[len("rejected."):]: v for k, v in new.items() if k.startswith("rejected.") and v}
         if rejected:
             problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
@@ -153,8 +155,9 @@ class DiagnosticsBuilder(PeriodDiagnostics):
             "load_flow_m3s": f"{dev.load_flow:g}",
             "supply_pressure_pa": f"{dev.stepper.supply_pressure:g}",
             "last_rejection": dev.counts.last_rejection,
+            "faults_active": ", ".join(f"{k}@{t}" for t, k in dev.faults),
         }
-        for k in INPUTS:
+        for k in dev.counts.accepted:
             values[f"accepted.{k}"] = dev.counts.accepted[k]
             values[f"rejected.{k}"] = dev.counts.rejected[k]
         ok = ("waiting for the first duty command" if dev.watchdog_state == WatchdogState.WAITING

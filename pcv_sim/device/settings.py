@@ -81,6 +81,8 @@ def bag_name_check(v: str) -> str | None:
     return None
 
 
+_seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
+
 
 @dataclass(frozen=True)
 class CommonSettings:
@@ -107,6 +109,13 @@ class CommonSettings:
     reject_log_period: float = setting(
         1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
         non_negative)
+    faults_enabled: bool = setting(
+        False, "-", "take fault commands on the `faults` topic; off unless asked, since any node on the ROS "
+        "domain could then break the bench (sensor and physical faults, pcv_sim.device.faults); each command is "
+        "logged with its publisher's node name", any_value,
+        "bool", name="faults.enabled", read_only=True)
+    seed: int = setting(0, "-", "seed of the sensor-noise faults (a run repeats bit for bit)", _seed, "int",
+                        read_only=True)
     record_directory: str = setting(
         ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
         name="record.directory", read_only=True)

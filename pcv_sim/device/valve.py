@@ -15,7 +15,10 @@ device's model time, `steps * dt`), and
   a dead sensor, or a diverging model, as a valid one) until `reset()` or new parameters
   (`install`); the limits are checked on every sample and recorder call before it leaves;
 - returns samples at every `sample_every`-th step (`run`) and calls an optional recorder
-  `recorder(t_ns, signals)` at every `record_every`-th step (the hook for bag logging).
+  `recorder(t_ns, signals)` at every `record_every`-th step (the hook for bag logging);
+- takes fault commands (`submit_fault`, at their step as any input; `pcv_sim.device.faults`):
+  physical faults of the valve change its parameters and supply, sensor faults what `measure`
+  makes of a sample (`MEASURED`); a reset or new parameters restart the valve without faults.
 
 Everything is deterministic for a given sequence of (step, input) pairs.
 """
@@ -31,9 +34,21 @@ from typing import Protocol
 import numpy as np
 
 from pcv_sim.device.device import MODEL_FAILURES, Device
+from pcv_sim.device.faults import (
+    CYLINDER,
+    CYLINDER_FAULTS,
+    SENSOR_FAULTS,
+    VALVE_FAULTS,
+    Fault,
+    FaultCommand,
+    FaultError,
+    parse_fault_command,
+    valve_fault_parameters,
+)
 from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
+from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError
-from pcv_sim.io.topics import INPUT_ROLES
+from pcv_sim.io.topics import FAULTS, INPUT_ROLES
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import (
@@ -45,12 +60,15 @@ from pcv_sim.simulation.stepper import (
 from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = [
-    "INPUTS", "OPTION_SIGNALS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice", "WatchdogState", "rest_stepper",
-    "trial_run",
+    "INPUTS", "MEASURED", "OPTION_SIGNALS", "SIGNALS", "PhysicalLimits", "Recorder", "Sample", "ValveDevice",
+    "WatchdogState", "rest_stepper", "trial_run",
 ]
 
 #: Input names, as the node's topics are called.
 INPUTS = INPUT_ROLES
+
+#: The measured signals of a sample (a sensor fault's targets), as the node's topics are called.
+MEASURED = ("pressure", "current", "spool_position")
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
@@ -115,8 +133,8 @@ class Sample:
 
 @dataclass
 class _Inputs:
-    accepted: dict[str, int] = field(default_factory=lambda: dict.fromkeys(INPUTS, 0))
-    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(INPUTS, 0))
+    accepted: dict[str, int] = field(default_factory=lambda: dict.fromkeys((*INPUTS, FAULTS), 0))
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys((*INPUTS, FAULTS), 0))
     last_rejection: str = ""
 
 
@@ -127,11 +145,11 @@ VALVE = "valve"
 class ValveDevice(Device):
     """One emulated valve: the model stepper plus the device behaviour around it."""
 
-    queue: InputQueue[tuple[str, float]]       # (input name, value)
+    queue: InputQueue[tuple[str, float | FaultCommand]]       # (input name, value)
 
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
-        sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1,
+        sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1, seed: int = 0,
     ) -> None:
         super().__init__(params.simulation.time_step, (VALVE,), 0)
         self.params = params
@@ -148,7 +166,11 @@ class ValveDevice(Device):
         self.set_watchdog_timeout(watchdog_timeout)
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
+        #: Active faults by (target, kind); sensor faults on MEASURED, sampled every sample period.
+        self.faults: dict[tuple[str, str], Fault] = {}
+        self.sensors = Sensors(MEASURED, self.sample_every * self.dt, seed)
         self.stepper = rest_stepper(params, self.safe_duty)
+        self._healthy = self.stepper.sim.P.copy()
         plant = self.stepper.sim.plant
         #: The options' signals this valve has: (name, index into the model's inputs or outputs, is an input).
         self._option_signals = [(n, plant.inputs.index(f"valve.{n}"), True) for n in OPTION_SIGNALS
@@ -219,6 +241,9 @@ class ValveDevice(Device):
         self.params = stepper.params
         self.limits = PhysicalLimits.of(stepper.params)
         self.stepper = stepper
+        self._healthy = stepper.sim.P.copy()
+        self.faults.clear()
+        self.sensors.reset()
         try:
             stepper.set_duty(self.duty_command_in_force)
             stepper.set_load_flow(self.load_flow)
@@ -255,6 +280,23 @@ class ValveDevice(Device):
         self.queue.push(step, (name, value))
         return None
 
+    def submit_fault(self, text: str, at_step: int | None = None) -> str | None:
+        """A fault command (`parse_fault_command`: one line of YAML, on VALVE or a MEASURED signal)
+        validated now, acting at step max(at_step, now + 1) as `submit`'s inputs; the reason it was
+        refused (counted), or None. Clearing a fault that is not active then is refused (counted)
+        when it is due."""
+        try:
+            command = parse_fault_command(text, valves=(VALVE,), signals=MEASURED)
+            if command.kind in CYLINDER_FAULTS:
+                raise FaultError(f"{command.kind}: this device has no {CYLINDER}; accepted are "
+                                 f"{', '.join(VALVE_FAULTS)} (on the valve) and {', '.join(SENSOR_FAULTS)} "
+                                 f"(on {', '.join(MEASURED)})")
+        except FaultError as err:
+            return self._reject(FAULTS, str(err))
+        step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
+        self.queue.push(step, (FAULTS, command))
+        return None
+
     def _reject(self, name: str, reason: str) -> str:
         self.counts.rejected[name] += 1
         self.counts.last_rejection = f"{name}: {reason}"
@@ -271,7 +313,9 @@ class ValveDevice(Device):
         while (due := self.queue.pop_due(self.steps)) is not None:
             name, value = due
             try:
-                if name == "duty_cycle":
+                if isinstance(value, FaultCommand):
+                    self._fault_command(value)
+                elif name == "duty_cycle":
                     self._apply_duty(value)
                     self.command = value
                     self.watchdog.command(self.steps)
@@ -279,12 +323,66 @@ class ValveDevice(Device):
                     self.stepper.set_load_flow(value)
                     self.load_flow = value
                 else:
-                    self.stepper.set_supply_pressure(value)
                     self.supply_pressure = value
-            except CommandError as err:   # valid on arrival, refused now (e.g. duty_range changed since)
-                self._reject(name, str(err))
+                    if self.faults:          # a supply fault holds over the input
+                        self._apply_valve_faults()
+                    else:
+                        self.stepper.set_supply_pressure(value)
+            except (CommandError, FaultError) as err:   # valid on arrival, refused now (e.g. duty_range
+                self._reject(name, str(err))           # changed since, a fault cleared that is not active)
                 continue
             self.counts.accepted[name] += 1
+
+    def _fault_command(self, command: FaultCommand) -> None:
+        if command.clear:
+            self.clear(command.target, command.kind)
+        else:
+            assert command.fault is not None     # a command that is not a clear carries its fault
+            self.inject(command.fault)
+
+    def inject(self, fault: Fault) -> None:
+        """Start `fault` at the present step (a second fault of the same kind on the same target
+        replaces the first)."""
+        if fault.sensor:
+            if fault.target not in MEASURED:
+                raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(MEASURED)}")
+            self.sensors.add(fault, self.time)
+        elif fault.target != VALVE or fault.on_cylinder:
+            raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is the valve {VALVE}")
+        self.faults[fault.key] = fault
+        if not fault.sensor:
+            self._apply_valve_faults()
+
+    def clear(self, target: str, kind: str) -> None:
+        """End a fault: the target is back to normal from the present step on."""
+        fault = self.faults.pop((target, kind), None)
+        if fault is None:
+            active = ", ".join(f"{k}@{t}" for t, k in self.faults) or "none"
+            raise FaultError(f"no active fault {kind} on {target}; active: {active}")
+        if fault.sensor:
+            self.sensors.clear(target, kind)
+        else:
+            self._apply_valve_faults()
+
+    def _apply_valve_faults(self) -> None:
+        """The valve's parameters and supply: healthy, then every active physical fault."""
+        st = self.stepper
+        supply = self.params.circuit.supply_pressure if self.supply_pressure is None else self.supply_pressure
+        p, supply, stuck = valve_fault_parameters(self._healthy, supply,
+                                                  (f for f in self.faults.values() if not f.sensor))
+        if stuck:   # seized where it is: no velocity (the continuity's A v term stops with it)
+            st.sim.x[2] = 0.0
+        st.sim.set_parameters(0, p)
+        st.set_supply_pressure(supply)
+
+    def measure(self, sample: Sample) -> tuple[float, float, float]:
+        """What the sensors show of `sample` (MEASURED, sensor faults applied; NaN: no value, not to
+        be published). Called once per sample, in order (a delay or noise fault keeps history)."""
+        if not self.sensors.active and not self.sensors.keeps_history:
+            return sample.pressure, sample.current, sample.spool_position
+        y = self.sensors.measure(sample.step * self.dt,
+                                 np.array([sample.pressure, sample.current, sample.spool_position]))
+        return float(y[0]), float(y[1]), float(y[2])
 
     def _check_watchdog(self) -> None:
         if self.watchdog.check(self.steps):

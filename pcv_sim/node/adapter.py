@@ -9,6 +9,7 @@ out. Topic names are relative, so a namespace runs one valve per steering chambe
     in   duty_cycle       std_msgs/Float64            PWM duty, fraction 0..1           reliable
     in   load_flow        std_msgs/Float64            m^3/s drawn from the load port    reliable
     in   supply_pressure  sensor_msgs/FluidPressure   Pa                                reliable
+    in   faults           std_msgs/String             {fault: coil_open} (YAML; faults.enabled only)
     out  pressure         sensor_msgs/FluidPressure   Pa, stamped with the model time   sensor data
     out  current          std_msgs/Float64            A                                 sensor data
     out  spool_position   std_msgs/Float64            m (x > 0 opens pump -> load)      sensor data
@@ -50,6 +51,7 @@ queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`re
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -64,7 +66,7 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
@@ -85,6 +87,7 @@ from pcv_sim.io.topics import (
     CURRENT,
     DIAGNOSTICS,
     DUTY_CYCLE,
+    FAULTS,
     LOAD_FLOW,
     PRESSURE,
     RESET,
@@ -130,7 +133,7 @@ class EmulatorNode(DeviceNode):
         s = self.settings
         self.simulated = s.time_mode == "simulated"
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
-                                  sample_every=s.sample_every(dt))
+                                  sample_every=s.sample_every(dt), seed=s.seed)
         self._external = ExternalClock(self.device.dt_ns)   # use_sim_time: the latest /clock, model time anchored
         # Rest states (25-60 ms of model solves) are computed off the loop: the loop takes parameter
         # and reset requests, a worker thread validates and prepares them, the loop swaps the result
@@ -142,7 +145,7 @@ class EmulatorNode(DeviceNode):
         self._pending: tuple[NodeSettings, ValveParams] | None = None   # staged within the running job
         self._staged: tuple[NodeSettings, ValveParams, Any] | None = None
         self.samples_published = 0
-        self._last_published: Sample | None = None
+        self._last_published: tuple[int, float, float, float] | None = None   # step, measured values
         self._switch_interval = sys.getswitchinterval()
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
@@ -166,6 +169,9 @@ class EmulatorNode(DeviceNode):
             (self.create_subscription(FluidPressure, SUPPLY_PRESSURE, self._on_supply, COMMAND_QOS,
                                       event_callbacks=inp(SUPPLY_PRESSURE)), self._on_supply),
         ]
+        if s.faults_enabled:                # any node on the domain could break the bench
+            self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS,
+                                                          event_callbacks=inp(FAULTS)), self._on_fault))
         if self.external_clock:
             self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
                                                           event_callbacks=inp(CLOCK)), self._on_clock))
@@ -185,7 +191,8 @@ class EmulatorNode(DeviceNode):
         self.get_logger().info(
             f"{mode}, samples at {s.publish_rate:g} Hz, "
             f"model step {dt * 1e3:g} ms ({self.device.stepper.integrator}), watchdog "
-            f"{s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config {s.valve_config or 'shipped default'}")
+            f"{s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config {s.valve_config or 'shipped default'}, "
+            f"fault topic {'on (faults.enabled)' if s.faults_enabled else 'off (faults.enabled: false)'}")
 
     # --- parameters --------------------------------------------------------------------------
 
@@ -258,6 +265,7 @@ class EmulatorNode(DeviceNode):
         dev.set_watchdog_timeout(settings.watchdog_timeout)
         dev.set_safe_duty(settings.safe_duty)
         dev.sample_every = settings.sample_every(dev.dt)
+        dev.sensors.period = dev.sample_every * dev.dt      # a delay fault counts samples
         self._msg_pressure.header.frame_id = settings.frame_id
         self._retime(settings)
         if stepper is not None:
@@ -331,6 +339,17 @@ class EmulatorNode(DeviceNode):
 
     def _on_supply(self, msg: FluidPressure, info: Any = None) -> None:
         self._input(SUPPLY_PRESSURE, msg.fluid_pressure, info)
+
+    def _on_fault(self, msg: String, info: Any = None) -> None:
+        """A fault command (faults.enabled), logged with its publisher; it acts as an input taken now."""
+        dev = self.device
+        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
+        at = self.acting_step(dev.timing, FAULTS, dev.steps + 1, dev.origin_ns, info)
+        reason = dev.submit_fault(msg.data, at)
+        if reason is not None:
+            self.log_rejection(FAULTS, FAULTS, reason, "nothing changed", self.settings.reject_log_period)
+        else:
+            dev.timing.took(FAULTS, at)
 
     def _log_rejection(self, name: str, reason: str) -> None:
         self.log_rejection(name, name, reason, "the last valid value stays in force", self.settings.reject_log_period)
@@ -418,29 +437,37 @@ class EmulatorNode(DeviceNode):
         return samples
 
     def _publish(self, samples: list[Sample]) -> None:
-        """The samples (simulated time: /clock first, at the present step, the last sample's)."""
+        """The samples as measured (simulated time: /clock first, at the present step, the last
+        sample's). Sensor faults (faults.enabled) apply once per sample, in order."""
         if not samples:
             return
         if self._pub_clock is not None:
             self._publish_clock()
+        measure = self.device.measure if self.settings.faults_enabled else None
         for s in samples:
-            self._send(s)
-        self._last_published = samples[-1]
+            measured = (s.step, *measure(s)) if measure is not None else (s.step, s.pressure, s.current,
+                                                                            s.spool_position)
+            self._send(*measured)
+            self._last_published = measured
         self._shown = samples[-1].step
 
-    def _send(self, s: Sample) -> None:
-        self._stamp(self.device.stamp_ns(s.step))
-        self._msg_pressure.fluid_pressure = s.pressure
-        self._msg_current.data = s.current
-        self._msg_spool.data = s.spool_position
-        self._pub_pressure.publish(self._msg_pressure)
-        self._pub_current.publish(self._msg_current)
-        self._pub_spool.publish(self._msg_spool)
+    def _send(self, step: int, pressure: float, current: float, spool_position: float) -> None:
+        """One sample's messages; a value a sensor fault dropped (NaN) is not published."""
+        self._stamp(self.device.stamp_ns(step))
+        if math.isfinite(pressure):
+            self._msg_pressure.fluid_pressure = pressure
+            self._pub_pressure.publish(self._msg_pressure)
+        if math.isfinite(current):
+            self._msg_current.data = current
+            self._pub_current.publish(self._msg_current)
+        if math.isfinite(spool_position):
+            self._msg_spool.data = spool_position
+            self._pub_spool.publish(self._msg_spool)
         self.samples_published += 1
 
     def _send_samples(self) -> None:
         if self._last_published is not None:
-            self._send(self._last_published)
+            self._send(*self._last_published)
 
     def _sample_period(self) -> int:
         return self.device.sample_every

@@ -78,6 +78,7 @@ from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
+from pcv_sim.device.faults import parse_fault_command
 from pcv_sim.errors import BagError, CommandError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import (
@@ -111,7 +112,6 @@ from pcv_sim.node.rig_settings import (
     RIG_PARAMETERS,
     RigNodeSettings,
     check_rig_value,
-    parse_fault_command,
     rig_settings_with,
     settings_from,
 )

@@ -43,7 +43,7 @@ OUTPUTS = ("volume_a", "volume_b", "flow_a", "flow_b", "position", "velocity", "
 STATE_OUTPUTS = OUTPUTS[:-1]
 
 A_A, A_B, MASS, K_LOAD, DAMPING, F_C, V_S, X_MIN, X_MAX, V0_A, V0_B = range(11)
-JAMMED = 11                 # fault (pcv_sim.rig.faults): 1 = the piston is held where it is
+JAMMED = 11                 # fault (pcv_sim.device.faults): 1 = the piston is held where it is
 N_PARAMS = 12
 
 

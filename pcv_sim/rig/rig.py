@@ -14,7 +14,7 @@ valid command took effect its duty falls to `safe_duty`, and the next valid comm
 rig starts with each valve at rest at its `initial_duty`, its watchdog waiting for a first command
 (no controller yet: it does not fire), and the piston at `initial_position`, at rest.
 
-Faults (`pcv_sim.rig.faults`) are injected and cleared at the present step; scheduled inputs
+Faults (`pcv_sim.device.faults`) are injected and cleared at the present step; scheduled inputs
 (`schedule`) act at the first step at or after their time; a fed input (`feed`: a profile's values
 at given steps, the external force) takes its values at their steps inside the compiled calls,
 so a profile costs the lockstep no Python call per control period. Everything is deterministic: the
@@ -32,14 +32,14 @@ from typing import Any, NoReturn
 import numpy as np
 
 from pcv_sim.device.device import MODEL_FAILURES, Device
+from pcv_sim.device.faults import CYLINDER, Fault, FaultError, valve_fault_parameters
 from pcv_sim.device.inputs import NEVER, InputQueue, WatchdogState
+from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
-from pcv_sim.rig.faults import CYLINDER, Fault, FaultError
 from pcv_sim.rig.params import RigParams
-from pcv_sim.rig.sensors import Sensors
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
@@ -372,33 +372,8 @@ class Rig(Device):
     def _apply_valve_faults(self, k: int) -> None:
         """The valve's parameter vector and supply: healthy, then every active fault on it."""
         name = self.valve_names[k]
-        p = self._healthy[k].copy()
-        supply = self._supply0[k]
-        stuck = False
-        for (target, kind), f in self.faults.items():
-            if target != name:
-                continue
-            if kind == "supply_drop":
-                supply = f.values["pressure"]
-            elif kind == "supply_loss":
-                supply = 0.0
-            elif kind == "coil_open":
-                p[kernel.VOLTAGE_FACTOR] = 0.0
-            elif kind == "coil_short":
-                p[kernel.R_COIL] *= f.values["resistance_factor"]
-            elif kind == "spool_sticking":
-                friction = f.values["friction"]
-                p[kernel.SPOOL_FRICTION] = friction
-                # The friction's slope at v = 0 (F / v_s) kept at most the spool's own damping:
-                # a steeper one is a stiffer spool than the 0.1 ms Heun step can hold.
-                p[kernel.SPOOL_FRICTION_V] = max(1e-3, friction / p[kernel.DAMPING])
-            elif kind == "spool_stuck":
-                p[kernel.STUCK] = 1.0
-                stuck = True
-            elif kind == "contamination":
-                p[kernel.AREA_FACTOR] = f.values["area_factor"]
-            elif kind == "internal_leakage":
-                p[kernel.LEAK] = f.values["conductance"]
+        p, supply, stuck = valve_fault_parameters(
+            self._healthy[k], self._supply0[k], (f for (target, _), f in self.faults.items() if target == name))
         if stuck:   # seized where it is: no velocity (the continuity's A v term stops with it)
             self.sim.x[self._state_off[k] + 2] = 0.0
         self.sim.set_parameters(k, p)

@@ -75,11 +75,11 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.keys import closest, missing_message, unknown_message
 from pcv_sim.params import read_yaml
 from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
-from pcv_sim.rig.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
@@ -104,7 +104,7 @@ _MAX_DURATION = 3600.0
 _ROS_KEYS = ("namespace", "command", "wait")
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
 _ACTIONS = ("duty", "force", "supply", "fault", "clear")
-#: The unit words of `pcv_sim.rig.faults`' tables -> the kind of `pcv_sim.units`.
+#: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
 _FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
 
 

@@ -105,7 +105,7 @@ def test_valid_inputs_are_counted_by_topic():
     dev.submit('load_flow', 1e-5)
     dev.submit('supply_pressure', 150e5)
     dev.run(1)
-    assert dev.counts.accepted == {'duty_cycle': 1, 'load_flow': 1, 'supply_pressure': 1}
+    assert dev.counts.accepted == {'duty_cycle': 1, 'load_flow': 1, 'supply_pressure': 1, 'faults': 0}
     assert dev.stepper.load_flow == 1e-5 and dev.stepper.supply_pressure == 150e5
 
 
@@ -361,3 +361,81 @@ def test_the_options_signals_are_among_the_devices_signals():
     assert signals["coil_temperature"] == dev.stepper.output("coil_temperature") > kelvin(40.0)
     assert signals["coil_resistance"] == dev.stepper.output("coil_resistance") > params.solenoid.coil_resistance
     assert signals["core_position"] == dev.stepper.output("core_position") == dev.stepper.spool_position
+
+
+# --- faults ----------------------------------------------------------------------------------
+
+def test_a_sensor_fault_changes_what_is_measured_not_the_model():
+    dev = device(watchdog_timeout=0.0)
+    healthy = device(watchdog_timeout=0.0)
+    assert dev.submit_fault('{fault: bias, signal: pressure, value: 1.0e+5}', at_step=5) is None
+    assert dev.submit_fault('{fault: dropout, signal: current}', at_step=5) is None
+    for a, b in zip(dev.run(50), healthy.run(50)):
+        assert a == b                                  # the physics is untouched
+        p, i, x = dev.measure(a)
+        assert p == a.pressure + 1e5 and math.isnan(i) and x == a.spool_position
+    assert set(dev.faults) == {('pressure', 'bias'), ('current', 'dropout')}
+    assert dev.counts.accepted['faults'] == 2
+    dev.submit_fault('{clear: bias, signal: pressure}')
+    s = dev.run(10)[-1]
+    assert dev.measure(s)[0] == s.pressure
+
+
+def test_a_physical_fault_acts_at_its_step_and_clearing_restores_the_valve():
+    dev = device(watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.7, at_step=1)
+    dev.run(3000)
+    i0 = dev.sample().current
+    assert i0 > 0.3
+    assert dev.submit_fault('{fault: coil_open}', at_step=dev.steps + 10) is None   # the one valve: no target
+    dev.run(9)
+    assert dev.sample().current == pytest.approx(i0, rel=1e-3)     # not yet
+    dev.run(3000)
+    assert abs(dev.sample().current) < 0.01 * i0                    # no drive: the current decays
+    assert dev.faults == {('valve', 'coil_open'): dev.faults[('valve', 'coil_open')]}
+    dev.submit_fault('{clear: coil_open, valve: valve}')
+    dev.run(5000)
+    assert dev.sample().current == pytest.approx(i0, rel=1e-2)
+
+
+def test_a_supply_fault_holds_over_a_supply_input_and_clearing_restores_the_input():
+    dev = device(watchdog_timeout=0.0)
+    dev.submit_fault('{fault: supply_drop, pressure: 5.0e+6}')
+    dev.run(2)
+    assert dev.stepper.supply_pressure == 5e6
+    dev.submit('supply_pressure', 150e5)
+    dev.run(2)
+    assert dev.stepper.supply_pressure == 5e6 and dev.supply_pressure == 150e5
+    dev.submit_fault('{clear: supply_drop}')
+    dev.run(2)
+    assert dev.stepper.supply_pressure == 150e5
+
+
+@pytest.mark.parametrize('text, match', [
+    ('{fault: nosuch}', "kind 'nosuch'"),
+    ('{fault: bias, signal: flow, value: 1.0}', "target 'flow' for bias; accepted are pressure, current, spool_position"),
+    ('{fault: coil_open, valve: left}', "target 'left' for coil_open; accepted are valve"),
+    ('{fault: cylinder_jam, target: cylinder}', 'cylinder_jam: this device has no cylinder; accepted are supply_drop'),
+    ('not: [yaml', 'not YAML'),
+])
+def test_bad_fault_commands_are_refused_with_what_is_accepted_and_counted(text, match):
+    dev = device()
+    reason = dev.submit_fault(text)
+    assert reason is not None and match in reason, reason
+    assert dev.counts.rejected['faults'] == 1 and match in dev.counts.last_rejection
+    assert not dev.faults
+
+
+def test_clearing_a_fault_that_is_not_active_is_refused_when_due_and_a_reset_clears_all():
+    dev = device()
+    assert dev.submit_fault('{clear: coil_open}') is None
+    dev.run(2)
+    assert dev.counts.rejected['faults'] == 1 and 'no active fault coil_open on valve' in dev.counts.last_rejection
+    dev.submit_fault('{fault: noise, signal: pressure, std: 1000.0}')
+    dev.submit_fault('{fault: coil_short, resistance_factor: 0.5}')
+    dev.run(2)
+    assert len(dev.faults) == 2
+    dev.reset()
+    assert not dev.faults and not dev.sensors.active
+    s = dev.run(10)[-1]
+    assert dev.measure(s) == (s.pressure, s.current, s.spool_position)

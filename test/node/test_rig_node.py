@@ -162,7 +162,7 @@ def test_real_time_publishes_and_a_signal_stops_it_cleanly(ros, sig):
 
 
 def _parse(text):
-    from pcv_sim.node.rig_settings import parse_fault_command
+    from pcv_sim.device.faults import parse_fault_command
 
     return parse_fault_command(text, valves=VALVES, signals=('left.pressure', 'cylinder.position'))
 

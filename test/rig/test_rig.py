@@ -177,7 +177,7 @@ def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_
 def test_reset_keeping_time_is_a_fresh_start_shifted_in_time_and_inputs_reach_the_hook(rig):
     """The rig node's reset service: state, duties, faults back to the start; t goes on. Every
     input change reaches `on_input` with the step it acts from (the node's recorder)."""
-    from pcv_sim.rig.faults import parse_fault
+    from pcv_sim.device.faults import parse_fault
 
     fresh = run_lockstep(rig, lambda t, m: step_controller(t + 5e-4, m), 0.05)
     seen = []

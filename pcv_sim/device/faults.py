@@ -1,5 +1,8 @@
-"""Faults of the rig: what each one is, the values it takes, and how it changes the physics or
-the measurements. Validated here (`parse_fault`), applied by `pcv_sim.rig.rig.Rig`.
+"""Faults of a device: what each one is, the values it takes, and how it changes the physics or
+the measurements. Validated here (`parse_fault`, `parse_fault_command` for the `faults` topic's
+text), a valve's parameters under its faults computed here (`valve_fault_parameters`); applied
+by the devices (`pcv_sim.device.valve.ValveDevice`: one valve; `pcv_sim.rig.rig.Rig`: valves and
+the cylinder), the measurements by `pcv_sim.device.sensors.Sensors`.
 
 Physical faults (on a valve, through its kernel parameter vector or its supply input; clearing
 one restores the healthy value):
@@ -36,13 +39,18 @@ controller and the recording see; the physics is untouched):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pcv_sim.errors import PcvSimError
+import numpy as np
+import yaml
 
-__all__ = ["CYLINDER", "CYLINDER_FAULTS", "SENSOR_FAULTS", "VALVE_FAULTS", "Fault", "FaultError", "parse_fault"]
+from pcv_sim.errors import PcvSimError
+from pcv_sim.model import kernel
+
+__all__ = ["CYLINDER", "CYLINDER_FAULTS", "SENSOR_FAULTS", "VALVE_FAULTS", "Fault", "FaultCommand", "FaultError",
+           "parse_fault", "parse_fault_command", "valve_fault_parameters"]
 
 
 class FaultError(PcvSimError, ValueError):
@@ -127,3 +135,97 @@ def parse_fault(kind: Any, target: Any, values: Mapping[str, Any] | None, *, val
             raise FaultError(f"{where}: {kind}.{name} = {v!r}; accepted is a finite number {rng} ({unit})")
         out[name] = float(v)
     return Fault(str(kind), str(target), out)
+
+
+# --- fault commands ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FaultCommand:
+    """`fault` to inject, or (`target`, `kind`) to clear."""
+
+    clear: bool
+    kind: str
+    target: str
+    fault: Fault | None
+
+
+_TARGET_KEYS = ("valve", "signal", "target")
+
+
+def parse_fault_command(text: str, *, valves: tuple[str, ...], signals: tuple[str, ...]) -> FaultCommand:
+    """A validated fault command from one line of YAML; FaultError saying what is accepted.
+
+        {fault: coil_open, valve: left}                              # a physical fault on a valve
+        {fault: supply_drop, valve: right, pressure: 8.0e+6}         # with its values (SI)
+        {fault: bias, signal: left.pressure, value: 1.0e+5}          # a sensor fault on a signal
+        {clear: coil_open, valve: left}
+
+    A device of one valve (the emulator) takes a valve fault without its target too:
+    `{fault: coil_open}`."""
+    v0 = valves[0] if valves else "left"
+    example = (f"accepted is a YAML mapping such as {{fault: coil_open, valve: {v0}}} or "
+               f"{{clear: coil_open, valve: {v0}}}")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise FaultError(f"fault command {text!r} is not YAML; {example}") from None
+    if not isinstance(data, Mapping):
+        raise FaultError(f"fault command {text!r}: {example}")
+    actions = [k for k in ("fault", "clear") if k in data]
+    if len(actions) != 1:
+        raise FaultError(f"fault command {text!r}: needs exactly one of 'fault' or 'clear'; {example}")
+    action = actions[0]
+    targets = [k for k in _TARGET_KEYS if k in data]
+    if not targets and len(valves) == 1 and data[action] not in SENSOR_FAULTS:
+        data = {**data, "valve": valves[0]}        # the one valve
+        targets = ["valve"]
+    if len(targets) != 1:
+        raise FaultError(f"fault command {text!r}: needs exactly one of 'valve' (a physical fault: "
+                         f"{', '.join(valves)}) or 'signal' (a sensor fault: {', '.join(signals)})")
+    kind, target = data[action], data[targets[0]]
+    values = {k: v for k, v in data.items() if k not in (action, targets[0])}
+    if action == "clear":
+        if values:
+            raise FaultError(f"fault command {text!r}: clear takes no values ({', '.join(map(str, values))})")
+        # Validated as a fault with no values would be: the kind and target must exist.
+        try:
+            parse_fault(kind, target, None, valves=valves, signals=signals, where="clear")
+        except FaultError as err:
+            if "needs" not in str(err):            # a kind that takes values: those are not needed to clear it
+                raise
+        return FaultCommand(True, str(kind), str(target), None)
+    fault = parse_fault(kind, target, values, valves=valves, signals=signals, where="fault")
+    return FaultCommand(False, fault.kind, fault.target, fault)
+
+
+def valve_fault_parameters(healthy: np.ndarray, supply: float, faults: Iterable[Fault]) -> tuple[np.ndarray, float, bool]:
+    """A valve's kernel parameter vector and supply pressure (Pa) under its physical `faults`, from
+    the healthy ones (not modified); and whether its spool is stuck (the caller then stops the
+    spool: no velocity, so the continuity's A v term stops with it)."""
+    p = healthy.copy()
+    stuck = False
+    for f in faults:
+        kind = f.kind
+        if kind == "supply_drop":
+            supply = f.values["pressure"]
+        elif kind == "supply_loss":
+            supply = 0.0
+        elif kind == "coil_open":
+            p[kernel.VOLTAGE_FACTOR] = 0.0
+        elif kind == "coil_short":
+            p[kernel.R_COIL] *= f.values["resistance_factor"]
+        elif kind == "spool_sticking":
+            friction = f.values["friction"]
+            p[kernel.SPOOL_FRICTION] = friction
+            # The friction's slope at v = 0 (F / v_s) kept at most the spool's own damping:
+            # a steeper one is a stiffer spool than the 0.1 ms Heun step can hold.
+            p[kernel.SPOOL_FRICTION_V] = max(1e-3, friction / p[kernel.DAMPING])
+        elif kind == "spool_stuck":
+            p[kernel.STUCK] = 1.0
+            stuck = True
+        elif kind == "contamination":
+            p[kernel.AREA_FACTOR] = f.values["area_factor"]
+        elif kind == "internal_leakage":
+            p[kernel.LEAK] = f.values["conductance"]
+    return p, supply, stuck

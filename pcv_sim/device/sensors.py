@@ -1,7 +1,7 @@
 """Sensor faults: what the controller and the recording see of each measured signal.
 
 The physics is never touched here: `Sensors.measure` maps the true samples of one control period
-to the measured ones (`pcv_sim.rig.faults` lists the kinds). A dropped sample is NaN in the
+to the measured ones (`pcv_sim.device.faults` lists the kinds). A dropped sample is NaN in the
 array and absent from the controller's measurement; no non-finite value is ever handed out as a
 measurement. Noise comes from a seeded generator, so a run repeats bit for bit.
 """
@@ -13,7 +13,7 @@ from collections import deque
 
 import numpy as np
 
-from pcv_sim.rig.faults import Fault
+from pcv_sim.device.faults import Fault
 
 __all__ = ["Sensors"]
 
@@ -37,6 +37,11 @@ class Sensors:
     @property
     def active(self) -> bool:
         return bool(self._active)
+
+    @property
+    def keeps_history(self) -> bool:
+        """A delay fault has been active: `measure` keeps the samples it needs (call it every period)."""
+        return bool(self._history.maxlen and self._history.maxlen > 1)
 
     def add(self, fault: Fault, t: float) -> None:
         j = self.signals.index(fault.target)
