@@ -25,8 +25,11 @@ from typing import Any
 from pcv_sim.device.settings import NodeSettings
 from pcv_sim.device.valve import ValveDevice, WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
+from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.simulation.clock import RealTimeSchedule
 from pcv_sim.units import bar
+
+_OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
 
 __all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Status", "recording_status"]
 
@@ -157,6 +160,8 @@ class DiagnosticsBuilder(PeriodDiagnostics):
             "last_rejection": dev.counts.last_rejection,
             "faults_active": ", ".join(f"{k}@{t}" for t, k in dev.faults),
         }
+        for name, value in dev.option_input_values().items():    # the valve options' inputs in force, K
+            values[f"{name}_k"] = f"{value:.2f}"
         for k in dev.counts.accepted:
             values[f"accepted.{k}"] = dev.counts.accepted[k]
             values[f"rejected.{k}"] = dev.counts.rejected[k]
@@ -176,6 +181,8 @@ class DiagnosticsBuilder(PeriodDiagnostics):
             "spool_position_m": f"{last.spool_position:.4e}" if last else "",
             "samples_published": samples_published,
         }
+        for name, value in zip(dev.option_outputs, last.options if last else ()):   # the options' outputs
+            values[f"{name}_{_OPTION_UNITS[name].lower()}"] = f"{value:.6g}"
         if dev.fault is not None:
             return self._status("model", ERROR, [f"model fault: {dev.fault}; call the reset service"], "", values)
         return self._status("model", OK, [], "running", values)

@@ -56,6 +56,7 @@ from pcv_sim.simulation.stepper import (
     RealTimeStepper,
     check_load_flow,
     check_supply_pressure,
+    check_temperature,
 )
 from pcv_sim.units import PA_PER_BAR, bar
 
@@ -129,6 +130,7 @@ class Sample:
     spool_position: float    # m, paper's sign: x > 0 opens pump -> load
     duty: float              # effective duty (after the fall-rate limiter), fraction
     command: float           # duty command in force (the watchdog's safe duty when it has fired)
+    options: tuple[float, ...] = ()   # the valve's `option_outputs` (SI: K, ohm, m)
 
 
 @dataclass
@@ -179,6 +181,14 @@ class ValveDevice(Device):
         # Every kernel the stepping uses is loaded (or compiled) now: compiled on first use in a
         # loop's first wake it would hold the loop (and its stop check) for seconds, a minute
         # on a busy machine with an empty kernel cache.
+        #: The options' inputs and outputs this valve has (OPTION_SIGNALS), and the inputs' values
+        #: taken (K; none: the valve YAML's).
+        self.option_inputs = tuple(n for n, _, is_input in self._option_signals if is_input)
+        self.option_outputs = tuple(n for n, _, is_input in self._option_signals if not is_input)
+        self._option_out_i = [i for _, i, is_input in self._option_signals if not is_input]
+        self.option_values: dict[str, float] = {}
+        for name in self.option_inputs:
+            self.counts.accepted[name] = self.counts.rejected[name] = 0
         self.stepper.warm_up()
         self.last_good = self.sample()
 
@@ -249,6 +259,8 @@ class ValveDevice(Device):
             stepper.set_load_flow(self.load_flow)
             if self.supply_pressure is not None:
                 stepper.set_supply_pressure(self.supply_pressure)
+            for name, value in self.option_values.items():
+                stepper.set_input(name, value)
         except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
             self.counts.last_rejection = f"after a model restart: {err}"
         self.clear_fault()
@@ -272,8 +284,10 @@ class ValveDevice(Device):
                 value = check_load_flow(value)
             elif name == "supply_pressure":
                 value = check_supply_pressure(value)
+            elif name in self.option_inputs:
+                value = check_temperature(name.replace("_", " "), value)
             else:
-                raise ValueError(f"unknown input {name!r}; accepted are {', '.join(INPUTS)}")
+                raise ValueError(f"unknown input {name!r}; accepted are {', '.join((*INPUTS, *self.option_inputs))}")
         except CommandError as err:
             return self._reject(name, str(err))
         step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
@@ -322,6 +336,9 @@ class ValveDevice(Device):
                 elif name == "load_flow":
                     self.stepper.set_load_flow(value)
                     self.load_flow = value
+                elif name in self.option_inputs:
+                    self.stepper.set_input(name, value)
+                    self.option_values[name] = value
                 else:
                     self.supply_pressure = value
                     if self.faults:          # a supply fault holds over the input
@@ -488,7 +505,12 @@ class ValveDevice(Device):
 
     def sample(self) -> Sample:
         st = self.stepper
-        return Sample(self.steps, st.pressure, st.current, st.spool_position, st.duty, st.command)
+        if not self._option_out_i:
+            return Sample(self.steps, st.pressure, st.current, st.spool_position, st.duty, st.command)
+        current = st.current                 # solved first, as without options (the Newton start)
+        y = st.sim.outputs()
+        return Sample(self.steps, st.pressure, current, st.spool_position, st.duty, st.command,
+                      tuple(float(y[i]) for i in self._option_out_i))
 
     def signals(self) -> dict[str, float]:
         """SIGNALS by name, and the OPTION_SIGNALS the valve's options bring."""
@@ -504,6 +526,11 @@ class ValveDevice(Device):
             for name, i, is_input in self._option_signals:
                 out[name] = float(u[i] if is_input else y[i])
         return out
+
+    def option_input_values(self) -> dict[str, float]:
+        """The valve options' inputs in force (K), read without computing an output."""
+        u = self.stepper.sim.u
+        return {name: float(u[i]) for name, i, is_input in self._option_signals if is_input}
 
     # --- faults ------------------------------------------------------------------------------
 

@@ -73,12 +73,13 @@ from typing import Any, Final, Literal, Self
 import numpy as np
 
 from pcv_sim.errors import BagError
-from pcv_sim.io.bag import COMMAND_QOS, SENSOR_DATA_QOS, BagWriter, Qos
+from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, SENSOR_DATA_QOS, BagWriter, Qos
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
     INPUT_ROLES,
     LOAD_FLOW,
+    OPTION_INTERFACE,
     OUTPUT_ROLES,
     PRESSURE,
     ROLE_ALIASES,
@@ -432,6 +433,9 @@ class BagRecorder(QueuedBag):
         name: Bag directory name; ``None`` = :func:`bag_name` (timestamped). An existing bag
             is never overwritten.
         signals: Roles to record (:func:`check_signals`); default all six.
+        options: The valve options' signals to record too (:data:`pcv_sim.io.topics.OPTION_INTERFACE`
+            names, std_msgs/Float64 in SI): inputs on change, outputs at each call on the output grid
+            (with `record_block`, the device calls at least once per published sample).
         every: Record the outputs at every ``every``-th model step (1 = every 0.1 ms step).
         dt_ns: Model step in ns.
         namespace: The node's namespace, for the topic names (:func:`bag_topic`).
@@ -459,6 +463,7 @@ class BagRecorder(QueuedBag):
         *,
         name: str | None = None,
         signals: Iterable[str] = RECORDABLE,
+        options: Iterable[str] = (),
         every: int = 1,
         dt_ns: int = 100_000,
         namespace: str = "/",
@@ -485,17 +490,28 @@ class BagRecorder(QueuedBag):
         if name is None:
             name = bag_name(namespace)
         self.signals = check_signals(signals)
+        directions = {e.name: e.direction for e in OPTION_INTERFACE}
+        self.options = tuple(options)
+        unknown = [o for o in self.options if o not in directions]
+        if unknown:
+            msg = f"record option signal(s) {', '.join(map(repr, unknown))}: accepted are {', '.join(directions)}"
+            raise BagError(msg)
         self.every = every
         self.dt_ns = dt_ns
         self.frame_id = frame_id
         self.topics = {role: bag_topic(role, namespace) for role in self.signals}
-        self._inputs = tuple((k, r, _SOURCE[r]) for k, r in enumerate(INPUT_ROLES) if r in self.signals)
-        self._input_topics = tuple(bag_topic(r, namespace) for r in INPUT_ROLES)
+        n_in = len(INPUT_ROLES)
+        # Option inputs go as inputs (on change), indexed after INPUT_ROLES; option outputs on the grid.
+        self._inputs = tuple((k, r, _SOURCE[r]) for k, r in enumerate(INPUT_ROLES) if r in self.signals) + tuple(
+            (n_in + j, o, o) for j, o in enumerate(self.options) if directions[o] == "in")
+        self._option_outputs = tuple((n_in + j, o) for j, o in enumerate(self.options) if directions[o] == "out")
+        self._input_topics = tuple(bag_topic(r, namespace) for r in (*INPUT_ROLES, *self.options))
+        option_topics = {bag_topic(o, namespace): o for o in self.options}
         self._outputs = any(r in self.signals for r in OUTPUT_ROLES)
         self._p_topic = self.topics.get(PRESSURE)
         self._i_topic = self.topics.get(CURRENT)
         self._x_topic = self.topics.get(SPOOL_POSITION)
-        self._last = [math.nan] * len(INPUT_ROLES)
+        self._last = [math.nan] * (n_in + len(self.options))
         self._origin: int | None = None
         self._every_ns = every * dt_ns
         self._per_output = sum(r in self.signals for r in OUTPUT_ROLES)
@@ -503,12 +519,13 @@ class BagRecorder(QueuedBag):
         max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
         super().__init__(
             directory, name,
-            topics={self.topics[r]: ROLE_TYPES[r] for r in self.signals},
-            qos={self.topics[r]: ROLE_QOS[r] for r in self.signals},
+            topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64)},
+            qos={**{self.topics[r]: ROLE_QOS[r] for r in self.signals},
+                 **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()}},
             max_items=max_items, split_size_bytes=split_size_bytes, writer=writer, batch_period=batch_period,
             flush_period_s=flush_period_s, chunk_size=chunk_size, fsync=fsync, when_full=when_full,
             ros_distro=ros_distro, item_bytes=48,
-            build={"signals": self.signals, "every": every, "dt_ns": dt_ns, "namespace": namespace,
+            build={"signals": self.signals, "options": self.options, "every": every, "dt_ns": dt_ns, "namespace": namespace,
                    "frame_id": frame_id, "max_queue_s": max_queue_s})
 
     # --- the model loop's side ----------------------------------------------------------------
@@ -523,6 +540,8 @@ class BagRecorder(QueuedBag):
             put((_IN, k, t_ns, v))
         if self._outputs:
             put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
+        for k, key in self._option_outputs:
+            put((_IN, k, t_ns, signals[key]))
 
     def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None:
         """The device at step ``t_ns``: inputs on change (stamped t), outputs on the grid."""
@@ -535,8 +554,11 @@ class BagRecorder(QueuedBag):
             if v != last[k]:
                 last[k] = v
                 self._put((_IN, k, t_ns, v))
-        if self._outputs and (t_ns - self._origin) % self._every_ns == 0:
-            self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
+        if (t_ns - self._origin) % self._every_ns == 0:
+            if self._outputs:
+                self._put((_OUT, t_ns, signals["pressure"], signals["current"], signals["spool_position"]))
+            for k, key in self._option_outputs:
+                self._put((_IN, k, t_ns, signals[key]))
 
     def record_block(self, t0_ns: int, dt_ns: int, rows: np.ndarray) -> None:
         """Steps t0_ns, t0_ns + dt_ns, ... with their outputs (rows: pressure, current,
@@ -581,7 +603,7 @@ class BagRecorder(QueuedBag):
         else:
             _, k, t, v = item
             k, t = int(k), int(t)
-            if INPUT_ROLES[k] == SUPPLY_PRESSURE:
+            if k < len(INPUT_ROLES) and INPUT_ROLES[k] == SUPPLY_PRESSURE:
                 w.write_fluid_pressure(self._input_topics[k], t, v, 0.0, self.frame_id)
             else:
                 w.write_float64(self._input_topics[k], t, v)

@@ -186,8 +186,8 @@ EMULATOR_INTERFACE: Final = (
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
 )
 #: The valve options' topics (docs/model.md R33-R35), each present when its option is on. The
-#: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the node does not serve
-#: them yet.
+#: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the emulator serves them
+#: (outputs with each sample), reports them in its diagnostics and records them (record.enabled).
 OPTION_INTERFACE: Final = (
     Endpoint("in", AMBIENT_TEMPERATURE, FLOAT64, "K", COMMAND_QOS),
     Endpoint("in", OIL_TEMPERATURE, FLOAT64, "K", COMMAND_QOS),

@@ -10,6 +10,8 @@ out. Topic names are relative, so a namespace runs one valve per steering chambe
     in   load_flow        std_msgs/Float64            m^3/s drawn from the load port    reliable
     in   supply_pressure  sensor_msgs/FluidPressure   Pa                                reliable
     in   faults           std_msgs/String             {fault: coil_open} (YAML; faults.enabled only)
+    in   ambient_temperature, oil_temperature   std_msgs/Float64, K    (the valve's options, when on:
+    out  coil_temperature (K), coil_resistance (ohm), core_position (m) std_msgs/Float64   io.topics.OPTION_INTERFACE)
     out  pressure         sensor_msgs/FluidPressure   Pa, stamped with the model time   sensor data
     out  current          std_msgs/Float64            A                                 sensor data
     out  spool_position   std_msgs/Float64            m (x > 0 opens pump -> load)      sensor data
@@ -58,6 +60,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -145,7 +148,7 @@ class EmulatorNode(DeviceNode):
         self._pending: tuple[NodeSettings, ValveParams] | None = None   # staged within the running job
         self._staged: tuple[NodeSettings, ValveParams, Any] | None = None
         self.samples_published = 0
-        self._last_published: tuple[int, float, float, float] | None = None   # step, measured values
+        self._last_published: tuple[Any, ...] | None = None   # `_send`'s arguments: step, measured values
         self._switch_interval = sys.getswitchinterval()
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
@@ -153,6 +156,10 @@ class EmulatorNode(DeviceNode):
         self._pub_pressure = self.create_publisher(FluidPressure, PRESSURE, sensor, event_callbacks=out(PRESSURE))
         self._pub_current = self.create_publisher(Float64, CURRENT, sensor, event_callbacks=out(CURRENT))
         self._pub_spool = self.create_publisher(Float64, SPOOL_POSITION, sensor, event_callbacks=out(SPOOL_POSITION))
+        #: The valve options' outputs (ValveDevice.option_outputs), published with each sample.
+        self._option_pubs = [self.create_publisher(Float64, name, sensor, event_callbacks=out(name))
+                             for name in self.device.option_outputs]
+        self._msg_option = Float64()
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
                                                event_callbacks=out(DIAGNOSTICS))
         if self.simulated:
@@ -169,6 +176,10 @@ class EmulatorNode(DeviceNode):
             (self.create_subscription(FluidPressure, SUPPLY_PRESSURE, self._on_supply, COMMAND_QOS,
                                       event_callbacks=inp(SUPPLY_PRESSURE)), self._on_supply),
         ]
+        for name in self.device.option_inputs:      # the valve options' inputs (K)
+            handler = partial(self._on_option, name)
+            self._inputs.append((self.create_subscription(Float64, name, handler, COMMAND_QOS,
+                                                          event_callbacks=inp(name)), handler))
         if s.faults_enabled:                # any node on the domain could break the bench
             self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS,
                                                           event_callbacks=inp(FAULTS)), self._on_fault))
@@ -283,6 +294,7 @@ class EmulatorNode(DeviceNode):
         try:
             recorder = BagRecorder(
                 os.path.expanduser(s.record_directory), name=s.record_name or None, signals=s.record_signals,
+                options=(*dev.option_inputs, *dev.option_outputs),
                 every=s.record_every(dev.dt), dt_ns=dev.dt_ns, namespace=self.get_namespace(),
                 frame_id=s.frame_id,
                 split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
@@ -333,6 +345,9 @@ class EmulatorNode(DeviceNode):
     def _on_duty(self, msg: Float64, info: Any = None) -> None:
         self._answered.add(VALVE)                   # valid or not: the lockstep's answer
         self._input(DUTY_CYCLE, msg.data, info)
+
+    def _on_option(self, name: str, msg: Float64, info: Any = None) -> None:
+        self._input(name, msg.data, info)
 
     def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
         self._input(LOAD_FLOW, msg.data, info)
@@ -447,11 +462,12 @@ class EmulatorNode(DeviceNode):
         for s in samples:
             measured = (s.step, *measure(s)) if measure is not None else (s.step, s.pressure, s.current,
                                                                             s.spool_position)
-            self._send(*measured)
-            self._last_published = measured
+            self._send(*measured, s.options)
+            self._last_published = (*measured, s.options)
         self._shown = samples[-1].step
 
-    def _send(self, step: int, pressure: float, current: float, spool_position: float) -> None:
+    def _send(self, step: int, pressure: float, current: float, spool_position: float,
+              options: tuple[float, ...] = ()) -> None:
         """One sample's messages; a value a sensor fault dropped (NaN) is not published."""
         self._stamp(self.device.stamp_ns(step))
         if math.isfinite(pressure):
@@ -463,6 +479,9 @@ class EmulatorNode(DeviceNode):
         if math.isfinite(spool_position):
             self._msg_spool.data = spool_position
             self._pub_spool.publish(self._msg_spool)
+        for pub, value in zip(self._option_pubs, options):
+            self._msg_option.data = value
+            pub.publish(self._msg_option)
         self.samples_published += 1
 
     def _send_samples(self) -> None:
@@ -473,7 +492,8 @@ class EmulatorNode(DeviceNode):
         return self.device.sample_every
 
     def _output_events(self, topic: str) -> PublisherEventCallbacks:
-        return self.output_events(topic, SAMPLE_HINT if topic in (PRESSURE, CURRENT, SPOOL_POSITION) else COMMAND_HINT)
+        samples = (PRESSURE, CURRENT, SPOOL_POSITION, *self.device.option_outputs)
+        return self.output_events(topic, SAMPLE_HINT if topic in samples else COMMAND_HINT)
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """The device's health, one status per concern (see pcv_sim.device.diagnostics)."""
