@@ -357,29 +357,11 @@ class ValveDevice(Device):
             assert command.fault is not None     # a command that is not a clear carries its fault
             self.inject(command.fault)
 
-    def inject(self, fault: Fault) -> None:
-        """Start `fault` at the present step (a second fault of the same kind on the same target
-        replaces the first)."""
-        if fault.sensor:
-            if fault.target not in MEASURED:
-                raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(MEASURED)}")
-            self.sensors.add(fault, self.time)
-        elif fault.target != VALVE or fault.on_cylinder:
-            raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is the valve {VALVE}")
-        self.faults[fault.key] = fault
-        if not fault.sensor:
-            self._apply_valve_faults()
+    def _fault_targets(self, fault: Fault) -> str | None:
+        return None if fault.target == VALVE and not fault.on_cylinder else f"is the valve {VALVE}"
 
-    def clear(self, target: str, kind: str) -> None:
-        """End a fault: the target is back to normal from the present step on."""
-        fault = self.faults.pop((target, kind), None)
-        if fault is None:
-            active = ", ".join(f"{k}@{t}" for t, k in self.faults) or "none"
-            raise FaultError(f"no active fault {kind} on {target}; active: {active}")
-        if fault.sensor:
-            self.sensors.clear(target, kind)
-        else:
-            self._apply_valve_faults()
+    def _apply_physical_faults(self, fault: Fault) -> None:
+        self._apply_valve_faults()
 
     def _apply_valve_faults(self) -> None:
         """The valve's parameters and supply: healthy, then every active physical fault."""

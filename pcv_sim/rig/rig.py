@@ -32,7 +32,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from pcv_sim.device.device import MODEL_FAILURES, Device
-from pcv_sim.device.faults import CYLINDER, Fault, FaultError, valve_fault_parameters
+from pcv_sim.device.faults import CYLINDER, Fault, valve_fault_parameters
 from pcv_sim.device.inputs import NEVER, InputQueue, WatchdogState
 from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError, PcvSimError
@@ -318,38 +318,18 @@ class Rig(Device):
         if self.on_input is not None:
             self.on_input(self.sim.steps, EXTERNAL_FORCE, f)
 
-    def inject(self, fault: Fault) -> None:
-        """Start `fault` at the present step (a second fault of the same kind on the same target
-        replaces the first)."""
-        if fault.sensor:
-            if fault.target not in self.signals:
-                raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(self.signals)}")
-            self.sensors.add(fault, self.time)
-        elif fault.on_cylinder:
-            if fault.target != CYLINDER:
-                raise FaultError(f"{fault.kind} on {fault.target!r}: accepted is {CYLINDER}")
-        elif fault.target not in self.valve_names:
-            raise FaultError(f"{fault.kind} on {fault.target!r}: accepted are the valves {', '.join(self.valve_names)}")
-        self.faults[fault.key] = fault
-        self._apply_physical_faults(fault)
-        self.log.append((self.time, f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip()))
+    def _fault_targets(self, fault: Fault) -> str | None:
+        if fault.on_cylinder:
+            return None if fault.target == CYLINDER else f"is {CYLINDER}"
+        return None if fault.target in self.valve_names else f"are the valves {', '.join(self.valve_names)}"
 
-    def clear(self, target: str, kind: str) -> None:
-        """End a fault: the target is back to normal from the present step on."""
-        fault = self.faults.pop((target, kind), None)
-        if fault is None:
-            active = ", ".join(f"{k}@{t}" for t, k in self.faults) or "none"
-            raise FaultError(f"no active fault {kind} on {target}; active: {active}")
-        if fault.sensor:
-            self.sensors.clear(target, kind)
-        self._apply_physical_faults(fault)
-        self.log.append((self.time, f"cleared {kind} on {target}"))
+    def _note(self, text: str) -> None:
+        self.log.append((self.time, text))
 
     def _apply_physical_faults(self, fault: Fault) -> None:
-        """Re-apply every active fault on `fault`'s target (after one was set or cleared)."""
         if fault.on_cylinder:
             self._apply_cylinder_faults()
-        elif not fault.sensor:
+        else:
             self._apply_valve_faults(self.valve_names.index(fault.target))
 
     def _apply_cylinder_faults(self) -> None:
