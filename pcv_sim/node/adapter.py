@@ -54,7 +54,6 @@ queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`re
 from __future__ import annotations
 
 import math
-import os
 import sys
 import time
 from collections import deque
@@ -83,8 +82,8 @@ from pcv_sim.device.settings import (
     settings_with,
 )
 from pcv_sim.device.valve import VALVE, Recorder, Sample, ValveDevice, WatchdogState
-from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, RecorderStatus
+from pcv_sim.errors import ParameterError
+from pcv_sim.io.recorder import BagRecorder, RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
     CURRENT,
@@ -213,12 +212,7 @@ class EmulatorNode(DeviceNode):
         Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
         take (rcl drops one whose type differs from the params file's), and names nobody declares
         (unless allow_unknown_parameters) are refused too (see pcv_sim.device.parameters)."""
-        values = {}
-        for spec in NODE_PARAMETERS:
-            value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
-                                 read_only=spec.read_only, is_float=spec.is_float)
-            values[spec.name] = check_node_value(spec.name, value)
-        settings = NodeSettings.from_parameters(values)
+        settings = NodeSettings.from_parameters(self.declare_settings(NODE_PARAMETERS, check_node_value))
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
         params = load_params(settings.valve_config or None)
         changes = {}
@@ -289,20 +283,11 @@ class EmulatorNode(DeviceNode):
     def _make_recorder(self) -> BagRecorder | None:
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
         s, dev = self.settings, self.device
-        if not s.record_enabled:
-            return None
-        try:
-            recorder = BagRecorder(
-                os.path.expanduser(s.record_directory), name=s.record_name or None, signals=s.record_signals,
-                options=(*dev.option_inputs, *dev.option_outputs),
-                every=s.record_every(dev.dt), dt_ns=dev.dt_ns, namespace=self.get_namespace(),
-                frame_id=s.frame_id,
-                split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
-                writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
-                when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
-        except BagError as err:
-            raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
-        self.set_recorder(recorder, 1)      # every step: inputs stamped exactly, outputs decimated inside
+        recorder: BagRecorder | None = self.open_recorder(partial(
+            BagRecorder, signals=s.record_signals, options=(*dev.option_inputs, *dev.option_outputs),
+            every=s.record_every(dev.dt), dt_ns=dev.dt_ns, frame_id=s.frame_id))
+        if recorder is not None:
+            self.set_recorder(recorder, 1)      # every step: inputs stamped exactly, outputs decimated inside
         return recorder
 
     def _start_recording(self) -> None:
@@ -312,11 +297,8 @@ class EmulatorNode(DeviceNode):
             return
         dev = self.device
         rec.start(dev.stamp_ns(), dev.signals())
-        if rec.threaded:
-            sys.setswitchinterval(SWITCH_INTERVAL)
-        self.get_logger().info(
-            f"recording {', '.join(rec.signals)} to {rec.path} (outputs every {rec.every * dev.dt * 1e3:g} ms of "
-            f"model time, inputs on change)")
+        self.recording_started(rec, f"{', '.join((*rec.signals, *rec.options))} to {rec.path} (outputs every "
+                                    f"{rec.every * dev.dt * 1e3:g} ms of model time, inputs on change)")
 
     def _stop_recording(self) -> None:
         close = getattr(self.device.recorder, "close", None)

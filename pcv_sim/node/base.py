@@ -34,7 +34,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -59,7 +59,7 @@ from pcv_sim.device.parameters import (
     refuse_unknown,
     unknown_parameters_message,
 )
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.polling import Waiter, drain, linger_for_rosout
@@ -173,6 +173,13 @@ class DeviceNode(Node):
             return value
         self._retaken[name] = override
         return override.value
+
+    def declare_settings(self, specs: Iterable[Any], check: Callable[[str, Any], Any]) -> dict[str, Any]:
+        """Declare each setting from its one declaration (`pcv_sim.params.setting`); its value checked
+        by `check(name, value)` as soon as it is declared (ParameterError naming it)."""
+        return {spec.name: check(spec.name, self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
+                                                          read_only=spec.read_only, is_float=spec.is_float))
+                for spec in specs}
 
     def refuse_unknown_names(self, allowed: bool) -> None:
         """Names given (params file, -p) that nobody declared: ParameterError, or a warning if allowed."""
@@ -636,6 +643,27 @@ class DeviceNode(Node):
         return False
 
     # --- recording and scheduling ----------------------------------------------------------------
+
+    def open_recorder(self, make: Callable[..., Any]) -> Any:
+        """The bag recorder record.* asks for (None when off): `make(directory, **what every node's
+        recorder takes)` with the device's own arguments bound; ParameterError if it cannot start."""
+        s = self.settings
+        if not s.record_enabled:
+            return None
+        try:
+            return make(os.path.expanduser(s.record_directory), name=s.record_name or None,
+                        namespace=self.get_namespace(),
+                        split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                        writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
+                        when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
+        except BagError as err:
+            raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
+
+    def recording_started(self, recorder: Any, what: str) -> None:
+        """After `recorder.start`: the interpreter handed to a writer thread within a wake; say what goes where."""
+        if recorder.threaded:
+            sys.setswitchinterval(SWITCH_INTERVAL)
+        self.get_logger().info(f"recording {what}")
 
     def close_recorder(self, recorder: Any) -> None:
         """Close a bag recorder (None: nothing) and say what it wrote."""

@@ -62,8 +62,6 @@ one valve. The state is in the rig status of the diagnostics (`recording*` keys)
 from __future__ import annotations
 
 import math
-import os
-import sys
 import time
 from collections.abc import Callable
 from functools import partial
@@ -79,8 +77,8 @@ from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
 from pcv_sim.device.faults import parse_fault_command
-from pcv_sim.errors import BagError, CommandError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
+from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
     CURRENT,
@@ -206,12 +204,7 @@ class RigNode(DeviceNode):
         """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
         As the emulator: a key given twice in a params file, a `-p` override rcl dropped for its type,
         and names nobody declares are refused too (pcv_sim.device.parameters)."""
-        values = {}
-        for spec in RIG_PARAMETERS:
-            value = self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
-                                 read_only=spec.read_only, is_float=spec.is_float)
-            values[spec.name] = check_rig_value(spec.name, value)
-        settings = settings_from(values)
+        settings = settings_from(self.declare_settings(RIG_PARAMETERS, check_rig_value))
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
         self.refuse_unknown_names(settings.allow_unknown_parameters)
         self.set_retaken()
@@ -488,20 +481,11 @@ class RigNode(DeviceNode):
 
     def _make_recorder(self) -> RigRecorder | None:
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
-        s, rig = self.settings, self.rig
-        if not s.record_enabled:
-            return None
-        try:
-            recorder = RigRecorder(
-                os.path.expanduser(s.record_directory), name=s.record_name or None,
-                valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals,
-                namespace=self.get_namespace(),
-                split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
-                writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
-                when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
-        except BagError as err:
-            raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
-        rig.on_input = self._record_input
+        rig = self.rig
+        recorder: RigRecorder | None = self.open_recorder(partial(
+            RigRecorder, valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals))
+        if recorder is not None:
+            rig.on_input = self._record_input
         return recorder
 
     def _record_input(self, step: int, name: str, value: float) -> None:
@@ -520,10 +504,8 @@ class RigNode(DeviceNode):
         t_ns = rig.stamp_ns(self._shown)
         if not rec.started:
             rec.start(t_ns, rig.input_values())
-            if rec.threaded:
-                sys.setswitchinterval(SWITCH_INTERVAL)
-            self.get_logger().info(f"recording to {rec.path}: every valve under its namespace, the cylinder, "
-                                   "faults and events (outputs every control period, inputs on change)")
+            self.recording_started(rec, f"to {rec.path}: every valve under its namespace, the cylinder, faults and "
+                                        "events (outputs every control period, inputs on change)")
         rec.sample(t_ns, self._last_sample, rig.load_volumes())
         log = rig.log
         while self._rec_logged < len(log):
