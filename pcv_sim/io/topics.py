@@ -184,6 +184,7 @@ EMULATOR_INTERFACE: Final = (
     Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
     Endpoint("out", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
+    Endpoint("in", FAULTS, "std_msgs/msg/String", "", COMMAND_QOS),      # faults.enabled only
 )
 #: The valve options' topics (docs/model.md R33-R35), each present when its option is on. The
 #: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the emulator serves them
