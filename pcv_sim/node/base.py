@@ -369,7 +369,8 @@ class DeviceNode(Node):
 
     def _wait_for_controllers(self, stop: StopFlag, subs: list[Any]) -> None:
         """Lockstep: before the first sample, until every answering command has a matched publisher
-        (a command sent before that is lost); the 0.5 s re-publication covers what is left."""
+        (a command sent before that is lost); the 0.5 s re-publication covers what is left. Service
+        requests (parameters, reset) are answered meanwhile."""
         start = time.monotonic()
         told = False
         while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
@@ -377,6 +378,7 @@ class DeviceNode(Node):
                 missing = [sub.topic_name for sub in subs if sub.get_publisher_count() == 0]
                 self.get_logger().info(f"lockstep: waiting for a controller publishing {', '.join(missing)}")
                 told = True
+            self._poll_services()
             time.sleep(0.01)
 
     def _run_simulated(self, stop: StopFlag) -> None:
