@@ -8,6 +8,8 @@ every output at the present time with the inputs in force from now on (right-con
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from pcv_sim.simulation.compile import INTEGRATORS, arena_layout, compiled_module, exponential_weights, pack_tables
@@ -107,6 +109,14 @@ class Simulator:
                                     feed_i, feed_v, row)
         self.steps += n + after
         return float(norm)
+
+    def sample_entry(self) -> tuple[Callable[..., float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """`advance_sample`'s compiled function and its first three arguments (the arena, the tables
+        and their layout), for a loop that calls it every few steps and cannot afford the method's
+        Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row)` with n, after
+        >= 0 and the argument types `advance_sample` passes; the caller then adds n + after to
+        `steps`. The arrays stay the simulator's for its life (`copy` makes new ones)."""
+        return self._advance_sample, (self._S, self._Fa, self._FL)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
         """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:
