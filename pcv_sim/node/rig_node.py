@@ -20,8 +20,9 @@ names are relative (`pcv_sim.io.topics`); each valve keeps the emulator's interf
 Samples leave every control period (model time), measured values (sensor faults applied; a
 dropped or non-finite one is not published).
 
-The loop is the emulator's (see `pcv_sim.node.adapter`): no executor, no timer, inputs taken by
-`take_message` polling, because at 1 kHz an executor costs more than the work.
+The loops are the emulator's, written once in the node base (`pcv_sim.node.base.DeviceNode`): no
+executor, no timer, inputs taken by `take_message` polling, because at 1 kHz an executor costs
+more than the work.
 - Simulated time, lockstep (default): publish /clock and the samples at T = k x control period,
   wait until every valve has had a duty_cycle message since then, apply them from T + dt, the
   first step not shown (the sample at T shows the inputs in force at T; as
