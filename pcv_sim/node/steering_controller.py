@@ -6,21 +6,24 @@
 The control law is `pcv_sim.control.steering.PositionController`, the class a scenario calls
 in-process (examples/steering.py): the node only moves its inputs and outputs over DDS. It talks
 to the rig node (`ros2 run pcv_sim rig`) in its namespace, in lockstep: every control period it
-takes the samples the rig published (stamped with their model time), calls the controller with
-them and answers with both valves' duties (`pcv_sim.node.rig_client.RigClient`, no executor:
-`take_message` and a wait set, as the rig). Topics, relative to the namespace:
+takes the sample the rig published (stamped with its model time), calls the controller with it
+and answers with both valves' duties and its flags, over the rig's lockstep channel
+(`pcv_sim.node.lockstep_channel`; `pcv_sim.node.rig_client.RigClient`, no executor: `take_message`
+and a wait set, as the rig). Topics, relative to the namespace:
 
-    in   <valve>/pressure        sensor_msgs/FluidPressure   Pa, stamp = model time (left, right)
-    in   <valve>/current         std_msgs/Float64            A
-    in   cylinder/joint_states   sensor_msgs/JointState      joint `steering`: m, m/s, N
+    in   lockstep/sample         sensor_msgs/JointState      the rig's signals (Pa, A, m, m/s, N) by name,
+                                                             stamp = model time; a scenario's `setpoint`
+    out  lockstep/command        sensor_msgs/JointState      `left.duty`, `right.duty` (fraction) and
+                                                             `controller.fault_detected`, stamped with the
+                                                             sample answered, one per period
     in   setpoint                std_msgs/Float64            m: the position to hold; the latest
-                                                             received holds (0 before the first)
-    out  <valve>/duty_cycle      std_msgs/Float64            fraction, one per valve per period
-    out  controller/flags        diagnostic_msgs/DiagnosticArray, one per period, published before
-                                 the duties: header.stamp = the answered sample's model time; one
-                                 status `steering_controller` (level ERROR while fault_detected,
-                                 else OK) with a KeyValue per flag, the value as repr(float)
-                                 (`fault_detected`: "0.0" or "1.0")
+                                                             received holds (0 before the first); a
+                                                             setpoint in the sample comes first
+    out  controller/flags        diagnostic_msgs/DiagnosticArray, one per period while it has a
+                                 subscriber, published before the command: header.stamp = the
+                                 answered sample's model time; one status `steering_controller`
+                                 (level ERROR while fault_detected, else OK) with a KeyValue per
+                                 flag, the value as repr(float) (`fault_detected`: "0.0" or "1.0")
 
 Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
 coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` must be the rig's
@@ -127,7 +130,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.law = PositionController(**self.gains)
             self.setpoint: float | None = None
             self._setpoint_fresh = False
-            self.client = RigClient(None, VALVES, node=self, currents=True, history=False)
+            self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=True)
             sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
@@ -163,7 +166,9 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def _control(self, t: float, measured: Mapping[str, float]) -> Any:
             m = dict(measured)
             self._setpoint_fresh = False
-            if self.setpoint is not None:
+            if "setpoint" in m:                # the scenario's, with the sample: the topic's may be late
+                self.setpoint = m["setpoint"]
+            elif self.setpoint is not None:
                 m["setpoint"] = self.setpoint
             wrong = self._period_check(t)
             if wrong is not None:
@@ -182,6 +187,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def _publish_flags(self, stamp_ns: int, flags: Mapping[str, float]) -> None:
             # One message refilled every period (publish serializes it at once): building the
             # array, its status and key-values anew cost more than the control law.
+            if not self._pub_flags.get_subscription_count():
+                return                         # nobody reads them (a scenario runner has them in the command)
             msg, st = self._msg_flags, self._msg_flags.status[0]
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             fault = flags.get("fault_detected", 0.0) != 0.0
