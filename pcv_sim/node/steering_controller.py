@@ -28,7 +28,9 @@ and a wait set, as the rig). Topics, relative to the namespace:
 Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
 coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` must be the rig's
 control period (1 ms in config/rig.yaml; a warning says so when the samples come at another
-rate). With `use_sim_time: true` the node's clock follows the rig's /clock (its log stamps);
+rate). With `use_sim_time: true` the node's clock follows the rig's model time: each sample's
+stamp, the /clock the rig publishes with it (taken from the sample, not from /clock: one message
+less per period);
 the controller's time is always the sample's stamp. A sample stamped before the last one answered
 (the rig started again, the next scenario) starts a fresh controller (and forgets the setpoint
 unless one came with that sample). Exit status as the rig:
@@ -107,6 +109,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64
 
     from pcv_sim.control.steering import PositionController
@@ -135,11 +138,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
-            ts = getattr(self, "_time_source", None)
-            clock_sub = getattr(ts, "_clock_sub", None)
-            if self.get_parameter("use_sim_time").value and clock_sub is not None:
-                # No executor: the TimeSource's own /clock subscription is taken by the polling.
-                self.client.add_input(clock_sub, lambda msg, _info: ts.clock_callback(msg))  # type: ignore[union-attr]
+            self._clock_msg = Clock()
+            self._drop_clock_subscription()
             self._period_check = PeriodCheck(self.gains["period"])
             self.get_logger().info(
                 f"steering controller: valves {', '.join(VALVES)}, period {self.gains['period'] * 1e3:g} ms, "
@@ -159,6 +159,25 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                 values[name] = float(v)
             return values
 
+        def _drop_clock_subscription(self) -> None:
+            """use_sim_time: the TimeSource's /clock subscription goes (no executor would take it); the
+            clock is set from each sample's stamp instead, the same instants."""
+            ts = getattr(self, "_time_source", None)
+            sub = getattr(ts, "_clock_sub", None)
+            if ts is not None and sub is not None:
+                self.destroy_subscription(sub)
+                ts._clock_sub = None
+
+        def _follow(self, t: float) -> None:
+            ts = getattr(self, "_time_source", None)
+            if ts is None or not ts.ros_time_is_active:
+                return
+            if ts._clock_sub is not None:      # use_sim_time switched on at run time
+                self._drop_clock_subscription()
+            clock = self._clock_msg.clock
+            clock.sec, clock.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+            ts.clock_callback(self._clock_msg)
+
         def _on_setpoint(self, msg: Any, _info: Any) -> None:
             self.setpoint = msg.data
             self._setpoint_fresh = True        # received since the last answer
@@ -170,6 +189,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                 self.setpoint = m["setpoint"]
             elif self.setpoint is not None:
                 m["setpoint"] = self.setpoint
+            self._follow(t)
             wrong = self._period_check(t)
             if wrong is not None:
                 self.get_logger().warning(wrong)
@@ -226,7 +246,7 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
         epilog="parameters (--ros-args -p NAME:=VALUE): " + ", ".join(f"{k} = {v:g}" for k, v in _parameters().items())
-               + "; period must be the rig's control period; use_sim_time follows the rig's /clock")
+               + "; period must be the rig's control period; use_sim_time follows the rig's model time")
     try:
         parser.parse_args(remove_ros_args(argv)[1:])
     except Exception as err:
