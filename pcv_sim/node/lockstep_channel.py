@@ -30,11 +30,13 @@ import struct
 from collections.abc import Sequence
 
 from pcv_sim.errors import CommandError
+from pcv_sim.io.topics import LOCKSTEP_COMMAND, LOCKSTEP_SAMPLE
 
-__all__ = ["COMMAND_TOPIC", "DUTY_SUFFIX", "FLAG_PREFIX", "SAMPLE_TOPIC", "NamedVector", "decode", "split_command"]
+__all__ = ["COMMAND_TOPIC", "DUTY_SUFFIX", "FLAG_PREFIX", "SAMPLE_TOPIC", "NamedVector", "decode", "measurement",
+           "split_command"]
 
-SAMPLE_TOPIC = "lockstep/sample"
-COMMAND_TOPIC = "lockstep/command"
+SAMPLE_TOPIC = LOCKSTEP_SAMPLE
+COMMAND_TOPIC = LOCKSTEP_COMMAND
 DUTY_SUFFIX = ".duty"
 FLAG_PREFIX = "controller."
 
