@@ -9,7 +9,8 @@ this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes i
   callable (`schedule_timeline`), so it acts at the same steps;
 - at each control instant the scenario's setpoint goes with the period's sample on the lockstep
   channel (`setpoint`, m: `pcv_sim.node.lockstep_channel`), and is published on `setpoint`
-  (std_msgs/Float64, m; the node holds the latest) when it changed, before the period's samples;
+  (std_msgs/Float64, m; the node holds the latest) before the period's samples: at every instant
+  for a controller on the per-valve topics, where it changed for one on the channel;
 - the true and measured samples of every instant and the duties in force once every valve
   answered are collected into the same `RigRun` a callable run gives, so the assertions and
   `pcv_sim.rig.record` (bag, report) work unchanged;
@@ -84,6 +85,7 @@ class _Host:
         self.setpoint = scenario.setpoint_function()
         self._msg = Float64()
         self._last_sp = math.nan                     # the setpoint last published on the topic
+        self.channel = False                         # the controller is on the lockstep channel
         self._pub_sp = node.create_publisher(Float64, SETPOINT_TOPIC, 10)
         self.done = False
         self.failure: str | None = None
@@ -107,12 +109,13 @@ class _Host:
         if self.setpoint is not None:
             self.sp[k] = v = self.setpoint(rig.time)
             # In the lockstep sample: the controller has it with the sample it answers. On the topic
-            # for a controller on the per-valve topics, when it changed, before the samples; not at the
-            # last instant, which needs no answer: DDS does not order a setpoint after the samples of
+            # for a controller on the per-valve topics (every instant: one that subscribed late gets
+            # it) and for other readers (where it changed), before the samples; not at the last
+            # instant, which needs no answer: DDS does not order a setpoint after the samples of
             # another topic, and a setpoint that came after the run's last answer would be taken into
             # the next run.
             self.node.sample_extras["setpoint"] = v
-            if k < self.n and v != self._last_sp:
+            if k < self.n and (v != self._last_sp or not self.channel):
                 self._last_sp = self._msg.data = v
                 self._pub_sp.publish(self._msg)
         if k == self.n:                              # the last instant: no answer needed (as run_lockstep)
@@ -258,7 +261,8 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
             where = f"namespace {spec.namespace or '/'}, ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}" \
                 if proc is None else f"namespace {spec.namespace or '/'}"
             raise ScenarioAborted(f"no ROS controller answered within {spec.wait:g} s ({where}): missing "
-                                   f"{', '.join(missing)}")
+                                   f"{', '.join(missing)} (or, on the lockstep channel, a publisher on "
+                                   f"{command.topic_name} and a subscriber of {sample.topic_name})")
         time.sleep(0.01)
 
 
@@ -300,7 +304,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         host = _Host(node, scenario, spec, proc, log_path)
         flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
         schedule_timeline(node.rig, scenario)
-        channel = _wait_for_controller(node, host, spec, proc, flags_sub)
+        host.channel = channel = _wait_for_controller(node, host, spec, proc, flags_sub)
         if channel:                  # the flags come with the answers; unsubscribed, nobody writes them
             node._inputs = [(sub, h) for sub, h in node._inputs if sub is not flags_sub]
             node.destroy_subscription(flags_sub)

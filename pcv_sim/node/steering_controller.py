@@ -26,7 +26,10 @@ and a wait set, as the rig). Topics, relative to the namespace:
                                  flag, the value as repr(float) (`fault_detected`: "0.0" or "1.0")
 
 Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
-coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` must be the rig's
+coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `lockstep_channel` (true;
+false: the rig's per-valve topics, `<valve>/pressure`, `<valve>/current`, `cylinder/joint_states`
+in, one `<valve>/duty_cycle` per valve and `controller/flags` out, a period complete when
+joint_states, published last, has come); `period` must be the rig's
 control period (1 ms in config/rig.yaml; a warning says so when the samples come at another
 rate). With `use_sim_time: true` the node's clock follows the rig's model time: each sample's
 stamp, the /clock the rig publishes with it (taken from the sample, not from /clock: one message
@@ -52,6 +55,7 @@ NODE_NAME = "steering_controller"
 FLAGS_TOPIC = "controller/flags"
 SETPOINT_TOPIC = "setpoint"
 STATUS_NAME = "steering_controller"
+CHANNEL_PARAMETER = "lockstep_channel"
 VALVES = ("left", "right")        # the valves PositionController drives (chambers a and b)
 
 
@@ -125,6 +129,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             super().__init__(NODE_NAME, **kwargs)
             try:
                 self.gains = self._declare()
+                self.channel = self._declare_channel()
             except ParameterError as err:
                 self.get_logger().error(f"invalid parameters: {err}")
                 linger_for_rosout(self)
@@ -133,7 +138,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.law = PositionController(**self.gains)
             self.setpoint: float | None = None
             self._setpoint_fresh = False
-            self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=True)
+            self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
             sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
@@ -158,6 +163,15 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                     raise ParameterError(f"{name}: got {v!r}; accepted is a number > 0")
                 values[name] = float(v)
             return values
+
+        def _declare_channel(self) -> bool:
+            desc = ParameterDescriptor(description="answer over the rig's lockstep channel (lockstep/sample, "
+                                                   "lockstep/command); false: the per-valve topics",
+                                       read_only=True)
+            v: Any = self.declare_parameter(CHANNEL_PARAMETER, True, desc).value
+            if not isinstance(v, bool):
+                raise ParameterError(f"{CHANNEL_PARAMETER}: got {v!r}; accepted is true or false")
+            return v
 
         def _drop_clock_subscription(self) -> None:
             """use_sim_time: the TimeSource's /clock subscription goes (no executor would take it); the
@@ -246,7 +260,8 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
         epilog="parameters (--ros-args -p NAME:=VALUE): " + ", ".join(f"{k} = {v:g}" for k, v in _parameters().items())
-               + "; period must be the rig's control period; use_sim_time follows the rig's model time")
+               + f"; period must be the rig's control period; use_sim_time follows the rig's model time; "
+               f"{CHANNEL_PARAMETER} = true (false: the per-valve topics instead of the lockstep channel)")
     try:
         parser.parse_args(remove_ros_args(argv)[1:])
     except Exception as err:
