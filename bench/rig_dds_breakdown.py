@@ -9,8 +9,9 @@ the monotonic clock (one clock for both processes) at the points a period passes
 wrapping the nodes' methods (this script's, not the package's: the package has no tracing):
 
     rig:        publish start (setpoint, /clock, the samples)  -> publish end
-    controller: the period's first sample taken -> joint_states taken (the period complete)
-                -> the control law called -> flags and duties published
+    controller: the period's first sample taken -> joint_states taken (the period complete; on the
+                lockstep channel both are the one lockstep/sample)
+                -> the control law called -> flags and duties published (lockstep/command)
     rig:        the last valve's duty taken -> the next period's publish start (the model's steps)
 
 and reports the median and p90 of each stretch (µs) and of the whole period, the real-time factor,
