@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.device import MODEL_FAILURES
 from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.profiles import Profile
@@ -157,7 +158,10 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if fast:
                 row = r if fed == at else -1
                 y = true[k]
-                norm = fused(S, Fa, FL, at - now, now, dt, select, y, last - at, rig._feed_i, rig._feed_v, row)
+                try:
+                    norm = fused(S, Fa, FL, at - now, now, dt, select, y, last - at, rig._feed_i, rig._feed_v, row)
+                except MODEL_FAILURES as err:
+                    rig._fail(f"model step failed ({type(err).__name__}: {err})")
                 sim.steps = last
                 if row >= 0:
                     rig._feed_row(row, at)          # already in the model; for the hook and the bookkeeping
