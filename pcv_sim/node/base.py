@@ -295,10 +295,11 @@ class DeviceNode(Node):
         go to `_defer` (a worker thread), the rest is answered here. Every EVENT_POLL_EVERY polls the
         QoS events too."""
         for srv in list(self.services):
+            srv_type: Any = srv.srv_type         # jazzy's annotation (SrvType) names no Request/Response
             while True:
                 try:
                     with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                        request, header = srv.handle.service_take_request(srv_type.Request)
                 except InvalidHandle:
                     break
                 if header is None:
@@ -306,7 +307,7 @@ class DeviceNode(Node):
                 if srv.callback in self._deferred_callbacks:
                     self._defer(srv, request, header)
                 else:
-                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+                    srv.send_response(srv.callback(request, srv_type.Response()), header)
         self._pump()
         self._polls += 1
         if self._polls % EVENT_POLL_EVERY == 0:
@@ -367,16 +368,24 @@ class DeviceNode(Node):
         finally:
             self._finish()
 
-    def _wait_for_controllers(self, stop: StopFlag, subs: list[Any]) -> None:
-        """Lockstep: before the first sample, until every answering command has a matched publisher
-        (a command sent before that is lost); the 0.5 s re-publication covers what is left. Service
-        requests (parameters, reset) are answered meanwhile."""
+    def _lockstep_answers(self) -> tuple[list[Any], Any]:
+        """The subscriptions of the `lockstep_keys` commands (made first, in that order), and one that
+        answers for all of them at once (a lockstep channel), or None."""
+        return [sub for sub, _ in self._inputs[:len(self.lockstep_keys)]], None
+
+    def _wait_for_controllers(self, stop: StopFlag, subs: list[Any], channel: Any) -> None:
+        """Lockstep: before the first sample, until every answering command (or the channel that
+        answers for all) has a matched publisher (a command sent before that is lost); the 0.5 s
+        re-publication covers what is left. Service requests (parameters, reset) are answered meanwhile."""
         start = time.monotonic()
         told = False
-        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
+        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs) \
+                and not (channel is not None and channel.get_publisher_count() > 0):
             if not told and time.monotonic() - start > 2.0:
                 missing = [sub.topic_name for sub in subs if sub.get_publisher_count() == 0]
-                self.get_logger().info(f"lockstep: waiting for a controller publishing {', '.join(missing)}")
+                alternative = f" (or {channel.topic_name})" if channel is not None else ""
+                self.get_logger().info(f"lockstep: waiting for a controller publishing {', '.join(missing)}"
+                                       f"{alternative}")
                 told = True
             self._poll_services()
             time.sleep(0.01)
@@ -399,9 +408,10 @@ class DeviceNode(Node):
         freeze_heap()
         mono = time.monotonic
         keys = self.lockstep_keys
-        answers = self._inputs[:len(keys)]      # the answering subscriptions (made first)
+        subs, channel = self._lockstep_answers()
+        answers = self._inputs[:len(subs) + (channel is not None)]      # made first, in this order
         if lock:
-            self._wait_for_controllers(stop, [sub for sub, _ in answers])
+            self._wait_for_controllers(stop, subs, channel)
         sim.start()
         self._diag.restart(mono(), dev.steps)
         next_diag = mono() + s.diagnostics_period

@@ -28,10 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.device import MODEL_FAILURES
 from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.profiles import Profile
-from pcv_sim.rig.rig import Rig
+from pcv_sim.rig.rig import InputHook, Rig
 
 __all__ = ["Controller", "ControllerError", "RigRun", "run_lockstep"]
 
@@ -96,12 +97,11 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     measured: dict[int, np.ndarray] = {}    # the rows a sensor fault made differ from the true ones
     duty_rows: list[Any] = []
     in_force = operator.itemgetter(*valves)
-    sp = np.full(n + 1, np.nan)
+    sp = [math.nan] * (n + 1)
     flags: dict[str, list[float]] = {}
     sensors = rig.sensors
     dt_ns = round(rig.dt * 1e9)
     dt = rig.dt
-    valve_set = frozenset(valves)
     advance_sample = rig.advance_sample
     measure = sensors.measure
     sim = rig.sim
@@ -110,31 +110,34 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     # watchdog deadline, or fed input other than one at the sampled step) take the fast path:
     # the compiled call directly, the commands written into the inputs; every other period the
     # rig's own (rig.advance_sample, rig.set_duty). Both give the same numbers bit for bit.
-    fused, arrays = sim.sample_entry()
+    fused, (S, Fa, FL) = sim.sample_entry()
     select = rig._signal_i
     queue = rig.queue
     watchdogs = [rig.watchdogs[v] for v in valves]
     duty_name = [f"{v}.duty_cycle" for v in valves]
-    #: valve -> (its command.duty_range, input index, position): what set_duty checks and writes
-    slots = {v: (*rig._duty_slot[v], j) for j, v in enumerate(valves)}
+    #: valve -> (lowest, highest duty, input index, position): what set_duty checks and writes
+    slots: dict[str, tuple[float, float, int, int]] = {}
+    for j, v in enumerate(valves):
+        (lo, hi), i = rig._duty_slot[v]
+        slots[v] = (lo, hi, i, j)
     u = sim.u
     # The watchdogs hear the fast path's commands when it ends (`sync`): their deadlines only move
     # later with each command, so a horizon computed from them is early, never late, meanwhile.
     heard: list[int | None] = [None] * len(valves)
 
-    def sync() -> int:
+    def sync() -> tuple[int, dict[str, float], dict[str, float], InputHook | None, bool]:
         """Tell the watchdogs the commands of the fast path; the step before which nothing but
-        the controller's commands falls due, or -1 when a watchdog is not armed (waiting for a
-        first command, or fired: a command then changes its state and the rig must apply it)."""
+        the controller's commands falls due (-1 when a watchdog is not armed: waiting for a first
+        command, or fired, a command then changes its state and the rig must apply it), and what
+        the fast path writes and reads until the next sync (only the rig's path changes them)."""
         for j, step in enumerate(heard):
             if step is not None:
                 watchdogs[j].command(step)
                 heard[j] = None
-        if any(w.state not in (WatchdogState.OK, WatchdogState.OFF) for w in watchdogs):
-            return -1
-        return rig.next_due()
+        armed = all(w.state in (WatchdogState.OK, WatchdogState.OFF) for w in watchdogs)
+        return rig.next_due() if armed else -1, rig.commands, rig.duties, rig.on_input, sensors.active
 
-    horizon = sync()
+    horizon, in_command, in_force_now, hook, active = sync()
     # The setpoint at every instant before the run, where it is a profile (its segments evaluated
     # in one pass: the same numbers as calling it at each instant).
     sp_all = setpoint.sample([(k0 + k * per) * dt for k in range(n + 1)]) if isinstance(setpoint, Profile) else None
@@ -142,9 +145,8 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     try:
         for k in range(n + 1):
             at = k0 + k * per
-            answer = controller is not None and k < n
-            after = 1 if answer else 0
-            last = at + after
+            answer = k < n and controller is not None
+            last = at + 1 if answer else at
             # With a controller the step after the sample (still the old inputs: the answer acts
             # from at + 1) is taken in the same compiled call, when nothing else falls due there.
             now = sim.steps
@@ -156,22 +158,26 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if fast:
                 row = r if fed == at else -1
                 y = true[k]
-                norm = fused(*arrays, at - now, now, dt, select, y, after, rig._feed_i, rig._feed_v, row)
+                try:
+                    norm = fused(S, Fa, FL, at - now, now, dt, select, y, last - at, rig._feed_i, rig._feed_v, row)
+                except MODEL_FAILURES as err:
+                    rig._fail(f"model step failed ({type(err).__name__}: {err})")
                 sim.steps = last
                 if row >= 0:
                     rig._feed_row(row, at)          # already in the model; for the hook and the bookkeeping
                 if not isfinite(norm):
                     rig._check_finite()             # raises, naming the time and the faults
             else:
-                horizon = sync()
-                y = advance_sample(at, after, true[k])
+                horizon, in_command, in_force_now, hook, active = sync()
+                y = advance_sample(at, last - at, true[k])
+                active = sensors.active             # a sensor fault may have come or gone on the way
             t = at * dt
             m = measure(t, y)
             if m is not y:
                 measured[k] = m
             if answer and controller is not None:
                 # A dropped (NaN) measurement is absent from the controller's dict.
-                measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if sensors.active
+                measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if active
                                else dict(zip(names, m.tolist())))
                 if setpoint is not None:
                     sp[k] = measurement["setpoint"] = sp_all[k] if sp_all is not None else setpoint(t)
@@ -185,15 +191,16 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                                               f"accepted is a mapping valve -> duty ({', '.join(valves)}) "
                                               "with an optional 'flags' mapping")
                     for key, value in commands.items():
-                        if key in valve_set:
+                        slot = slots.get(key)
+                        if slot is not None:
                             if fast:
-                                (lo, hi), i, j = slots[key]
+                                lo, hi, i, j = slot
                                 if type(value) is float and lo <= value <= hi:
                                     # rig.set_duty's effect, its watchdog told at the next sync
-                                    rig.commands[key] = rig.duties[key] = u[i] = value
+                                    in_command[key] = in_force_now[key] = u[i] = value
                                     heard[j] = last
-                                    if rig.on_input is not None:
-                                        rig.on_input(last, duty_name[j], value)
+                                    if hook is not None:
+                                        hook(last, duty_name[j], value)
                                     continue
                                 if (step := heard[j]) is not None:      # its last valid command first
                                     watchdogs[j].command(step)
@@ -219,9 +226,9 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                     rig.advance_to(at + 1)
             elif setpoint is not None:
                 sp[k] = sp_all[k] if sp_all is not None else setpoint(t)
-            duty_rows.append(in_force(rig.duties))
-            if not fast:                        # what ran there may have scheduled, fired, armed
-                horizon = sync()
+            if not fast:                        # what ran there may have scheduled, fired, armed, reset
+                horizon, in_command, in_force_now, hook, active = sync()
+            duty_rows.append(in_force(in_force_now))
     finally:
         sync()                                  # the watchdogs know every command, also after an error
     wall = time.perf_counter() - wall0
@@ -230,7 +237,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     for k, values in measured.items():
         meas[k] = values
     duties = np.array(duty_rows, dtype=float).reshape(n + 1, len(valves))
-    return RigRun(times, names, true, meas, duties, valves, sp,
+    return RigRun(times, names, true, meas, duties, valves, np.array(sp),
                   {f"controller.{f}": np.array(a) for f, a in flags.items()}, list(rig.log), list(rig.rejected), wall)
 
 
