@@ -83,7 +83,7 @@ def _imported(name: str, path: Path, text: str, modules: dict[str, Path]) -> set
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
-            base = ".".join(here[:len(here) - node.level + 1] + [node.module or ""]).strip(".") \
+            base = ".".join([*here[:len(here) - node.level + 1], node.module or ""]).strip(".") \
                 if node.level else (node.module or "")
             found.add(base)
             found.update(f"{base}.{a.name}" for a in node.names)
