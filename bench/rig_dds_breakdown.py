@@ -9,8 +9,9 @@ the monotonic clock (one clock for both processes) at the points a period passes
 wrapping the nodes' methods (this script's, not the package's: the package has no tracing):
 
     rig:        publish start (setpoint, /clock, the samples)  -> publish end
-    controller: the period's first sample taken -> joint_states taken (the period complete)
-                -> the control law called -> flags and duties published
+    controller: the period's first sample taken -> joint_states taken (the period complete; on the
+                lockstep channel both are the one lockstep/sample)
+                -> the control law called -> flags and duties published (lockstep/command)
     rig:        the last valve's duty taken -> the next period's publish start (the model's steps)
 
 and reports the median and p90 of each stretch (µs) and of the whole period, the real-time factor,
@@ -54,6 +55,7 @@ def _controller_child(out: str, argv: list[str]) -> int:
     cls = rig_client.RigClient
     orig_pressure, orig_joint, orig_poll, orig_send, orig_run = (
         cls._pressure, cls._joint, cls.poll, cls._send, cls.run)
+    orig_sample = getattr(cls, "_sample", None)
 
     def _pressure(self, valve):
         take = orig_pressure(self, valve)
@@ -68,6 +70,12 @@ def _controller_child(out: str, argv: list[str]) -> int:
         row[1] = mono_ns()
         orig_joint(self, msg, info)
 
+    def _sample(self, raw, info):                 # the lockstep channel: the whole period in one message
+        orig_sample(self, raw, info)
+        stamp = self._samples[-1][0]
+        row = at(stamp)
+        row[1] = mono_ns()
+
     def poll(self):
         n = orig_poll(self)
         polls[0] += 1
@@ -76,8 +84,8 @@ def _controller_child(out: str, argv: list[str]) -> int:
 
     last = [0]
 
-    def _send(self, duties):
-        orig_send(self, duties)
+    def _send(self, duties, *args):
+        orig_send(self, duties, *args)
         row = trace.get(last[0])
         if row is not None and not row[4]:
             row[4] = mono_ns()
@@ -94,6 +102,8 @@ def _controller_child(out: str, argv: list[str]) -> int:
         return orig_run(self, timed, *args, **kwargs)
 
     cls._pressure, cls._joint, cls.poll, cls._send, cls.run = _pressure, _joint, poll, _send, run
+    if orig_sample is not None:
+        cls._sample = _sample
     try:
         return steering_controller.main(argv)
     finally:
@@ -112,6 +122,7 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
     node_cls, host_cls = rig_node.RigNode, scenario_host._Host
     orig_sampled, orig_send, orig_duty, orig_drain = (
         host_cls.sampled, node_cls._send_samples, node_cls._on_duty, node_cls._drain)
+    orig_command = getattr(node_cls, "_on_command", None)
     shown = [0]
 
     def sampled(self, true, measured):            # the hook runs before the samples go out
@@ -134,6 +145,13 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
             if row is not None and not row[2]:
                 row[2] = mono_ns()
 
+    def _on_command(self, raw, info=None):
+        orig_command(self, raw, info)
+        if len(self._answered) == len(self.rig.valve_names):
+            row = trace.get(shown[0])
+            if row is not None and not row[2]:
+                row[2] = mono_ns()
+
     def _drain(self):
         n = orig_drain(self)
         polls[0] += 1
@@ -142,6 +160,8 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
 
     host_cls.sampled, node_cls._send_samples, node_cls._on_duty, node_cls._drain = (
         sampled, _send_samples, _on_duty, _drain)
+    if orig_command is not None:
+        node_cls._on_command = _on_command
     return trace, polls
 
 

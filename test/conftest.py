@@ -89,10 +89,13 @@ def cpu_load():
 
 @pytest.fixture(scope='session', autouse=True)
 def compiled_kernels():
-    """Compile the core's kernels (both valve models) once, before any test starts an emulator
+    """Compile the core's kernels (both valve models, and the shipped rig's composite: two valves
+    and the cylinder, a kernel of its own) once, before any test starts an emulator or a rig node
     process: the processes then load them from the disk cache (~1 s) instead of each compiling
-    them (several seconds, more on a busy machine), which would eat into their start timeouts."""
+    them (several seconds, minutes on a busy machine after a model change), which would eat into
+    their start timeouts."""
     from pcv_sim.params import default_params
+    from pcv_sim.rig import Rig, load_rig
     from pcv_sim.simulation.stepper import RealTimeStepper
 
     for kind in ('simplified', 'full'):
@@ -100,3 +103,4 @@ def compiled_kernels():
         st.set_duty(0.6)
         st.advance(2)
         st.current
+    Rig(load_rig())          # compiles (or loads) what the rig node and the lockstep call

@@ -210,14 +210,20 @@ def _check_value(base: Base, column: str, value: Any, where: str) -> None:
         raise CampaignError(f"{where}: {column} = {value!r}: {err}") from None
 
 
+def _parameters(section: str, spec: Mapping[str, Any], accepted: str) -> Mapping[str, Any]:
+    """A section's `parameters`: a non-empty mapping key -> `accepted`, or CampaignError saying so."""
+    params = spec["parameters"]
+    if not isinstance(params, Mapping) or not params:
+        raise CampaignError(f"{section}.parameters: accepted is a mapping key -> {accepted}")
+    return params
+
+
 def _sweep(raw: Any, base: Base) -> Sweep:
     spec = _keys("sweep", raw, ("parameters", "combine"), ("parameters",))
     combine = spec.get("combine", "product")
     if combine not in ("product", "zip"):
         raise CampaignError(f"sweep.combine: got {combine!r}; accepted is product or zip")
-    params = spec["parameters"]
-    if not isinstance(params, Mapping) or not params:
-        raise CampaignError("sweep.parameters: accepted is a mapping key -> values (a list or {from, to, steps})")
+    params = _parameters("sweep", spec, "values (a list or {from, to, steps})")
     out = []
     for key, raw_values in params.items():
         where = f"sweep.parameters.{key}"
@@ -299,9 +305,7 @@ def _monte_carlo(raw: Any, base: Base) -> MonteCarlo:
     sampling = spec.get("sampling", "random")
     if sampling not in SAMPLINGS:
         raise CampaignError(f"monte_carlo.sampling: got {sampling!r}; accepted is {' or '.join(SAMPLINGS)}")
-    params = spec["parameters"]
-    if not isinstance(params, Mapping) or not params:
-        raise CampaignError("monte_carlo.parameters: accepted is a mapping key -> {distribution, ...}")
+    params = _parameters("monte_carlo", spec, "{distribution, ...}")
     out = []
     for key, raw_d in params.items():
         where = f"monte_carlo.parameters.{key}"
@@ -397,9 +401,7 @@ def _sensitivity(raw: Any, base: Base) -> Sensitivity:
                             "sequences keep their balance only then), e.g. 64")
     seed = _int("sensitivity.seed", spec.get("seed", 0), 0, 2**32 - 1)
     levels = _int("sensitivity.levels", spec.get("levels", 4), 2, 100)
-    params = spec["parameters"]
-    if not isinstance(params, Mapping) or not params:
-        raise CampaignError("sensitivity.parameters: accepted is a mapping key -> {low, high} or {tolerance}")
+    params = _parameters("sensitivity", spec, "{low, high} or {tolerance}")
     dims: list[Dimension] = []
     for key, raw_p in params.items():
         where = f"sensitivity.parameters.{key}"

@@ -45,29 +45,36 @@ class PositionController:
         self.duty = {"left": base, "right": base}
 
     def __call__(self, t: float, m: dict[str, float]) -> dict[str, object]:
-        self.last.update(m)              # a dropped sample keeps the last one seen
-        m = self.last
-        error = m.get("setpoint", 0.0) - m["cylinder.position"]
-        u_unsat = self.kp * error + self.ki * self.integral - self.kv * m["cylinder.velocity"]
+        last = self.last
+        last.update(m)                   # a dropped sample keeps the last one seen
+        error = last.get("setpoint", 0.0) - last["cylinder.position"]
+        u_unsat = self.kp * error + self.ki * self.integral - self.kv * last["cylinder.velocity"]
         u = max(-0.35, min(0.35, u_unsat))
         if u == u_unsat:                 # anti-windup: integrate only while not saturated
             self.integral += error * self.period
         fault = False
-        for valve in ("left", "right"):
-            low = m[f"{valve}.current"] < 0.5 * self.amps_per_duty * self.duty[valve]
-            since = self.low_since[valve]
+        duty, low_since, amps = self.duty, self.low_since, self.amps_per_duty
+        for valve, current in _CURRENTS:
+            low = last[current] < 0.5 * amps * duty[valve]
+            since = low_since[valve]
             start = (since if since is not None else t) if low else None
-            self.low_since[valve] = start
+            low_since[valve] = start
             fault = fault or (start is not None and t - start >= self.fault_time)
-        self.duty = {"left": min(1.0, max(0.3, self.base + u)), "right": min(1.0, max(0.3, self.base - u))}
+        base = self.base
+        self.duty = duty = {"left": min(1.0, max(0.3, base + u)), "right": min(1.0, max(0.3, base - u))}
         if not self.current_loop:
-            return {**self.duty, "flags": {"fault_detected": float(fault)}}
+            return {**duty, "flags": {"fault_detected": float(fault)}}
         sent: dict[str, object] = {}
-        for valve, target in self.duty.items():      # the PI's duty as a current target, D V / R
-            error = target - m[f"{valve}.current"] / self.amps_per_duty
+        for valve, current in _CURRENTS:          # the PI's duty as a current target, D V / R
+            target = duty[valve]
+            error = target - last[current] / amps
             self.trim[valve] = max(-0.2, min(0.2, self.trim[valve] + error * self.period / self.current_loop))
             sent[valve] = min(1.0, max(0.0, target + self.trim[valve]))
         return {**sent, "flags": {"fault_detected": float(fault)}}
+
+
+#: Each valve with the name of its coil current's measurement.
+_CURRENTS = (("left", "left.current"), ("right", "right.current"))
 
 
 __all__ = ["PositionController"]

@@ -38,6 +38,8 @@ __all__ = [
     "INPUT_ROLES",
     "JOINT_STATES",
     "LOAD_FLOW",
+    "LOCKSTEP_COMMAND",
+    "LOCKSTEP_SAMPLE",
     "OIL_TEMPERATURE",
     "OPTION_INTERFACE",
     "OUTPUT_ROLES",
@@ -87,6 +89,8 @@ CHAMBER_PRESSURE: Final = "pressure_{}"     # out, sensor_msgs/FluidPressure, Pa
 FAULTS: Final = "faults"                    # in, std_msgs/String: {fault: coil_open, valve: left} (YAML)
 EVENTS: Final = "rig/events"                # in bags only, std_msgs/String: the rig's log (faults, watchdog, reset)
 EXTERNAL_FORCE: Final = "external_force"    # in, std_msgs/Float64, N on the rod, + extending (under cylinder/)
+LOCKSTEP_SAMPLE: Final = "lockstep/sample"      # out, sensor_msgs/JointState: a control instant's signals by name
+LOCKSTEP_COMMAND: Final = "lockstep/command"    # in, sensor_msgs/JointState: its answer, <valve>.duty and flags
 
 # A scenario whose controller is a ROS node (`pcv_sim.node.scenario_host`), relative to its namespace:
 SETPOINT: Final = "setpoint"                # out (rig side), std_msgs/Float64, m
@@ -205,6 +209,8 @@ RIG_INTERFACE: Final = (
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
     Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
     Endpoint("out/in", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
+    Endpoint("out", LOCKSTEP_SAMPLE, "sensor_msgs/msg/JointState", "", COMMAND_QOS),
+    Endpoint("in", LOCKSTEP_COMMAND, "sensor_msgs/msg/JointState", "1", COMMAND_QOS),
 )
 #: Seen from the rig's side.
 SCENARIO_INTERFACE: Final = (

@@ -266,10 +266,11 @@ class DeviceNode(Node):
         go to `_defer` (a worker thread), the rest is answered here. Every EVENT_POLL_EVERY polls the
         QoS events too."""
         for srv in list(self.services):
+            srv_type: Any = srv.srv_type         # jazzy's annotation (SrvType) names no Request/Response
             while True:
                 try:
                     with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                        request, header = srv.handle.service_take_request(srv_type.Request)
                 except InvalidHandle:
                     break
                 if header is None:
@@ -277,7 +278,7 @@ class DeviceNode(Node):
                 if srv.callback in self._deferred_callbacks:
                     self._defer(srv, request, header)
                 else:
-                    srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+                    srv.send_response(srv.callback(request, srv_type.Response()), header)
         self._pump()
         self._polls += 1
         if self._polls % EVENT_POLL_EVERY == 0:

@@ -39,6 +39,8 @@ from pcv_sim.io.topics import (
 
 __all__ = ["EmulatorClient", "PressureSample", "sample_qos"]
 
+SERVICE_AGAIN = 5.0     # s without an answer before a repeatable request (set_parameters) is sent again
+
 
 def sample_qos(depth: int = 10000) -> QoSProfile:
     """Best effort (matches the emulator's sensor-data publisher) with a deep queue."""
@@ -174,13 +176,23 @@ class EmulatorClient:
 
     # --- services ----------------------------------------------------------------------------
 
-    def _call(self, client: Any, request: Any, timeout: float) -> Any:
+    def _call(self, client: Any, request: Any, timeout: float, *, again: float | None = None) -> Any:
+        """The service's answer; `again`: for a request that may be repeated (the same effect twice), sent
+        again after that many seconds without an answer. Under load an answer can be lost though the
+        request came through: the server's response writer may not have matched this client's reader
+        yet when it answers (the middleware waits a short while for the match, then drops the answer),
+        and asking again is answered."""
+        end = time.monotonic() + timeout
         if not client.wait_for_service(timeout_sec=timeout):
             raise TimeoutError(f"service {client.srv_name} not available")
-        future = client.call_async(request)
-        if not self.spin_until(future.done, timeout):
-            raise TimeoutError(f"no answer from {client.srv_name} within {timeout} s")
-        return future.result()
+        while True:
+            future = client.call_async(request)
+            left = end - time.monotonic()
+            if self.spin_until(future.done, max(0.0, min(left, again if again is not None else left))):
+                return future.result()
+            client.remove_pending_request(future)
+            if again is None or time.monotonic() >= end:
+                raise TimeoutError(f"no answer from {client.srv_name} within {timeout} s")
 
     def reset(self, timeout: float = 10.0) -> Any:
         return self._call(self.reset_client, Trigger.Request(), timeout)
@@ -189,7 +201,7 @@ class EmulatorClient:
         """Set the emulator's parameters one by one (as `ros2 param set`); one result per name."""
         request = SetParameters.Request()
         request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        return list(self._call(self.param_client, request, timeout).results)
+        return list(self._call(self.param_client, request, timeout, again=SERVICE_AGAIN).results)
 
     def close(self) -> None:
         # Detach the node before the executor goes and before its handles are destroyed: a wait

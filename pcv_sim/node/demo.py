@@ -52,8 +52,10 @@ def _positive(text: str) -> float:
     return v
 
 
-#: s the demo listens after the last step for samples the emulator publishes late (a lagging loop).
-GRACE = 0.3
+#: s the demo listens at most after the last step for its samples: until one stamped after the step
+#: has come (the emulator's samples come in order, so the step's are in: a lagging loop publishes
+#: them late, a loaded demo takes them late).
+GRACE = 2.0
 #: A step with fewer samples stamped in it is not measured.
 MIN_SAMPLES = 10
 
@@ -113,7 +115,9 @@ def run_demo(client: EmulatorClient, duties: list[float], hold: float, out: Text
             client.send_duty(duty)
             client.spin_for(min(COMMAND_PERIOD, max(0.0, end - time.monotonic())))
         steps.append((duty, t_step, client.node.get_clock().now().nanoseconds))
-    client.spin_for(GRACE)
+    if steps:
+        last_end = steps[-1][2]
+        client.spin_until(lambda: bool(client.samples) and client.samples[-1].stamp_ns >= last_end, GRACE)
     rows = measure_steps(steps, client.samples)
     print(f"{'step':>4}  {'duty':>5}  {'settled [bar]':>13}  {'rise 10-90 % [ms]':>17}  {'overshoot [%]':>13}  "
           f"{'samples':>7}", file=out)

@@ -16,6 +16,11 @@ returns (`{"flags": {name: value}}`) go to `on_flags`. A sample the rig publishe
 (unanswered for 0.5 s) is answered again, with the same duties. A sample stamped before the last
 one answered is a new run (the rig restarted): `rewind` gives a fresh controller.
 
+With `channel` it talks over the lockstep channel instead (`pcv_sim.node.lockstep_channel`): a
+period is one `lockstep/sample` (every signal of the rig, and the scenario's `setpoint`, the
+controller's `measured` as a callable gets it) and one `lockstep/command` back (the duties and the
+flags, stamped with the sample it answers); the other topics are taken every FULL_POLL s.
+
 `RigClient` makes its own node, or works on a node it is given (`node=`: the
 `steering_controller` node, with its parameters and its own inputs added by `add_input`).
 """
@@ -50,6 +55,15 @@ from pcv_sim.io.topics import (
     valve_topic,
 )
 from pcv_sim.node.client import sample_qos
+from pcv_sim.node.lockstep_channel import (
+    COMMAND_TOPIC,
+    DUTY_SUFFIX,
+    FLAG_PREFIX,
+    SAMPLE_TOPIC,
+    NamedVector,
+    decode,
+    measurement,
+)
 from pcv_sim.node.polling import Waiter, drain
 
 __all__ = ["Period", "RigClient"]
@@ -79,7 +93,7 @@ class RigClient:
 
     def __init__(self, namespace: str | None, valves: tuple[str, ...], *, context: Any = None,
                  node_name: str = "rig_controller", currents: bool = False, node: Any = None,
-                 history: bool = True) -> None:
+                 history: bool = True, channel: bool = False) -> None:
         self.valves = valves
         self._own_node = node is None
         self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
@@ -87,7 +101,12 @@ class RigClient:
         #: keep every answered Period and every current received (a long-running node: False)
         self.history = history
         cmd = QoSProfile(depth=10)
-        self.duty_pubs = {v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
+        self.channel = channel
+        self.duty_pubs = {} if channel else {
+            v: node.create_publisher(Float64, valve_topic(v, DUTY_CYCLE), cmd) for v in valves}
+        self.command_pub = node.create_publisher(JointState, COMMAND_TOPIC, cmd) if channel else None
+        self._commands: dict[tuple[str, ...], NamedVector] = {}
+        self._samples: list[tuple[int, dict[str, float]]] = []      # channel: samples taken, not answered
         self._duty_msg = Float64()
         self.fault_pub = node.create_publisher(String, FAULTS, cmd)
         self.force_pub = node.create_publisher(Float64, cylinder_topic(EXTERNAL_FORCE), cmd)
@@ -96,16 +115,20 @@ class RigClient:
         self._srv: tuple[Any, Any, SingleThreadedExecutor] | None = None
         qos = sample_qos(1000)
         self._subs: list[tuple[Any, Callable[..., None]]] = []
-        for v in valves:
-            self._subs.append((node.create_subscription(FluidPressure, valve_topic(v, PRESSURE), _ignore, qos),
-                               self._pressure(v)))
-            if currents:
-                self._subs.append((node.create_subscription(Float64, valve_topic(v, CURRENT), _ignore, qos),
-                                   self._current(v)))
-        joint = (node.create_subscription(JointState, cylinder_topic(JOINT_STATES), _ignore, qos), self._joint)
-        self._subs.append(joint)
-        self._completing = [joint]           # the rig publishes it last: it completes a period
-        self._waiter = Waiter([joint[0]], node.context)
+        last: tuple[Any, Callable[..., None]]
+        if channel:
+            last = (node.create_subscription(JointState, SAMPLE_TOPIC, _ignore, cmd, raw=True), self._sample)
+        else:
+            for v in valves:
+                self._subs.append((node.create_subscription(FluidPressure, valve_topic(v, PRESSURE), _ignore, qos),
+                                   self._pressure(v)))
+                if currents:
+                    self._subs.append((node.create_subscription(Float64, valve_topic(v, CURRENT), _ignore, qos),
+                                       self._current(v)))
+            last = (node.create_subscription(JointState, cylinder_topic(JOINT_STATES), _ignore, qos), self._joint)
+        self._subs.append(last)
+        self._completing = [last]            # the rig publishes joint_states last: it completes a period
+        self._waiter = Waiter([last[0]], node.context)
         if history:
             self._subs.append((node.create_subscription(DiagnosticArray, DIAGNOSTICS, _ignore, QoSProfile(depth=50)),
                                self._diagnostic))
@@ -116,6 +139,7 @@ class RigClient:
         self._partial: dict[int, _Partial] = {}
         self._fresh: dict[str, float] = {}   # <valve>.current received since the last answer
         self._answers: dict[int, dict[str, float]] = {}
+        self._flags_sent: dict[str, float] = {}
         self._last_answered = -1
         self._latest = -1
         self._currents = currents
@@ -155,6 +179,20 @@ class RigClient:
                 self._put(stamp, f"{CYLINDER}.{name}", float(arr[0]))
         self._put(stamp, "joint", 1.0)
 
+    def _sample(self, raw: bytes, _info: Any) -> None:
+        stamp, names, values = decode(raw)
+        m = measurement(names, values)
+        self._samples.append((stamp, m))
+        self._latest = max(self._latest, stamp)
+        if self._currents:
+            for v in self.valves:
+                i = m.get(f"{v}.current")
+                if i is not None:
+                    seen = self.currents[v]
+                    if not self.history:
+                        seen.clear()
+                    seen.append((stamp, i))
+
     def _diagnostic(self, msg: DiagnosticArray, _info: Any) -> None:
         self.diagnostics.append({st.name: (st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level),
                                            st.message, {kv.key: kv.value for kv in st.values}) for st in msg.status})
@@ -166,9 +204,10 @@ class RigClient:
     # --- lockstep ---------------------------------------------------------------------------
 
     def wait_for_rig(self, timeout: float = 30.0) -> bool:
-        """Until every duty_cycle publisher is matched with the rig's subscription."""
+        """Until every duty_cycle publisher (the lockstep command's) is matched with the rig's subscription."""
         end = time.monotonic() + timeout
-        while not all(p.get_subscription_count() > 0 for p in self.duty_pubs.values()):
+        pubs = [self.command_pub] if self.command_pub is not None else self.duty_pubs.values()
+        while not all(p.get_subscription_count() > 0 for p in pubs):
             if time.monotonic() > end:
                 return False
             time.sleep(0.01)
@@ -180,7 +219,11 @@ class RigClient:
 
     def _take_complete(self) -> list[tuple[int, dict[str, float]]]:
         """The periods whose joint_states arrived, oldest first, with what was published before it
-        (taken once more when something is missing: it left the rig before joint_states)."""
+        (taken once more when something is missing: it left the rig before joint_states); on the
+        channel the samples taken."""
+        if self.channel:
+            out, self._samples = self._samples, []
+            return out
         done = sorted(s for s, p in self._partial.items() if "joint" in p.values)
         if not done:
             return []
@@ -220,16 +263,17 @@ class RigClient:
             if not drain(self._completing) and now < next_full:
                 self._waiter.wait(next_full - now)
                 continue
-            next_full = now + FULL_POLL
-            if not self.poll() and not self._partial:
-                continue
+            if now >= next_full or not self.channel:      # on the channel a sample is the whole period
+                next_full = now + FULL_POLL
+                if not self.poll() and not self._partial and not self._samples:
+                    continue
             for stamp, values in self._take_complete():
-                if self._currents:
+                if self._currents and not self.channel:
                     values.update(self._fresh)
                     self._fresh.clear()
                 again = self._answers.get(stamp)
                 if again is not None:                 # published again by the rig: same answer
-                    self._send(again)
+                    self._send(again, stamp, self._flags_sent)
                     continue
                 if stamp < self._last_answered:       # the rig started again from 0: a new run
                     self._answers.clear()
@@ -243,16 +287,24 @@ class RigClient:
                 flags = {str(k): float(f) for k, f in dict(out.get("flags") or {}).items()}
                 duties = {v: float(d) for v, d in out.items() if v != "flags"}
                 self._answers = {stamp: duties}
+                self._flags_sent = flags
                 self._last_answered = stamp
                 self.answered += 1
                 if self.history:
                     self.periods.append(Period(stamp, values, duties, flags))
                 if flags and on_flags is not None:
                     on_flags(stamp, flags)
-                self._send(duties)
+                self._send(duties, stamp, flags)
         return self.periods[first:]
 
-    def _send(self, duties: Mapping[str, float]) -> None:
+    def _send(self, duties: Mapping[str, float], stamp: int, flags: Mapping[str, float]) -> None:
+        if self.command_pub is not None:
+            names = (*(v + DUTY_SUFFIX for v in duties), *(FLAG_PREFIX + f for f in flags))
+            writer = self._commands.get(names)
+            if writer is None:
+                writer = self._commands[names] = NamedVector(names)
+            self.command_pub.publish(writer.encode(stamp, (*duties.values(), *flags.values())))
+            return
         msg = self._duty_msg                 # refilled: publish serializes it at once
         for v, d in duties.items():
             msg.data = d

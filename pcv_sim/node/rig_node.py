@@ -110,6 +110,7 @@ from pcv_sim.node.base import (
     freeze_heap,
     tighten_timer_slack,
 )
+from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
 from pcv_sim.node.polling import Waiter, drain
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.node.rig_settings import (
@@ -169,6 +170,9 @@ class RigNode(DeviceNode):
         self._answered: set[str] = set()                    # lockstep: valves heard since the last sample
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
+        #: values sent in the lockstep sample after the rig's signals (a scenario's `setpoint`)
+        self.sample_extras: dict[str, float] = {}
+        self._channel: NamedVector | None = None            # the lockstep sample's writer, for its names
         #: a scenario's hook (pcv_sim.node.scenario_host): `sampled(true, measured)` before each period's
         #: samples are published, `answered()` when every valve answered, before the next period
         self.hook: Any = None
@@ -190,6 +194,13 @@ class RigNode(DeviceNode):
                                      publisher(Float64, valve_topic(name, CURRENT)),
                                      publisher(Float64, valve_topic(name, SPOOL_POSITION))))
             subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
+        self._pub_sample = None
+        if self.simulated and s.lockstep:
+            # The lockstep channel (pcv_sim.node.lockstep_channel): a period in one message each way.
+            self._pub_sample = publisher(JointState, SAMPLE_TOPIC, COMMAND_QOS, COMMAND_HINT)
+            sub = self.create_subscription(JointState, COMMAND_TOPIC, self._on_command, COMMAND_QOS, raw=True,
+                                           event_callbacks=self.input_events(COMMAND_TOPIC))
+            self._inputs.append((sub, self._on_command))
         if s.faults_enabled:                                # any node on the domain could break the bench
             subscription(String, FAULTS, self._on_fault)
         self._pub_joint = publisher(JointState, cylinder_topic(JOINT_STATES))
@@ -248,9 +259,32 @@ class RigNode(DeviceNode):
 
     def _on_duty(self, valve: str, msg: Float64, info: Any = None) -> None:
         self._answered.add(valve)
+        self._take_duty(valve, msg.data, info)
+
+    def _on_command(self, raw: bytes, info: Any = None) -> None:
+        """A lockstep command: the answer to the sample it is stamped with, for every valve at once (a
+        valve it leaves out keeps its duty, as with a callable); its flags go to the hook. An answer to
+        an earlier sample (one published again) is not an answer to this one: left."""
         rig = self.rig
         try:
-            duty = check_duty(msg.data, rig.params.valve(valve).params.command.duty_range)
+            stamp, names, values = decode(raw)
+            duties, flags = split_command(names, values, rig.valve_names)
+        except CommandError as err:
+            self.counts.last_rejection = f"{COMMAND_TOPIC}: {err}"
+            self._log_rejection(COMMAND_TOPIC, COMMAND_TOPIC, str(err), "the sample stays unanswered")
+            return
+        if stamp != rig.stamp_ns(self._shown) or len(self._answered) == len(rig.valve_names):
+            return
+        self._answered.update(rig.valve_names)
+        for valve, duty in duties.items():
+            self._take_duty(valve, duty, info)
+        if flags and self.hook is not None:
+            self.hook.flags_at(stamp, flags)
+
+    def _take_duty(self, valve: str, value: float, info: Any) -> None:
+        rig = self.rig
+        try:
+            duty = check_duty(value, rig.params.valve(valve).params.command.duty_range)
         except CommandError as err:
             self.counts.rejected[valve] += 1
             self.counts.last_rejection = f"{valve}/{DUTY_CYCLE}: {err}"
@@ -324,9 +358,19 @@ class RigNode(DeviceNode):
     def _send_samples(self) -> None:
         """Publish the last sample (again, for a lockstep re-publication: not computed anew, since
         sampling moves the sensor faults' state and the coil solve's Newton start). The messages
-        are made once and refilled (publish serializes them at once)."""
+        are made once and refilled (publish serializes them at once). A topic without a matched
+        subscriber is not written: no reader would get it (sensor data is volatile), and the lockstep
+        controller reads the lockstep channel alone, written first."""
         y = self._last_sample
-        sec, nsec = divmod(self.rig.stamp_ns(self._shown), 1_000_000_000)
+        stamp = self.rig.stamp_ns(self._shown)
+        if self._pub_sample is not None:
+            extras = self.sample_extras
+            channel = self._channel
+            if channel is None or len(channel.names) != self._n_signals + len(extras) \
+                    or channel.names[self._n_signals:] != tuple(extras):
+                channel = self._channel = NamedVector((*self.rig.signals, *extras))
+            self._pub_sample.publish(channel.encode(stamp, (*y, *extras.values()) if extras else y))
+        sec, nsec = divmod(stamp, 1_000_000_000)
         isfinite = math.isfinite
         published = 0
         msg_p, msg_f = self._msg_pressure, self._msg_float
@@ -334,30 +378,34 @@ class RigNode(DeviceNode):
         for k, (pub_p, pub_i, pub_x) in enumerate(self._valve_pubs):
             p, i, x = y[3 * k:3 * k + 3]
             if isfinite(p):
-                msg_p.fluid_pressure = p
-                pub_p.publish(msg_p)
                 published += 1
+                if pub_p.get_subscription_count():
+                    msg_p.fluid_pressure = p
+                    pub_p.publish(msg_p)
             if isfinite(i):
-                msg_f.data = i
-                pub_i.publish(msg_f)
                 published += 1
+                if pub_i.get_subscription_count():
+                    msg_f.data = i
+                    pub_i.publish(msg_f)
             if isfinite(x):
-                msg_f.data = x
-                pub_x.publish(msg_f)
                 published += 1
+                if pub_x.get_subscription_count():
+                    msg_f.data = x
+                    pub_x.publish(msg_f)
         for pub, j, msg in self._chamber_pubs:
-            if isfinite(y[j]):
+            if isfinite(y[j]) and pub.get_subscription_count():
                 msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
                 msg.fluid_pressure = y[j]
                 pub.publish(msg)
-        # A dropped signal is left out of the message (JointState allows empty arrays per field).
-        joint = self._msg_joint
-        pos, vel, eff = (y[j] for j in self._cyl_i)
-        joint.position = [pos] if isfinite(pos) else []
-        joint.velocity = [vel] if isfinite(vel) else []
-        joint.effort = [eff] if isfinite(eff) else []
-        joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
-        self._pub_joint.publish(joint)
+        if self._pub_joint.get_subscription_count():
+            # A dropped signal is left out of the message (JointState allows empty arrays per field).
+            joint = self._msg_joint
+            pos, vel, eff = (y[j] for j in self._cyl_i)
+            joint.position = [pos] if isfinite(pos) else []
+            joint.velocity = [vel] if isfinite(vel) else []
+            joint.effort = [eff] if isfinite(eff) else []
+            joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
+            self._pub_joint.publish(joint)
         self.counts.samples_published += published
 
     def _publish_clock(self) -> None:
@@ -418,13 +466,16 @@ class RigNode(DeviceNode):
         """Lockstep: before the first sample, until every valve's duty_cycle has a matched publisher
         (a command sent before that is lost); the 0.5 s re-publication covers what is left."""
         subs = [sub for sub, _ in self._inputs[:len(self.rig.valve_names)]]
+        command = self._inputs[len(subs)][0]
         start = time.monotonic()
         told = False
-        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs):
+        while not stop.requested and not all(sub.get_publisher_count() > 0 for sub in subs) \
+                and not command.get_publisher_count() > 0:
             if not told and time.monotonic() - start > 2.0:
                 missing = [v for v, sub in zip(self.rig.valve_names, subs) if sub.get_publisher_count() == 0]
                 self.get_logger().info(f"lockstep: waiting for a controller publishing "
-                                       f"{', '.join(valve_topic(v, DUTY_CYCLE) for v in missing)}")
+                                       f"{', '.join(valve_topic(v, DUTY_CYCLE) for v in missing)} "
+                                       f"(or {COMMAND_TOPIC})")
                 told = True
             time.sleep(0.01)
 
@@ -445,7 +496,7 @@ class RigNode(DeviceNode):
         published = mono()
         self._answered.clear()
         valves = len(rig.valve_names)
-        answers = self._inputs[:valves]      # the duty_cycle subscriptions (made first)
+        answers = self._inputs[:valves + (self._pub_sample is not None)]   # duty_cycle's (made first), lockstep/command
         waiter = Waiter([sub for sub, _ in answers], self.context)
         next_full = 0.0
         while not stop.requested:

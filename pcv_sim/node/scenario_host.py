@@ -7,20 +7,24 @@ this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes i
 
 - the timeline (duties, external force, faults, sensor faults) is scheduled on `node.rig` as for a
   callable (`schedule_timeline`), so it acts at the same steps;
-- at each control instant, before the period's samples, the scenario's setpoint is published on
-  `setpoint` (std_msgs/Float64, m; the node holds the latest);
+- at each control instant the scenario's setpoint goes with the period's sample on the lockstep
+  channel (`setpoint`, m: `pcv_sim.node.lockstep_channel`), and is published on `setpoint`
+  (std_msgs/Float64, m; the node holds the latest) before the period's samples: at every instant
+  for a controller on the per-valve topics, where it changed for one on the channel;
 - the true and measured samples of every instant and the duties in force once every valve
   answered are collected into the same `RigRun` a callable run gives, so the assertions and
   `pcv_sim.rig.record` (bag, report) work unchanged;
-- the controller's flags are taken from `controller/flags` (diagnostic_msgs/DiagnosticArray,
-  header.stamp = the answered sample's model time, each KeyValue `name: float`) into
+- the controller's flags are taken from its lockstep command (`controller.<name>`), or from
+  `controller/flags` (diagnostic_msgs/DiagnosticArray, header.stamp = the answered sample's model
+  time, each KeyValue `name: float`) for a controller on the per-valve topics, into
   `controller.<name>` at that instant;
 - the run stops after the duration's last sample.
 
 The controller is a node the user started (in the ROS domain of $ROS_DOMAIN_ID) or the scenario's
 `command`, started here with ROS_DOMAIN_ID = `domain` and stopped (SIGINT, then SIGKILL after
-10 s) after the run. Until `wait` s pass the rig waits for a publisher on every valve's
-duty_cycle and a subscriber of cylinder/joint_states (matched); during the run, `wait` s without an answer
+10 s) after the run. Until `wait` s pass the rig waits for a controller (matched): a publisher on lockstep/command and a
+subscriber of lockstep/sample, or a publisher on every valve's duty_cycle and a subscriber of
+cylinder/joint_states; during the run, `wait` s without an answer
 end it. Both, and a command that exits, fail the run with the reason (`ScenarioResult.error`).
 """
 
@@ -80,6 +84,8 @@ class _Host:
         self._rejected_seen = 0
         self.setpoint = scenario.setpoint_function()
         self._msg = Float64()
+        self._last_sp = math.nan                     # the setpoint last published on the topic
+        self.channel = False                         # the controller is on the lockstep channel
         self._pub_sp = node.create_publisher(Float64, SETPOINT_TOPIC, 10)
         self.done = False
         self.failure: str | None = None
@@ -102,11 +108,15 @@ class _Host:
         self.meas[k] = measured
         if self.setpoint is not None:
             self.sp[k] = v = self.setpoint(rig.time)
-            # Before the samples, so the node has it when they come; not at the last instant, which
-            # needs no answer: DDS does not order a setpoint after the samples of another topic, and a
-            # setpoint that came after the run's last answer would be taken into the next run.
-            if k < self.n:
-                self._msg.data = v
+            # In the lockstep sample: the controller has it with the sample it answers. On the topic
+            # for a controller on the per-valve topics (every instant: one that subscribed late gets
+            # it) and for other readers (where it changed), before the samples; not at the last
+            # instant, which needs no answer: DDS does not order a setpoint after the samples of
+            # another topic, and a setpoint that came after the run's last answer would be taken into
+            # the next run.
+            self.node.sample_extras["setpoint"] = v
+            if k < self.n and (v != self._last_sp or not self.channel):
+                self._last_sp = self._msg.data = v
                 self._pub_sp.publish(self._msg)
         if k == self.n:                              # the last instant: no answer needed (as run_lockstep)
             self.duties[k] = [rig.duties[v] for v in self.valves]
@@ -125,20 +135,28 @@ class _Host:
             self.rejected.append((rig.time, counts.last_rejection))
 
     def on_flags(self, msg: Any, _info: Any = None) -> None:
+        """controller/flags (a controller on the per-valve topics)."""
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        k, off = divmod(stamp, self.period_ns)
-        if off or not 0 <= k < self.n:
-            return
+        values = {}
         for st in msg.status:
             for kv in st.values:
                 try:
-                    value = float(kv.value)
+                    values[kv.key] = float(kv.value)
                 except ValueError:
                     continue
-                arr = self.flags.get(f"controller.{kv.key}")
-                if arr is None:
-                    arr = self.flags[f"controller.{kv.key}"] = np.full(self.n + 1, np.nan)
-                arr[k] = value
+        self.flags_at(stamp, values)
+
+    def flags_at(self, stamp: int, values: dict[str, float]) -> None:
+        """The flags of the answer to the sample stamped `stamp` (ns); the rig node calls it with a
+        lockstep command's."""
+        k, off = divmod(stamp, self.period_ns)
+        if off or not 0 <= k < self.n:
+            return
+        for key, value in values.items():
+            arr = self.flags.get(f"controller.{key}")
+            if arr is None:
+                arr = self.flags[f"controller.{key}"] = np.full(self.n + 1, np.nan)
+            arr[k] = value
 
     # --- the stop flag ----------------------------------------------------------------------
 
@@ -209,16 +227,18 @@ def _stop(proc: subprocess.Popen[bytes] | None) -> None:
         proc.wait(5)
 
 
-def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any, flags_sub: Any) -> None:
-    """Until the controller's endpoints are matched with the rig's: a publisher on every
-    duty_cycle and a subscriber of joint_states (required, within `spec.wait` s, else
-    ScenarioAborted), then, given _OPTIONAL_MATCH s more, a setpoint subscriber and a flags
-    publisher (a controller of the user's may have neither), then _SETTLE s: matched on this side,
-    the controller's side matches within milliseconds (a first sample it missed would cost the
-    rig's 0.5 s re-publication)."""
+def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any, flags_sub: Any) -> bool:
+    """Until the controller's endpoints are matched with the rig's: a publisher on lockstep/command
+    and a subscriber of lockstep/sample (the lockstep channel: True), or a publisher on every
+    duty_cycle and a subscriber of joint_states (False) (required, within `spec.wait` s, else
+    ScenarioAborted), then, given _OPTIONAL_MATCH s more, a setpoint subscriber and, off the
+    channel, a flags publisher (a controller of the user's may have neither), then _SETTLE s:
+    matched on this side, the controller's side matches within milliseconds (a first sample it
+    missed would cost the rig's 0.5 s re-publication)."""
     names = node.rig.valve_names
     duty = [(node.resolve_topic_name(f"{v}/duty_cycle"), sub) for v, (sub, _h) in zip(names, node._inputs)]
-    joint = node._pub_joint
+    command = node._inputs[len(names)][0]
+    joint, sample = node._pub_joint, node._pub_sample
     optional: list[tuple[str, Callable[[], bool]]] = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
     if host.setpoint is not None:
         optional.append((host._pub_sp.topic_name, lambda: host._pub_sp.get_subscription_count() > 0))
@@ -228,19 +248,21 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
         now = time.monotonic()
         if proc is not None and proc.poll() is not None:
             raise ScenarioAborted(f"the controller command exited with {proc.returncode} before answering")
-        missing = [f"a publisher on {t}" for t, sub in duty if sub.get_publisher_count() == 0]
-        if joint.get_subscription_count() == 0:
+        channel = bool(command.get_publisher_count() > 0 and sample.get_subscription_count() > 0)
+        missing = [] if channel else [f"a publisher on {t}" for t, sub in duty if sub.get_publisher_count() == 0]
+        if not channel and joint.get_subscription_count() == 0:
             missing.append(f"a subscriber of {joint.topic_name}")
         if not missing:
             matched_at = matched_at or now
-            if all(ok() for _t, ok in optional) or now - matched_at > _OPTIONAL_MATCH:
+            if all(ok() for _t, ok in optional[channel:]) or now - matched_at > _OPTIONAL_MATCH:
                 time.sleep(_SETTLE)
-                return
+                return channel
         if now > end:
             where = f"namespace {spec.namespace or '/'}, ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}" \
                 if proc is None else f"namespace {spec.namespace or '/'}"
             raise ScenarioAborted(f"no ROS controller answered within {spec.wait:g} s ({where}): missing "
-                                   f"{', '.join(missing)}")
+                                   f"{', '.join(missing)} (or, on the lockstep channel, a publisher on "
+                                   f"{command.topic_name} and a subscriber of {sample.topic_name})")
         time.sleep(0.01)
 
 
@@ -282,11 +304,14 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         host = _Host(node, scenario, spec, proc, log_path)
         flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
         schedule_timeline(node.rig, scenario)
-        _wait_for_controller(node, host, spec, proc, flags_sub)
+        host.channel = channel = _wait_for_controller(node, host, spec, proc, flags_sub)
+        if channel:                  # the flags come with the answers; unsubscribed, nobody writes them
+            node._inputs = [(sub, h) for sub, h in node._inputs if sub is not flags_sub]
+            node.destroy_subscription(flags_sub)
         host.progress = time.monotonic()
         node.hook = host
         node.run(host)
-        if host.failure is None and node.failure is None and host.flags:
+        if not channel and host.failure is None and node.failure is None and host.flags:
             _take_last_flags(node, host)
     except ScenarioAborted as err:
         wall = time.perf_counter() - wall0

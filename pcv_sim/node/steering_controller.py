@@ -6,26 +6,34 @@
 The control law is `pcv_sim.control.steering.PositionController`, the class a scenario calls
 in-process (examples/steering.py): the node only moves its inputs and outputs over DDS. It talks
 to the rig node (`ros2 run pcv_sim rig`) in its namespace, in lockstep: every control period it
-takes the samples the rig published (stamped with their model time), calls the controller with
-them and answers with both valves' duties (`pcv_sim.node.rig_client.RigClient`, no executor:
-`take_message` and a wait set, as the rig). Topics, relative to the namespace:
+takes the sample the rig published (stamped with its model time), calls the controller with it
+and answers with both valves' duties and its flags, over the rig's lockstep channel
+(`pcv_sim.node.lockstep_channel`; `pcv_sim.node.rig_client.RigClient`, no executor: `take_message`
+and a wait set, as the rig). Topics, relative to the namespace:
 
-    in   <valve>/pressure        sensor_msgs/FluidPressure   Pa, stamp = model time (left, right)
-    in   <valve>/current         std_msgs/Float64            A
-    in   cylinder/joint_states   sensor_msgs/JointState      joint `steering`: m, m/s, N
+    in   lockstep/sample         sensor_msgs/JointState      the rig's signals (Pa, A, m, m/s, N) by name,
+                                                             stamp = model time; a scenario's `setpoint`
+    out  lockstep/command        sensor_msgs/JointState      `left.duty`, `right.duty` (fraction) and
+                                                             `controller.fault_detected`, stamped with the
+                                                             sample answered, one per period
     in   setpoint                std_msgs/Float64            m: the position to hold; the latest
-                                                             received holds (0 before the first)
-    out  <valve>/duty_cycle      std_msgs/Float64            fraction, one per valve per period
-    out  controller/flags        diagnostic_msgs/DiagnosticArray, one per period, published before
-                                 the duties: header.stamp = the answered sample's model time; one
-                                 status `steering_controller` (level ERROR while fault_detected,
-                                 else OK) with a KeyValue per flag, the value as repr(float)
-                                 (`fault_detected`: "0.0" or "1.0")
+                                                             received holds (0 before the first); a
+                                                             setpoint in the sample comes first
+    out  controller/flags        diagnostic_msgs/DiagnosticArray, one per period while it has a
+                                 subscriber, published before the command: header.stamp = the
+                                 answered sample's model time; one status `steering_controller`
+                                 (level ERROR while fault_detected, else OK) with a KeyValue per
+                                 flag, the value as repr(float) (`fault_detected`: "0.0" or "1.0")
 
 Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
-coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `period` must be the rig's
+coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `lockstep_channel` (true;
+false: the rig's per-valve topics, `<valve>/pressure`, `<valve>/current`, `cylinder/joint_states`
+in, one `<valve>/duty_cycle` per valve and `controller/flags` out, a period complete when
+joint_states, published last, has come); `period` must be the rig's
 control period (1 ms in config/rig.yaml; a warning says so when the samples come at another
-rate). With `use_sim_time: true` the node's clock follows the rig's /clock (its log stamps);
+rate). With `use_sim_time: true` the node's clock follows the rig's model time: each sample's
+stamp, the /clock the rig publishes with it (taken from the sample, not from /clock: one message
+less per period);
 the controller's time is always the sample's stamp. A sample stamped before the last one answered
 (the rig started again, the next scenario) starts a fresh controller (and forgets the setpoint
 unless one came with that sample). Exit status as the rig:
@@ -47,6 +55,7 @@ NODE_NAME = "steering_controller"
 FLAGS_TOPIC = "controller/flags"
 SETPOINT_TOPIC = "setpoint"
 STATUS_NAME = "steering_controller"
+CHANNEL_PARAMETER = "lockstep_channel"
 VALVES = ("left", "right")        # the valves PositionController drives (chambers a and b)
 
 
@@ -104,6 +113,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64
 
     from pcv_sim.control.steering import PositionController
@@ -119,6 +129,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             super().__init__(NODE_NAME, **kwargs)
             try:
                 self.gains = self._declare()
+                self.channel = self._declare_channel()
             except ParameterError as err:
                 self.get_logger().error(f"invalid parameters: {err}")
                 linger_for_rosout(self)
@@ -127,16 +138,13 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.law = PositionController(**self.gains)
             self.setpoint: float | None = None
             self._setpoint_fresh = False
-            self.client = RigClient(None, VALVES, node=self, currents=True, history=False)
+            self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
             sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
-            ts = getattr(self, "_time_source", None)
-            clock_sub = getattr(ts, "_clock_sub", None)
-            if self.get_parameter("use_sim_time").value and clock_sub is not None:
-                # No executor: the TimeSource's own /clock subscription is taken by the polling.
-                self.client.add_input(clock_sub, lambda msg, _info: ts.clock_callback(msg))  # type: ignore[union-attr]
+            self._clock_msg = Clock()
+            self._drop_clock_subscription()
             self._period_check = PeriodCheck(self.gains["period"])
             self.get_logger().info(
                 f"steering controller: valves {', '.join(VALVES)}, period {self.gains['period'] * 1e3:g} ms, "
@@ -156,6 +164,34 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
                 values[name] = float(v)
             return values
 
+        def _declare_channel(self) -> bool:
+            desc = ParameterDescriptor(description="answer over the rig's lockstep channel (lockstep/sample, "
+                                                   "lockstep/command); false: the per-valve topics",
+                                       read_only=True)
+            v: Any = self.declare_parameter(CHANNEL_PARAMETER, True, desc).value
+            if not isinstance(v, bool):
+                raise ParameterError(f"{CHANNEL_PARAMETER}: got {v!r}; accepted is true or false")
+            return v
+
+        def _drop_clock_subscription(self) -> None:
+            """use_sim_time: the TimeSource's /clock subscription goes (no executor would take it); the
+            clock is set from each sample's stamp instead, the same instants."""
+            ts = getattr(self, "_time_source", None)
+            sub = getattr(ts, "_clock_sub", None)
+            if ts is not None and sub is not None:
+                self.destroy_subscription(sub)
+                ts._clock_sub = None
+
+        def _follow(self, t: float) -> None:
+            ts = getattr(self, "_time_source", None)
+            if ts is None or not ts.ros_time_is_active:
+                return
+            if ts._clock_sub is not None:      # use_sim_time switched on at run time
+                self._drop_clock_subscription()
+            clock = self._clock_msg.clock
+            clock.sec, clock.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+            ts.clock_callback(self._clock_msg)
+
         def _on_setpoint(self, msg: Any, _info: Any) -> None:
             self.setpoint = msg.data
             self._setpoint_fresh = True        # received since the last answer
@@ -163,8 +199,11 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def _control(self, t: float, measured: Mapping[str, float]) -> Any:
             m = dict(measured)
             self._setpoint_fresh = False
-            if self.setpoint is not None:
+            if "setpoint" in m:                # the scenario's, with the sample: the topic's may be late
+                self.setpoint = m["setpoint"]
+            elif self.setpoint is not None:
                 m["setpoint"] = self.setpoint
+            self._follow(t)
             wrong = self._period_check(t)
             if wrong is not None:
                 self.get_logger().warning(wrong)
@@ -182,6 +221,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def _publish_flags(self, stamp_ns: int, flags: Mapping[str, float]) -> None:
             # One message refilled every period (publish serializes it at once): building the
             # array, its status and key-values anew cost more than the control law.
+            if not self._pub_flags.get_subscription_count():
+                return                         # nobody reads them (a scenario runner has them in the command)
             msg, st = self._msg_flags, self._msg_flags.status[0]
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             fault = flags.get("fault_detected", 0.0) != 0.0
@@ -219,7 +260,8 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
         epilog="parameters (--ros-args -p NAME:=VALUE): " + ", ".join(f"{k} = {v:g}" for k, v in _parameters().items())
-               + "; period must be the rig's control period; use_sim_time follows the rig's /clock")
+               + f"; period must be the rig's control period; use_sim_time follows the rig's model time; "
+               f"{CHANNEL_PARAMETER} = true (false: the per-valve topics instead of the lockstep channel)")
     try:
         parser.parse_args(remove_ros_args(argv)[1:])
     except Exception as err:

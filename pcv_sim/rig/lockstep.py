@@ -28,9 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.device import MODEL_FAILURES
+from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.profiles import Profile
-from pcv_sim.rig.rig import Rig
+from pcv_sim.rig.rig import InputHook, Rig
 
 __all__ = ["Controller", "ControllerError", "RigRun", "run_lockstep"]
 
@@ -95,75 +97,147 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     measured: dict[int, np.ndarray] = {}    # the rows a sensor fault made differ from the true ones
     duty_rows: list[Any] = []
     in_force = operator.itemgetter(*valves)
-    sp = np.full(n + 1, np.nan)
+    sp = [math.nan] * (n + 1)
     flags: dict[str, list[float]] = {}
     sensors = rig.sensors
     dt_ns = round(rig.dt * 1e9)
     dt = rig.dt
-    valve_set = frozenset(valves)
     advance_sample = rig.advance_sample
     measure = sensors.measure
     sim = rig.sim
+    isfinite = math.isfinite
+    # The periods in which nothing but the controller's commands falls due (no scheduled input,
+    # watchdog deadline, or fed input other than one at the sampled step) take the fast path:
+    # the compiled call directly, the commands written into the inputs; every other period the
+    # rig's own (rig.advance_sample, rig.set_duty). Both give the same numbers bit for bit.
+    fused, (S, Fa, FL) = sim.sample_entry()
+    select = rig._signal_i
+    queue = rig.queue
+    watchdogs = [rig.watchdogs[v] for v in valves]
+    duty_name = [f"{v}.duty_cycle" for v in valves]
+    #: valve -> (lowest, highest duty, input index, position): what set_duty checks and writes
+    slots: dict[str, tuple[float, float, int, int]] = {}
+    for j, v in enumerate(valves):
+        (lo, hi), i = rig._duty_slot[v]
+        slots[v] = (lo, hi, i, j)
+    u = sim.u
+    # The watchdogs hear the fast path's commands when it ends (`sync`): their deadlines only move
+    # later with each command, so a horizon computed from them is early, never late, meanwhile.
+    heard: list[int | None] = [None] * len(valves)
+
+    def sync() -> tuple[int, dict[str, float], dict[str, float], InputHook | None, bool]:
+        """Tell the watchdogs the commands of the fast path; the step before which nothing but
+        the controller's commands falls due (-1 when a watchdog is not armed: waiting for a first
+        command, or fired, a command then changes its state and the rig must apply it), and what
+        the fast path writes and reads until the next sync (only the rig's path changes them)."""
+        for j, step in enumerate(heard):
+            if step is not None:
+                watchdogs[j].command(step)
+                heard[j] = None
+        armed = all(w.state in (WatchdogState.OK, WatchdogState.OFF) for w in watchdogs)
+        return rig.next_due() if armed else -1, rig.commands, rig.duties, rig.on_input, sensors.active
+
+    horizon, in_command, in_force_now, hook, active = sync()
     # The setpoint at every instant before the run, where it is a profile (its segments evaluated
     # in one pass: the same numbers as calling it at each instant).
     sp_all = setpoint.sample([(k0 + k * per) * dt for k in range(n + 1)]) if isinstance(setpoint, Profile) else None
     wall0 = time.perf_counter()
-    for k in range(n + 1):
-        at = k0 + k * per
-        answer = controller is not None and k < n
-        # With a controller the step after the sample (still the old inputs: the answer acts
-        # from at + 1) is taken in the same compiled call, when nothing else falls due there.
-        y = advance_sample(at, 1 if answer else 0, true[k])
-        t = at * dt
-        m = measure(t, y)
-        if m is not y:
-            measured[k] = m
-        if answer and controller is not None:
-            # A dropped (NaN) measurement is absent from the controller's dict.
-            measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if sensors.active
-                           else dict(zip(names, m.tolist())))
-            if setpoint is not None:
-                sp[k] = measurement["setpoint"] = sp_all[k] if sp_all is not None else setpoint(t)
-            # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
-            # a callable and a node see the same number to the last bit (steps x dt may differ).
-            commands = controller((at * dt_ns) * 1e-9, measurement)
-            taken = sim.steps == at + 1       # the step after the sample was taken with it
-            if commands is not None:
-                if type(commands) is not dict and not isinstance(commands, Mapping):
-                    raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
-                                          f"accepted is a mapping valve -> duty ({', '.join(valves)}) "
-                                          "with an optional 'flags' mapping")
-                for key, value in commands.items():
-                    if key in valve_set:
-                        if taken:             # nothing else falls due at at + 1: it acts from now
-                            try:              # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
-                                rig.set_duty(key, value)
-                            except CommandError:
-                                pass          # counted in rig.rejected; the last valid command stays
-                        else:                 # as the rig node schedules an answer: after the step's
-                            # timeline inputs, before its watchdog check
-                            rig.schedule((at + 1) * dt, functools.partial(_set_duty, rig, key, value))
-                    elif key == "flags":
-                        for fname, fv in (value if type(value) is dict else dict(value)).items():
-                            arr = flags.get(fname)
-                            if arr is None:
-                                arr = flags[fname] = [math.nan] * (n + 1)
-                            arr[k] = float(fv)
-                    else:
-                        raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
-                                              f"valves {', '.join(valves)} and 'flags'")
-            if not taken:
-                rig.advance_to(at + 1)
-        elif setpoint is not None:
-            sp[k] = sp_all[k] if sp_all is not None else setpoint(t)
-        duty_rows.append(in_force(rig.duties))
+    try:
+        for k in range(n + 1):
+            at = k0 + k * per
+            answer = k < n and controller is not None
+            last = at + 1 if answer else at
+            # With a controller the step after the sample (still the old inputs: the answer acts
+            # from at + 1) is taken in the same compiled call, when nothing else falls due there.
+            now = sim.steps
+            fs = rig._feed_steps
+            r = rig._feed_next
+            fed = fs[r] if r < len(fs) else NEVER
+            fast = (now <= at and last < horizon and queue.next_step > last
+                    and (fed > last or (fed == at and fed > now and (r + 1 == len(fs) or fs[r + 1] > last))))
+            if fast:
+                row = r if fed == at else -1
+                y = true[k]
+                try:
+                    norm = fused(S, Fa, FL, at - now, now, dt, select, y, last - at, rig._feed_i, rig._feed_v, row)
+                except MODEL_FAILURES as err:
+                    rig._fail(f"model step failed ({type(err).__name__}: {err})")
+                sim.steps = last
+                if row >= 0:
+                    rig._feed_row(row, at)          # already in the model; for the hook and the bookkeeping
+                if not isfinite(norm):
+                    rig._check_finite()             # raises, naming the time and the faults
+            else:
+                horizon, in_command, in_force_now, hook, active = sync()
+                y = advance_sample(at, last - at, true[k])
+                active = sensors.active             # a sensor fault may have come or gone on the way
+            t = at * dt
+            m = measure(t, y)
+            if m is not y:
+                measured[k] = m
+            if answer and controller is not None:
+                # A dropped (NaN) measurement is absent from the controller's dict.
+                measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if active
+                               else dict(zip(names, m.tolist())))
+                if setpoint is not None:
+                    sp[k] = measurement["setpoint"] = sp_all[k] if sp_all is not None else setpoint(t)
+                # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
+                # a callable and a node see the same number to the last bit (steps x dt may differ).
+                commands = controller((at * dt_ns) * 1e-9, measurement)
+                taken = sim.steps == at + 1       # the step after the sample was taken with it
+                if commands is not None:
+                    if type(commands) is not dict and not isinstance(commands, Mapping):
+                        raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
+                                              f"accepted is a mapping valve -> duty ({', '.join(valves)}) "
+                                              "with an optional 'flags' mapping")
+                    for key, value in commands.items():
+                        slot = slots.get(key)
+                        if slot is not None:
+                            if fast:
+                                lo, hi, i, j = slot
+                                if type(value) is float and lo <= value <= hi:
+                                    # rig.set_duty's effect, its watchdog told at the next sync
+                                    in_command[key] = in_force_now[key] = u[i] = value
+                                    heard[j] = last
+                                    if hook is not None:
+                                        hook(last, duty_name[j], value)
+                                    continue
+                                if (step := heard[j]) is not None:      # its last valid command first
+                                    watchdogs[j].command(step)
+                                    heard[j] = None
+                            if taken:             # nothing else falls due at at + 1: it acts from now
+                                try:              # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
+                                    rig.set_duty(key, value)
+                                except CommandError:
+                                    pass          # counted in rig.rejected; the last valid command stays
+                            else:                 # as the rig node schedules an answer: after the step's
+                                # timeline inputs, before its watchdog check
+                                rig.schedule((at + 1) * dt, functools.partial(_set_duty, rig, key, value))
+                        elif key == "flags":
+                            for fname, fv in (value if type(value) is dict else dict(value)).items():
+                                arr = flags.get(fname)
+                                if arr is None:
+                                    arr = flags[fname] = [math.nan] * (n + 1)
+                                arr[k] = float(fv)
+                        else:
+                            raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
+                                                  f"valves {', '.join(valves)} and 'flags'")
+                if not taken:
+                    rig.advance_to(at + 1)
+            elif setpoint is not None:
+                sp[k] = sp_all[k] if sp_all is not None else setpoint(t)
+            if not fast:                        # what ran there may have scheduled, fired, armed, reset
+                horizon, in_command, in_force_now, hook, active = sync()
+            duty_rows.append(in_force(in_force_now))
+    finally:
+        sync()                                  # the watchdogs know every command, also after an error
     wall = time.perf_counter() - wall0
     times = (k0 + np.arange(n + 1) * per) * rig.dt
     meas = true.copy()
-    for k, row in measured.items():
-        meas[k] = row
+    for k, values in measured.items():
+        meas[k] = values
     duties = np.array(duty_rows, dtype=float).reshape(n + 1, len(valves))
-    return RigRun(times, names, true, meas, duties, valves, sp,
+    return RigRun(times, names, true, meas, duties, valves, np.array(sp),
                   {f"controller.{f}": np.array(a) for f, a in flags.items()}, list(rig.log), list(rig.rejected), wall)
 
 

@@ -6,7 +6,10 @@ views of the composite's arrays, routes connections through an input buffer, and
 fixed-step integrator as a loop over `n` steps, so that a whole batch of 0.1 ms steps runs in
 machine code. The generated functions are compiled without numba's runtime (`jit(nrt=False)`):
 no reference counting of the views, which would cost more than the physics of a step; such
-code cannot allocate (numba refuses to compile it), and none does. The source is written to the
+code cannot allocate (numba refuses to compile it), and none does. Python calls the entry points
+`sim_*`, which take every array of the composite as views of one float64 array (the arena,
+`arena_layout`) and the systems' tables as views of one flat array (`pack_tables`): numba unboxes
+each argument of a call from Python, and ~40 arrays cost more than a step. The source is written to the
 kernel cache (`pcv_sim.jit.cache_root()`), keyed by a digest of its text, so numba's disk cache
 serves the next process; with numba disabled the same module runs as plain Python.
 
@@ -41,10 +44,52 @@ import numpy as np
 from pcv_sim.jit import cache_root, enabled
 from pcv_sim.simulation.system import Composite
 
-__all__ = ["INTEGRATORS", "ORDERS", "compiled_module", "exponential_weights", "generate_source"]
+__all__ = ["ARENA", "INTEGRATORS", "ORDERS", "arena_layout", "compiled_module", "exponential_weights",
+           "generate_source", "pack_tables"]
 
 INTEGRATORS = ("euler", "rk2", "rk4", "erk2")
 ORDERS = {"euler": 1, "rk2": 2, "rk4": 4, "erk2": 2}
+
+#: The composite's arrays in the one float64 array (the arena) the entry points take, in order:
+#: state, external inputs, parameters, workspace, outputs, systems' inputs, the integrators'
+#: scratch (s1-s4, xt) and the exponential weights (E, A, B).
+ARENA = ("x", "u", "P", "W", "Y", "U", "s1", "s2", "s3", "s4", "xt", "E", "A", "B")
+
+
+def arena_layout(plant: Composite) -> dict[str, tuple[int, int]]:
+    """Each of `ARENA`'s arrays as (start, stop) in the arena (the plant's structure alone)."""
+    nx = len(plant.states)
+    sizes = {"x": nx, "u": len(plant.inputs), "P": sum(len(s.p) for s in plant.systems),
+             "W": sum(s.workspace for s in plant.systems), "Y": len(plant.outputs),
+             "U": sum(len(s.inputs) for s in plant.systems)}
+    out, at = {}, 0
+    for name in ARENA:
+        n = sizes.get(name, nx)
+        out[name] = (at, at + n)
+        at += n
+    return out
+
+
+def pack_tables(plant: Composite) -> tuple[np.ndarray, np.ndarray, tuple[tuple[np.ndarray, ...], ...]]:
+    """The systems' tables in one float64 array: (flat, layout, views). `layout` holds, per table
+    in order, its start in `flat` and its shape (int64); `views` are the tables (copies of the
+    systems' `f`) as views of `flat`. The entry points rebuild the views from `layout`."""
+    tables = [np.ascontiguousarray(t, dtype=np.float64) for s in plant.systems for t in s.f]
+    if any(t.ndim == 0 for t in tables):
+        raise ValueError("a system's table is a scalar: accepted are arrays of 1 or more dimensions")
+    flat = np.concatenate([t.ravel() for t in tables]) if tables else np.zeros(0)
+    layout: list[int] = []
+    views = []
+    at = 0
+    for s in plant.systems:
+        own = []
+        for t in s.f:
+            layout += [at, *np.shape(t)]
+            own.append(flat[at:at + t.size].reshape(np.shape(t)))
+            at += t.size
+        views.append(tuple(own))
+    return flat, np.array(layout, dtype=np.int64), tuple(views)
+
 
 _LOOPS = '''
 
@@ -135,8 +180,8 @@ def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, 
     # n steps, then the inputs of row `row` of feed_v (u[feed_i[j]] = feed_v[row, j]; NaN: left
     # as it is; row < 0: none) and the outputs at the step reached (inputs in force from there
     # on): out[i] = Y[select[i]], then `after` more steps with the same inputs. One call where
-    # advance + inputs + outputs + advance would be four: a call from Python costs ~3 us of
-    # argument unboxing (F alone is 25 arrays for two valves), more than a step of the rig.
+    # advance + inputs + outputs + advance would be four: each call from Python costs its
+    # argument unboxing and the Python around it, about a step of the rig.
     if n > 0:
         advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
     if row >= 0:
@@ -185,6 +230,49 @@ def run_{name}(k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, change_s
             out[j, i] = Y[i]
     return k
 '''
+
+
+_ENTRIES = '''
+
+@jit(nrt=False)
+def sim_advance_{name}(S, Fa, FL, n, k0, h):
+{views}
+    advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
+
+
+@jit(nrt=False)
+def sim_advance_sample_{name}(S, Fa, FL, n, k0, h, select, out, after, feed_i, feed_v, row):
+{views}
+    return advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
+                                 feed_i, feed_v, row)
+
+
+@jit(nrt=False)
+def sim_run_{name}(S, Fa, FL, k0, h, change_steps, change_values, sample_steps, out):
+{views}
+    return run_{name}(k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, change_steps, change_values,
+                      sample_steps, out)
+'''
+
+
+def _views(plant: Composite) -> str:
+    """The entry points' first lines: the composite's arrays as views of the arena S and the
+    tables F as views of the flat Fa after the layout FL (`arena_layout`, `pack_tables`)."""
+    lines = [f"    {name} = S[{a}:{b}]" for name, (a, b) in arena_layout(plant).items()]
+    systems = []
+    at = 0
+    for s in plant.systems:
+        own = []
+        for t in s.f:
+            nd = np.ndim(t)
+            dims = [f"FL[{at + 1 + d}]" for d in range(nd)]
+            size = " * ".join(dims) if dims else "1"
+            view = f"Fa[FL[{at}]:FL[{at}] + {size}]"
+            own.append(view if nd == 1 else f"{view}.reshape(({', '.join(dims)}))")
+            at += 1 + nd
+        systems.append("(" + "".join(f"{v}, " for v in own).rstrip(" ") + ")" if own else "()")
+    lines.append("    F = (" + "".join(f"{v}, " for v in systems).rstrip(" ") + ")")
+    return "\n".join(lines)
 
 
 def exponential_weights(rates: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -258,8 +346,12 @@ def generate_source(plant: Composite) -> str:
         body += ["    return LAM[i]"]
         loops = loops.replace("s1[i] += LAM[i] * x[i]", "s1[i] += lam(i, P) * x[i]").replace(
             "s2[i] += LAM[i] * xt[i]", "s2[i] += lam(i, P) * xt[i]")
+    # The entry points Python calls: one arena, the flat tables and their layout instead of ~40
+    # arrays (numba unboxes each argument of a call from Python: ~0.1 us an array).
+    views = _views(plant)
+    body += ["", "", "@jit(nrt=False)", "def sim_outputs(S, Fa, FL, t):", views, "    outputs(t, x, u, P, F, W, Y, U)"]
     return "\n".join(lines + body) + loops + "".join(_RUN.format(name=n) + _SAMPLE.format(name=n)
-                                                     for n in INTEGRATORS)
+                                                     + _ENTRIES.format(name=n, views=views) for n in INTEGRATORS)
 
 
 _LOADED: dict[str, ModuleType] = {}

@@ -116,8 +116,7 @@ def integrate_reference(
         sim.x[:] = out_x[:, j]
         sim.u[:] = inputs(float(ts))
         sim.steps = 0
-        sim._outputs(float(ts), sim.x, sim.u, sim.P, sim.F, sim.W, sim.Y, sim.U)
-        outputs[:, j] = sim.Y
+        outputs[:, j] = sim.outputs_at(float(ts))
     return out_x, outputs
 
 

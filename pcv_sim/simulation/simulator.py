@@ -8,9 +8,11 @@ every output at the present time with the inputs in force from now on (right-con
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
-from pcv_sim.simulation.compile import INTEGRATORS, compiled_module, exponential_weights
+from pcv_sim.simulation.compile import INTEGRATORS, arena_layout, compiled_module, exponential_weights, pack_tables
 from pcv_sim.simulation.system import Composite, System, compose
 
 __all__ = ["Simulator"]
@@ -34,26 +36,29 @@ class Simulator:
         self.integrator = integrator
         module = compiled_module(plant)
         self._module = module
-        self._advance = getattr(module, f"advance_{integrator}")
-        self._run = getattr(module, f"run_{integrator}")
-        self._advance_sample = getattr(module, f"advance_sample_{integrator}")
-        self._outputs = module.outputs
+        # The compiled entry points take the arena (every array below is a view of it), the flat
+        # tables and their layout: a call from Python unboxes 3 arrays, not ~40.
+        self._advance = getattr(module, f"sim_advance_{integrator}")
+        self._run = getattr(module, f"sim_run_{integrator}")
+        self._advance_sample = getattr(module, f"sim_advance_sample_{integrator}")
+        self._outputs = module.sim_outputs
         self._derivs = module.derivs
         self._project = module.project
-        systems = plant.systems
-        nx = len(plant.states)
-        self.x = np.zeros(nx)
-        self.u = np.zeros(len(plant.inputs))
-        self.P = np.ascontiguousarray(np.concatenate([s.p for s in systems]).astype(np.float64))
-        self.F = tuple(s.f for s in systems)
-        self.W = np.zeros(sum(s.workspace for s in systems))
-        for s, off in zip(systems, plant.offsets("workspace")):
+        self._layout = arena_layout(plant)
+        self._S = np.zeros(max(b for _, b in self._layout.values()))
+        self._views()
+        self._Fa, self._FL, self.F = pack_tables(plant)
+        self.P[:] = np.concatenate([s.p for s in plant.systems])
+        for s, off in zip(plant.systems, plant.offsets("workspace")):
             self.W[off:off + len(s.w0)] = s.w0
-        self.Y = np.zeros(len(plant.outputs))
-        self.U = np.zeros(sum(len(s.inputs) for s in systems))
-        self._scratch = tuple(np.zeros(nx) for _ in range(5))
-        self._weights = exponential_weights(self.rates(), self.dt)
+        self.refresh_rates()
         self.steps = 0
+
+    def _views(self) -> None:
+        """x, u, P, W, Y, U, the scratch and the weights as views of the arena."""
+        v = {name: self._S[a:b] for name, (a, b) in self._layout.items()}
+        self.x, self.u, self.P, self.W, self.Y, self.U = v["x"], v["u"], v["P"], v["W"], v["Y"], v["U"]
+        self._E, self._A, self._B = v["E"], v["A"], v["B"]
 
     def rates(self) -> np.ndarray:
         """Each state's linear decay rate (1/s) for the exponential integrator: the declared stiff
@@ -65,15 +70,14 @@ class Simulator:
 
     def refresh_rates(self) -> None:
         """Recompute the exponential weights after a rate parameter changed (in `P`)."""
-        self._weights = exponential_weights(self.rates(), self.dt)
+        self._E[:], self._A[:], self._B[:] = exponential_weights(self.rates(), self.dt)
 
     def copy(self) -> Simulator:
         """An independent simulator in the same state (its own arrays, the same compiled code)."""
         new = object.__new__(Simulator)
-        new.__dict__.update(self.__dict__)
-        for name in ("x", "u", "P", "W", "Y", "U"):
-            setattr(new, name, getattr(self, name).copy())
-        new._scratch = tuple(a.copy() for a in self._scratch)
+        new.__dict__.update(self.__dict__)      # the tables are shared: nothing writes them
+        new._S = self._S.copy()
+        new._views()
         return new
 
     def __deepcopy__(self, memo: dict[int, object]) -> Simulator:
@@ -88,10 +92,7 @@ class Simulator:
         """n fixed steps with the present inputs (held)."""
         if n <= 0:
             return
-        s1, s2, s3, s4, xt = self._scratch
-        e, a, b = self._weights
-        self._advance(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
-                      s1, s2, s3, s4, xt, e, a, b)
+        self._advance(self._S, self._Fa, self._FL, n, self.steps, self.dt)
         self.steps += n
 
     def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray, after: int = 0,
@@ -104,10 +105,18 @@ class Simulator:
         the state ran away."""
         n, after = max(int(n), 0), max(int(after), 0)
         feed_i, feed_v, row = feed if feed is not None else _NO_FEED
-        norm = self._advance_sample(n, self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
-                                    *self._scratch, *self._weights, select, out, after, feed_i, feed_v, row)
+        norm = self._advance_sample(self._S, self._Fa, self._FL, n, self.steps, self.dt, select, out, after,
+                                    feed_i, feed_v, row)
         self.steps += n + after
         return float(norm)
+
+    def sample_entry(self) -> tuple[Callable[..., float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """`advance_sample`'s compiled function and its first three arguments (the arena, the tables
+        and their layout), for a loop that calls it every few steps and cannot afford the method's
+        Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row)` with n, after
+        >= 0 and the argument types `advance_sample` passes; the caller then adds n + after to
+        `steps`. The arrays stay the simulator's for its life (`copy` makes new ones)."""
+        return self._advance_sample, (self._S, self._Fa, self._FL)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
         """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:
@@ -119,15 +128,18 @@ class Simulator:
         if sample_steps.size and sample_steps[0] < self.steps:
             raise ValueError(f"sample step {int(sample_steps[0])} is before the present step {self.steps}")
         out = np.empty((len(sample_steps), len(self.Y)))
-        s1, s2, s3, s4, xt = self._scratch
-        e, a, b = self._weights
-        self.steps = int(self._run(self.steps, self.dt, self.x, self.u, self.P, self.F, self.W, self.Y, self.U,
-                                   s1, s2, s3, s4, xt, e, a, b, change_steps, change_values, sample_steps, out))
+        self.steps = int(self._run(self._S, self._Fa, self._FL, self.steps, self.dt, change_steps, change_values,
+                                   sample_steps, out))
         return out
 
     def outputs(self) -> np.ndarray:
         """Every output at the present time (inputs in force from now on); a view, overwritten later."""
-        self._outputs(self.time, self.x, self.u, self.P, self.F, self.W, self.Y, self.U)
+        self._outputs(self._S, self._Fa, self._FL, self.time)
+        return self.Y
+
+    def outputs_at(self, t: float) -> np.ndarray:
+        """Every output of the present state and inputs, at time `t` (s); a view, overwritten later."""
+        self._outputs(self._S, self._Fa, self._FL, t)
         return self.Y
 
     def derivatives(self, t: float, x: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:

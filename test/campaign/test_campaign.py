@@ -141,6 +141,8 @@ def test_monte_carlo_draws_follow_the_file(write_campaign, tmp_path, capsys):
     ({"sweep": {"parameters": {"middle.spool.spring_preload": [2.0]}}}, ["middle", "no valve", "left, right"]),
     ({"faults": {"kinds": ["coil_open"], "targets": ["middle"], "onsets": [0.1]}}, ["faults.targets[0]", "left, right"]),
     ({"sweep": {"parameters": {"scenario.timeline[3].t": [0.1]}}}, ["scenario.timeline[3].t", "no such value"]),
+    ({"sweep": {"parameters": [2.0]}}, ["sweep.parameters", "accepted is a mapping key -> values"]),
+    ({"monte_carlo": {"samples": 3, "parameters": {}}}, ["monte_carlo.parameters", "mapping key -> {distribution"]),
     ({"monte_carlo": {"samples": 50, "seed": 1, "parameters": {"cylinder.mass": {"distribution": "normal",
                                                                                    "sd": 200.0}}}},
      ["cylinder.mass", "accepted"]),

@@ -71,6 +71,19 @@ def test_the_controller_node_runs_scenarios_bit_for_bit_as_the_callable(ros):
     assert 'a fresh controller' in ctl.output()
 
 
+def test_on_the_per_valve_topics_the_controller_node_runs_bit_for_bit_too(ros):
+    """lockstep_channel false: samples from <valve>/pressure, <valve>/current and joint_states, one
+    duty_cycle per valve and the flags on controller/flags; the setpoint from its topic alone."""
+    ctl = start_controller(ros, args=['-p', 'lockstep_channel:=false'])
+    ros_ctl = {'ros': {'namespace': ros.ns('rig'), 'wait': 60}}
+    short = {'duration': 0.6, 'timeline': [{'t': 0.5, 'fault': 'coil_open', 'target': 'left'}],
+             'assertions': [{'type': 'flag_within', 'signal': 'controller.fault_detected', 'at': 0.5, 'within': 0.06}]}
+    coil = run_rig_scenario(EXAMPLES / 'coil_open.yaml', ros_ctl, **short)
+    assert coil.passed, coil.summary() + ctl.output()
+    assert_same_run(coil.run, run_rig_scenario(EXAMPLES / 'coil_open.yaml', **short).run)
+    assert np.nanmax(coil.run.flags['controller.fault_detected']) == 1.0
+
+
 def _scenario_file(tmp_path, name, controller, duration=0.5):
     data = yaml.safe_load((EXAMPLES / 'step.yaml').read_text())
     data.update(name=name, rig=str(REPO / 'config' / 'rig.yaml'), duration=duration, controller=controller)

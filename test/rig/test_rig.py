@@ -279,6 +279,53 @@ def test_a_fed_force_gives_the_numbers_of_the_same_values_scheduled(rig):
     assert not np.array_equal(none.true, fed.true)               # the force did act
 
 
+def test_the_lockstep_fast_path_gives_the_numbers_of_the_rigs_own_path(rig):
+    """The lockstep writes a valid command straight into the model and tells the watchdog later
+    while nothing else falls due; with a no-op scheduled on every step after a sample every
+    period goes through the rig's own path (advance_to, sample, set_duty at that step). Bit for
+    bit the same run: a fed force, a refused command, one valve left without commands until its
+    watchdog fires and a command resumes it; the same log, refusals, hook and watchdogs."""
+    from pcv_sim.rig.rig import EXTERNAL_FORCE
+
+    per = rig.params.steps_per_period
+    t_wd = rig.params.timing.watchdog_timeout
+    safe = rig.params.timing.safe_duty
+
+    def ctrl(t, m):
+        left = 0.5 + 10.0 * m["cylinder.position"] + (0.2 if t >= 0.01 else 0.0)
+        out: dict[str, object] = {"right": 1.5 if abs(t - 0.03) < 1e-9 else 0.55,   # one refused
+                                  "flags": {"position": m["cylinder.position"]}}
+        if t < 0.05 or t >= t_wd + 0.1:
+            out["left"] = min(1.0, left)
+        return out
+
+    duration = t_wd + 0.15
+    runs, heard, ends = [], [], []
+    for forced in (False, True):
+        rig.on_input = None
+        rig.reset()
+        seen: list[tuple[int, str, float]] = []
+        rig.on_input = lambda step, name, value, seen=seen: seen.append((step, name, value))
+        rig.feed(EXTERNAL_FORCE, [4 * per, 20 * per, 20 * per + 3], [150.0, -300.0, 80.0])
+        if forced:
+            for k in range(round(duration / rig.params.timing.control_period) + 1):
+                rig.schedule_step(k * per + 1, lambda: None)
+        runs.append(run_lockstep(rig, ctrl, duration))
+        heard.append(seen)
+        ends.append((rig.sim.x.copy(), {v: (w.state, w.command_step) for v, w in rig.watchdogs.items()}))
+    rig.on_input = None
+    fast, own = runs
+    assert np.array_equal(fast.true, own.true) and np.array_equal(fast.duties, own.duties)
+    assert np.array_equal(fast.flags["controller.position"], own.flags["controller.position"], equal_nan=True)
+    assert fast.log == own.log and fast.rejected == own.rejected and heard[0] == heard[1]
+    assert np.array_equal(ends[0][0], ends[1][0]) and ends[0][1] == ends[1][1]
+    # What the run went through: the left watchdog fired and was cleared, one command refused.
+    assert [text for _, text in fast.log if "watchdog" in text] == [
+        f"left: watchdog fired, duty -> {safe:g}", "left: watchdog cleared by a valid command"]
+    assert len(fast.rejected) == 1 and "right" in fast.rejected[0][1]
+    assert ends[0][1]["right"][1] == round(duration / rig.dt) - per + 1     # told of the last command
+
+
 def test_feed_refuses_what_the_rig_would_refuse(rig):
     from pcv_sim.rig.rig import EXTERNAL_FORCE
 
