@@ -9,8 +9,9 @@
   current and the pressure fall) and with a PI controller closing the loop on pressure (the
   duty rises to hold it);
 - fast release with core-spool separation: 100 % -> 0 % -> 60 %, without and with the paper's
-  fall-rate limit (2 /s): without it the spool stops on its end stop and the core flies on
-  (the gap); the solenoid brings it back at once when the duty returns.
+  fall-rate limit (2 /s): without it the spool stops on its end stop and the core flies on by a
+  few micrometres (the gap); the solenoid brings it back when the duty returns. Inside the stroke
+  they never part (docs/model.md R35: Sec. 3.2's undershoot is not reproduced).
 """
 
 from __future__ import annotations

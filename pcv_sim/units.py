@@ -55,6 +55,11 @@ class Kind:
     display: str
     plausible: tuple[float, float] | None = None
     hints: tuple[str, ...] = ()           # units to suggest, in order
+    #: unit -> its zero in SI (degC: 273.15 K): added to an absolute value, not to a difference
+    zeros: tuple[tuple[str, float], ...] = ()
+
+    def zero(self, unit: str) -> float:
+        return dict(self.zeros).get(unit, 0.0)
 
     def factor(self, unit: str) -> float:
         return self.units[unit]
@@ -76,6 +81,9 @@ KINDS: dict[str, Kind] = {
     "fraction": Kind("-", {"-": 1.0, "%": 0.01}, "%", (0.0, 1.0), ("%",)),
     "conductance": Kind("m^3/(s Pa)", {"m^3/(s Pa)": 1.0}, "m^3/(s Pa)"),
     "number": Kind("-", {"-": 1.0}, "-"),
+    # Absolute temperatures (an ambient, an oil's); a bare number is K, and one that reads as degC
+    # (a plausible temperature once 273.15 K is added) is refused with that meaning.
+    "temperature": Kind("K", {"K": 1.0, "degC": 1.0}, "degC", (150.0, 700.0), ("degC",), (("degC", 273.15),)),
 }
 
 _VALUE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S.*?)?\s*$")
@@ -92,10 +100,12 @@ def _unit_factor(kind: Kind, unit: str) -> float | None:
     return None
 
 
-def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str = "") -> float:
+def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str = "", difference: bool = False
+             ) -> float:
     """`raw` (a bare SI number, or "<number> <unit>") as a float in SI; UnitError naming `where`
     and the accepted units otherwise. `rate`: the kind per second (a drift: `bar/s`). `role`
-    words the plausibility hint (e.g. "supply pressure")."""
+    words the plausibility hint (e.g. "supply pressure"). `difference`: a difference of the kind
+    (an amplitude), to which a unit's zero (degC's) does not apply."""
     k = KINDS[kind]
     si = k.si + ("/s" if rate else "")
     accepted = ", ".join(f"{u}/s" if rate else u for u in k.units)
@@ -105,11 +115,11 @@ def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str =
         v = float(raw)
         if not math.isfinite(v):
             raise UnitError(f"{where}: got {raw!r}; accepted is a finite number ({si})")
-        if k.plausible is not None and not rate and v != 0.0:
+        if k.plausible is not None and not rate and not difference and v != 0.0:
             lo, hi = k.plausible
             if not lo <= abs(v) <= hi:
                 for hint in k.hints:
-                    if lo <= abs(v * k.units[hint]) <= hi:
+                    if lo <= abs(v * k.units[hint] + k.zero(hint)) <= hi:
                         side = "below" if abs(v) < lo else "above"
                         what = role or f"plausible {kind}"
                         si_v = f"{v:g} {k.si}" if k.si != "-" else f"{v:g} (a fraction)"
@@ -123,7 +133,7 @@ def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str =
         raise UnitError(f"{where}: got {raw!r}; accepted is '<number> <unit>' with a unit of {accepted}")
     number, unit = float(m.group(1)), m.group(2)
     if unit is None:
-        return quantity(number, kind, where, rate=rate, role=role)
+        return quantity(number, kind, where, rate=rate, role=role, difference=difference)
     f = _unit_factor(k, unit) if rate else k.units.get(unit)
     if rate and unit in k.units:
         f = None                             # a rate needs its "per time"
@@ -132,7 +142,7 @@ def quantity(raw: Any, kind: str, where: str, *, rate: bool = False, role: str =
         also = f" ({unit} is a unit of {', '.join(other)})" if other else ""
         raise UnitError(f"{where}: unit {unit!r} in {raw!r}{also}; accepted for a {kind}{' rate' if rate else ''} "
                         f"are {accepted}")
-    return number * f
+    return number * f + (0.0 if rate or difference else k.zero(unit))
 
 
 def unit_kind(unit: str) -> str | None:
@@ -158,7 +168,7 @@ def fmt(value: float | None, kind: str, *, digits: int = 4) -> str:
     if math.isinf(value):
         return ("+" if value > 0 else "-") + "inf"
     unit, f = display(kind)
-    v = value * f
+    v = value * f - KINDS[kind].zero(unit)
     return f"{v:.{digits}g} {unit}" if unit != "-" else f"{v:.{digits}g}"
 
 

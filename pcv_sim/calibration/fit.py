@@ -26,7 +26,9 @@ by (1 + rho) / (1 - rho) where rho > 0 is the lag-1 autocorrelation of the resid
 of model error makes neighbouring samples agree: they then count as fewer independent ones).
 Approximate 95 % interval: +-1.96 sqrt(diag(cov)). Parameters whose correlation exceeds
 :data:`CORRELATION_LIMIT`, whose interval is wider than the value, or that end on a bound are
-reported as not separable by the data.
+reported as not separable by the data; so is a parameter whose Jacobian column does not hold over
+a 10x larger step (the outputs are not smooth in it, and the interval, a local slope's, means
+nothing: e.g. the core's mass, which acts only through the contact's events, R35).
 """
 
 from __future__ import annotations
@@ -71,6 +73,8 @@ LAG_BOUNDS = (-0.002, 0.05)
 #: Default bounds of the sensor's first-order time constant (s).
 TIME_CONSTANT_BOUNDS = (0.0, 0.03)
 _FD_STEP = 1e-3          # relative forward-difference step of the valve parameters
+_ROUGH_STEP = 10.0       # the smoothness check's step, in forward-difference steps
+_ROUGH_LIMIT = 0.3       # relative difference of the two Jacobian columns beyond which a parameter's slope is not one
 #: A signal whose RMSE after the fit exceeds this many times its noise level (estimated from the
 #: recording) is not explained by the model: a right model leaves the noise (about 1x).
 NOISE_RATIO_LIMIT = 1.5
@@ -543,6 +547,8 @@ def calibrate(
     runs = runs_at(z)
     r = residuals(z, runs)
     J = jac(z)
+    rough = _rough_parameters(J[:, :n_theta], z[:n_theta], lo[:n_theta], hi[:n_theta],
+                              lambda zk: residuals(zk, simulate(valve(zk))), z, r)
     m, n = J.shape
     s2 = float(r @ r) / max(m - n, 1)
     rho = _autocorrelation(r, [len(d.t_ns) for d in data])
@@ -581,6 +587,12 @@ def calibrate(
         traces[(d.bag, d.role)] = (d.t_ns / _NS, d.value, before, after)
 
     warnings = _warnings(estimates, corr, lag_est)
+    for k, ratio in rough:
+        warnings.append(f"{estimates[k].name} is not determined by the data: the recordings do not respond smoothly "
+                        f"to it (its sensitivity over a {_FD_STEP:g} and a {_ROUGH_STEP * _FD_STEP:g} relative step "
+                        f"differ by {ratio:.0%}: the outputs move by a jump at a step of the fixed-step model, as an "
+                        f"impact's, or by nothing), so its interval +-{estimates[k].half_width_95:.3g} "
+                        f"{estimates[k].unit} is not to be trusted")
     for i, e in enumerate(estimates):
         for j, name in enumerate(nuisance_names):
             c = corr_all[i, n_theta + j]
@@ -705,6 +717,32 @@ def _autocorrelation(r: npt.NDArray[np.float64], lengths: Sequence[int]) -> floa
         den += float(seg @ seg)
         pos += n
     return min(max(num / den, 0.0), 0.99) if den > 0 else 0.0
+
+
+def _rough_parameters(j_theta: npt.NDArray[np.float64], theta: npt.NDArray[np.float64], lo: npt.NDArray[np.float64],
+                      hi: npt.NDArray[np.float64], residuals_at: Any, z: npt.NDArray[np.float64],
+                      r: npt.NDArray[np.float64]) -> list[tuple[int, float]]:
+    """The valve parameters whose Jacobian column (a forward difference) does not hold over a
+    step _ROUGH_STEP times larger: (index, relative difference of the two columns). The
+    intervals assume outputs smooth in theta; a parameter that acts only through events (the
+    core's contact, R35) moves them by jumps on the step's grid, and a difference over a tiny step
+    then reads as a steep, well-determined slope. One more simulation per parameter."""
+    out = []
+    for k in range(len(theta)):
+        h = _ROUGH_STEP * _FD_STEP * max(abs(theta[k]), 1e-3)
+        if theta[k] + h > hi[k]:
+            h = -h
+        if not lo[k] <= theta[k] + h <= hi[k]:
+            continue
+        zk = z.copy()
+        zk[k] += h
+        col = (residuals_at(zk) - r) / h
+        scale = max(float(np.linalg.norm(col)), float(np.linalg.norm(j_theta[:, k])))
+        if scale > 0.0:
+            ratio = float(np.linalg.norm(col - j_theta[:, k])) / scale
+            if ratio > _ROUGH_LIMIT:
+                out.append((k, ratio))
+    return out
 
 
 def _warnings(est: Sequence[Estimate], corr: npt.NDArray[np.float64], lags: Sequence[Estimate]) -> list[str]:

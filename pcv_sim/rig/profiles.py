@@ -298,7 +298,7 @@ def parse_segment(where: str, t: float, raw: Any, kind: str, *, base: Path | Non
         start = val(f"{w}.from", spec["from"]) if "from" in spec else None
         return Segment(t, "ramp", value=val(f"{w}.to", _need(w, spec, "to", "the final value")), start=start,
                        duration=d)
-    amp = quantity(_need(w, spec, "amplitude", "a value"), kind, f"{w}.amplitude")
+    amp = quantity(_need(w, spec, "amplitude", "a value"), kind, f"{w}.amplitude", difference=True)
     offset = val(f"{w}.offset", spec.get("offset", 0.0))
     if amp < 0.0:
         raise ProfileError(f"{w}.amplitude: {amp:g}; accepted is a value >= 0")

@@ -43,6 +43,7 @@ from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
+from pcv_sim.simulation.stepper import check_oil_step, check_temperature
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_integrator, valve_system
 
@@ -158,8 +159,11 @@ class Rig(Device):
         self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
                                for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
                                                       kernel.option_inputs(v.params), strict=True)]
+        #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
+        self._exact_spool = [self.sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:-1]]
         self._state_off = plant.offsets("states")
-        self._healthy = [s.p.copy() for s in systems[:-1]]
+        self._configured = [s.p.copy() for s in systems[:-1]]     # the valves' YAML (at reset)
+        self._healthy = [s.p.copy() for s in systems[:-1]]        # and the temperatures set since
         self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
         self._safe = params.timing.safe_duty
@@ -205,6 +209,7 @@ class Rig(Device):
         sim.W[:] = 0.0
         sim.W[:len(w)] = w
         sim.steps = steps if keep_time else 0
+        self._healthy = [p.copy() for p in self._configured]
         self.commands = {v.name: v.initial_duty for v in self.params.valves}
         self.duties = dict(self.commands)
         for k, v in enumerate(self.params.valves):
@@ -322,6 +327,37 @@ class Rig(Device):
         if fault.on_cylinder:
             return None if fault.target == CYLINDER else f"is {CYLINDER}"
         return None if fault.target in self.valve_names else f"are the valves {', '.join(self.valve_names)}"
+
+    def temperature(self, valve: str, name: str) -> float:
+        """A valve option's temperature input in force (K; see `set_temperature`)."""
+        return float(self.sim.u[self.plant.index("input", f"{valve}.{name}")])
+
+    def set_temperature(self, valve: str, name: str, temperature: Any) -> None:
+        """A valve option's temperature input (`ambient_temperature` of a lumped coil, R33;
+        `oil_temperature` of an oil with `fluid.temperature: input`, R34; K) from the present step
+        on. CommandError for a valve without that input (naming the YAML key that brings it), a
+        temperature beyond -60 .. 200 degC, or an oil too cold for an explicit step. The spool's
+        damping pole follows the oil (the exponential step's rate, R34), also under a fault."""
+        k = self.valve_names.index(valve)
+        params = self.params.valves[k].params
+        inputs = kernel.layout(params, self.kind).inputs
+        if name not in inputs[len(kernel.INPUTS):]:
+            needs = {"ambient_temperature": "solenoid.coil_temperature: lumped",
+                     "oil_temperature": "fluid.temperature: input"}
+            if name not in needs:
+                raise CommandError(f"{valve}: temperature input {name!r}: accepted are {', '.join(needs)}")
+            raise CommandError(f"{valve}: no {name.replace('_', ' ')} input; the valve YAML's {needs[name]} brings it")
+        value = check_temperature(f"{valve}: {name.replace('_', ' ')}", temperature)
+        if name == "oil_temperature":
+            off = self.plant.offsets("p")[k]
+            p = self.sim.P[off:off + kernel.N_PARAMS]
+            check_oil_step(params, p, self.dt, self._exact_spool[k], value)
+            if self._exact_spool[k]:
+                rate = kernel.spool_rate(value, p)
+                self._healthy[k][kernel.V_RATE] = rate
+                self.sim.P[off + kernel.V_RATE] = rate
+                self.sim.refresh_rates()
+        self.sim.u[self.plant.index("input", f"{valve}.{name}")] = value
 
     def _note(self, text: str) -> None:
         self.log.append((self.time, text))

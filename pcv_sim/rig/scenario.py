@@ -25,6 +25,9 @@
       - {t: 0.2, force: -1 kN}                          # external force on the rod, N (+ extends)
       - {t: 0.3, force: {ramp: {to: 500 N, duration: 100 ms}}}
       - {t: 0.4, supply: {right: {ramp: {to: 150 bar, duration: 50 ms}}}}   # supply pressure
+      - {t: 0.0, oil_temperature: -20 degC}             # every valve with fluid.temperature: input (R34)
+      - {t: 0.0, oil_temperature: {ramp: {to: 40 degC, duration: 60 s}}}  # a cold start warming up
+      - {t: 1.0, ambient_temperature: {left: 0 degC}}   # a coil's ambient (solenoid.coil_temperature: lumped, R33)
       - {t: 0.5, fault: supply_drop, target: left, pressure: 80 bar}     # values of the fault
       - {t: 0.8, clear: supply_drop, target: left}
     assertions:                      # pcv_sim.rig.assertions: every kind and key
@@ -38,7 +41,10 @@
 Values take units (`pcv_sim.units`: `100 bar`, `5 mm`, `20 ms`, `-1 kN`, `12 L/min`, `70 %`); a
 bare number is SI, and one whose size says another unit was meant (a supply pressure of 100) is
 refused with the likely meaning. A misspelt key anywhere is named with its path and the closest
-accepted key. Profiles on the rig (force, supply, duty) are applied at each control instant
+accepted key. Temperatures are absolute (`-20 degC`, or K bare); a temperature entry is one
+profile for every valve that has that input, or a mapping per valve; a valve without the input
+(its YAML option off) is refused naming the option. Profiles on the rig (force, supply, duty,
+temperatures) are applied at each control instant
 (held over the period); a supply profile acts as the supply_drop fault (the configured
 pressure: none). Timeline events after `duration` (a run shortened from the file's) are dropped
 with a note in the result.
@@ -78,12 +84,14 @@ import numpy as np
 from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.keys import closest, missing_message, unknown_message
+from pcv_sim.model import kernel
 from pcv_sim.params import read_yaml
 from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
 from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, Rig, RigError, signal_names
+from pcv_sim.simulation.stepper import MAX_TEMPERATURE, MIN_TEMPERATURE
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
@@ -103,7 +111,10 @@ _TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "s
 _MAX_DURATION = 3600.0
 _ROS_KEYS = ("namespace", "command", "wait")
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
-_ACTIONS = ("duty", "force", "supply", "fault", "clear")
+_ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
+#: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
+_TEMPERATURES = {"ambient_temperature": "solenoid.coil_temperature: lumped",
+                 "oil_temperature": "fluid.temperature: input"}
 #: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
 _FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
 
@@ -174,6 +185,9 @@ class Scenario:
                 out += [(t, f"supply {v}: {seg.describe('bar', 1e-5)}") for v, seg in e["supply"].items()]
             elif "force" in e:
                 out.append((t, f"external force: {e['force'].describe('N')}"))
+            elif any(n in e for n in _TEMPERATURES):
+                name = next(n for n in _TEMPERATURES if n in e)
+                out += [(t, f"{name.replace('_', ' ')} {v}: {seg.describe('K')}") for v, seg in e[name].items()]
             elif "fault" in e:
                 kind = signal_kind(str(e["target"])) if e["fault"] in SENSOR_FAULTS else ""
                 vals = [f"{k} {fmt(v, kind or _FAULT_UNITS.get(_fault_unit(e['fault'], k), 'number'))}"
@@ -352,6 +366,9 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
                 _segment(f"{where}.{a}.{v}", t, d, "pressure", base, 0.0, supply[str(v)],
                          "a supply pressure (Pa) up to the configured one", role="supply pressure")
                 for v, d in per.items()}
+        elif a in _TEMPERATURES:
+            _unknown(where, e, ("t", a))
+            entry[a] = _temperatures(f"{where}.{a}", t, e[a], rig, a, base)
         elif a == "force":
             _unknown(where, e, ("t", "force"))
             entry["force"] = _segment(f"{where}.force", t, e["force"], "force", base, -MAX_EXTERNAL_FORCE,
@@ -376,6 +393,22 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
             continue
         out.append(entry)
     return tuple(out), notes
+
+
+def _temperatures(where: str, t: float, raw: Any, rig: RigParams, name: str, base: Path | None
+                  ) -> dict[str, Segment]:
+    """A temperature entry per valve: `{left: X, right: Y}`, or one profile X for every valve that
+    has the input (the ambient and the oil are usually shared); each valve named must have it."""
+    has = tuple(v.name for v in rig.valves if name in kernel.layout(v.params, "simplified").inputs)
+    per_valve = isinstance(raw, Mapping) and bool(raw) and all(k in (v.name for v in rig.valves) for k in raw)
+    wanted = dict(raw) if per_valve else dict.fromkeys(has, raw)
+    without = [v for v in wanted if v not in has] if per_valve else ([] if has else [v.name for v in rig.valves])
+    if without:
+        raise ScenarioError(f"{where}: valve {', '.join(without)} has no {name.replace('_', ' ')} input; its valve "
+                            f"YAML's {_TEMPERATURES[name]} brings it")
+    return {v: _segment(f"{where}.{v}" if per_valve else where, t, d, "temperature", base, MIN_TEMPERATURE,
+                        MAX_TEMPERATURE, f"the {name.replace('_', ' ')} (K, or written in degC)")
+            for v, d in wanted.items()}
 
 
 def _timeline_events(timeline: tuple[Mapping[str, Any], ...]) -> list[tuple[float, str, str]]:
@@ -559,6 +592,10 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
                 channels.setdefault((a, valve), []).append(seg)
         elif "force" in e:
             channels.setdefault(("force", ""), []).append(e["force"])
+        elif any(n in e for n in _TEMPERATURES):
+            name = next(n for n in _TEMPERATURES if n in e)
+            for valve, seg in e[name].items():
+                channels.setdefault((name, valve), []).append(seg)
         elif "fault" in e:
             values = {str(k): v for k, v in e.items() if k not in ("t", "fault", "target")}
             f = parse_fault(e["fault"], e["target"], values, valves=rig.valve_names, signals=signals)
@@ -572,6 +609,9 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
             x0 = initial[valve].initial_duty
         elif a == "force":
             apply, x0 = rig.set_external_force, 0.0
+        elif a in _TEMPERATURES:
+            apply = functools.partial(rig.set_temperature, valve, a)
+            x0 = rig.temperature(valve, a)
         else:
             apply = functools.partial(_supply, rig, valve)
             x0 = initial[valve].params.circuit.supply_pressure

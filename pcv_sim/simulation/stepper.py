@@ -26,7 +26,7 @@ from pcv_sim.simulation.trajectory import Trajectory
 from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_integrator, valve_system
 from pcv_sim.units import KELVIN_AT_0C, M3S_PER_LPM, PA_PER_BAR, bar, kelvin
 
-__all__ = ["RealTimeStepper", "check_load_flow", "check_supply_pressure", "check_temperature"]
+__all__ = ["RealTimeStepper", "check_load_flow", "check_oil_step", "check_supply_pressure", "check_temperature"]
 
 # Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
 MAX_LOAD_FLOW = 100.0 * M3S_PER_LPM     # the valve passes ~50 L/min fully open
@@ -77,6 +77,32 @@ def check_temperature(what: str, value: float) -> float:
         raise CommandError(f"{what} {value:g} K: accepted is {MIN_TEMPERATURE:g} .. {MAX_TEMPERATURE:g} K "
                            f"(-60 .. 200 degC){hint}")
     return float(value)
+
+
+def check_oil_step(params: ValveParams, p: np.ndarray, dt: float, exact: bool, temperature: float) -> None:
+    """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
+    outgrows an explicit step (Heun's bound on the real axis is h lambda = 2). With `exact` (erk2
+    takes the pole, the core attached: `valve_system`) any temperature runs; otherwise one beyond
+    the bound is refused (CommandError) with what would run it, rather than integrated into a
+    diverging state. `p`: the valve's packed parameters."""
+    if exact:
+        return
+    mu_ratio = float(kernel.oil_properties(temperature, p)[3])
+    sp = params.spool
+    mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
+    z = params.equivalent_damping * mu_ratio / mass * dt
+    if z > 2.0:
+        exact_dt = dt * 2.0 / z
+        scale = 10.0 ** (math.floor(math.log10(exact_dt)) - 1)
+        limit = math.floor(exact_dt / scale) * scale        # two digits, rounded down: a step that runs
+        raise CommandError(
+            f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
+            f"reference's) makes the spool's damping pole {z / dt:.3g} 1/s, beyond what the "
+            f"{dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, "
+            f"simulation.time_step <= {limit:.2g} s for this temperature"
+            + (", or simulation.integrator: erk2 (or auto), which takes the pole exactly"
+               if not sp.core_separation else
+               " (with spool.core: separate the spool and the core each have their own pole)"))
 
 
 _NO_STEPS = np.empty(0, dtype=np.int64)
@@ -210,29 +236,8 @@ class RealTimeStepper:
         self._current_step = -1
 
     def _check_oil(self, temperature: float) -> None:
-        """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
-        outgrows an explicit step (Heun's bound on the real axis is h lambda = 2). erk2 takes the
-        pole exactly when the core is attached (`valve_system`); otherwise the temperature is
-        refused with what would run it, rather than integrated into a diverging state."""
-        if self.integrator == "erk2" and self.sim.plant.rate_parameters:
-            return
-        p = self.sim.P[: kernel.N_PARAMS]
-        mu_ratio = float(kernel.oil_properties(temperature, p)[3])
-        sp = self.params.spool
-        mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
-        z = self.params.equivalent_damping * mu_ratio / mass * self.dt
-        if z > 2.0:
-            exact = self.dt * 2.0 / z
-            scale = 10.0 ** (math.floor(math.log10(exact)) - 1)
-            limit = math.floor(exact / scale) * scale        # two digits, rounded down: a step that runs
-            raise CommandError(
-                f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
-                f"reference's) makes the spool's damping pole {z / self.dt:.3g} 1/s, beyond what the "
-                f"{self.dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, "
-                f"simulation.time_step <= {limit:.2g} s for this temperature"
-                + (", or simulation.integrator: erk2 (or auto), which takes the pole exactly"
-                   if not self.params.spool.core_separation else
-                   " (with spool.core: separate the spool and the core each have their own pole)"))
+        check_oil_step(self.params, self.sim.P[: kernel.N_PARAMS], self.dt,
+                       self.integrator == "erk2" and bool(self.sim.plant.rate_parameters), temperature)
 
     def output(self, name: str) -> float:
         """An output by its name at the present state (e.g. coil_temperature, core_position)."""
