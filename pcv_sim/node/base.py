@@ -74,7 +74,7 @@ from pcv_sim.simulation.clock import (
 __all__ = [
     "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_FULL_POLL",
     "LOCKSTEP_RESEND", "SERVICE_POLL_PERIOD",
-    "DeviceNode", "StopFlag", "freeze_heap", "ros_value", "tighten_timer_slack",
+    "DeviceNode", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
 ]
 
 COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
@@ -276,17 +276,8 @@ class DeviceNode(Node):
         return timing.step(name, first, received_ns=r_ns, origin_ns=origin_ns, elapsed=time.monotonic() - sched.t0)
 
     def publisher_of(self, topic: str, info: Any) -> str:
-        """The node that published a message, from the publisher's GID in its MessageInfo (where DDS
-        gives it) against the topic's publishers."""
-        gid = info.get("publisher_gid") if isinstance(info, dict) else None
-        data = list(gid.get("data", ())) if isinstance(gid, dict) else []
-        if any(data):
-            for endpoint in self.get_publishers_info_by_topic(topic):
-                known = list(endpoint.endpoint_gid)
-                n = min(len(known), len(data))
-                if n and known[:n] == data[:n]:
-                    return f"node {endpoint.node_namespace.rstrip('/')}/{endpoint.node_name}"
-        return "a publisher DDS did not name"
+        """The node that published a message on `topic` (`publisher_name`)."""
+        return publisher_name(self.get_publishers_info_by_topic(topic), info)
 
     # --- services and QoS events ---------------------------------------------------------------
 
@@ -711,3 +702,27 @@ def freeze_heap() -> None:
     make a wake-up that many ms late; the loop itself only makes short-lived objects."""
     gc.collect()
     gc.freeze()
+
+
+def publisher_name(endpoints: Any, info: Any) -> str:
+    """Who published a message, for the log: the node whose endpoint GID is the publisher GID in the
+    message's MessageInfo (Kilted's rclpy gives it). Where the MessageInfo carries no GID (Jazzy's
+    rclpy), the topic's publishers tell it when there is only one of them, and narrow it otherwise."""
+    def name(e: Any) -> str:
+        return f"{e.node_namespace.rstrip('/')}/{e.node_name}"
+
+    endpoints = list(endpoints)
+    gid = info.get("publisher_gid") if isinstance(info, dict) else None
+    data = list(gid.get("data", ())) if isinstance(gid, dict) else []
+    if any(data):
+        for e in endpoints:
+            known = list(e.endpoint_gid)
+            n = min(len(known), len(data))
+            if n and known[:n] == data[:n]:
+                return f"node {name(e)}"
+        return "a publisher DDS did not name"
+    if len(endpoints) == 1:
+        return f"node {name(endpoints[0])} (the topic's only publisher; DDS gave no publisher GID)"
+    if endpoints:
+        return f"one of the nodes {', '.join(sorted(name(e) for e in endpoints))} (DDS gave no publisher GID)"
+    return "a publisher DDS did not name"
