@@ -51,6 +51,7 @@ __all__ = [
     "CYLINDER_SIGNALS",
     "EXTERNAL_FORCE",
     "MAX_EXTERNAL_FORCE",
+    "TEMPERATURE_INPUTS",
     "VALVE_SIGNALS",
     "InputHook",
     "Rig",
@@ -111,6 +112,11 @@ class RigStatus:
     watchdog_fired: dict[str, bool]
     faults: tuple[str, ...]               # active faults, "kind@target"
     rejected: int                         # commands refused since reset
+
+
+#: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
+TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
+                      "oil_temperature": "fluid.temperature: input"}
 
 
 class Rig(Device):
@@ -342,11 +348,10 @@ class Rig(Device):
         params = self.params.valves[k].params
         inputs = kernel.layout(params, self.kind).inputs
         if name not in inputs[len(kernel.INPUTS):]:
-            needs = {"ambient_temperature": "solenoid.coil_temperature: lumped",
-                     "oil_temperature": "fluid.temperature: input"}
-            if name not in needs:
-                raise CommandError(f"{valve}: temperature input {name!r}: accepted are {', '.join(needs)}")
-            raise CommandError(f"{valve}: no {name.replace('_', ' ')} input; the valve YAML's {needs[name]} brings it")
+            if name not in TEMPERATURE_INPUTS:
+                raise CommandError(f"{valve}: temperature input {name!r}: accepted are {', '.join(TEMPERATURE_INPUTS)}")
+            raise CommandError(f"{valve}: no {name.replace('_', ' ')} input; the valve YAML's "
+                               f"{TEMPERATURE_INPUTS[name]} brings it")
         value = check_temperature(f"{valve}: {name.replace('_', ' ')}", temperature)
         if name == "oil_temperature":
             off = self.plant.offsets("p")[k]

@@ -90,7 +90,7 @@ from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome,
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
-from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, Rig, RigError, signal_names
+from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, signal_names
 from pcv_sim.simulation.stepper import MAX_TEMPERATURE, MIN_TEMPERATURE
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
@@ -112,9 +112,6 @@ _MAX_DURATION = 3600.0
 _ROS_KEYS = ("namespace", "command", "wait")
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
 _ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
-#: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
-_TEMPERATURES = {"ambient_temperature": "solenoid.coil_temperature: lumped",
-                 "oil_temperature": "fluid.temperature: input"}
 #: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
 _FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
 
@@ -185,8 +182,8 @@ class Scenario:
                 out += [(t, f"supply {v}: {seg.describe('bar', 1e-5)}") for v, seg in e["supply"].items()]
             elif "force" in e:
                 out.append((t, f"external force: {e['force'].describe('N')}"))
-            elif any(n in e for n in _TEMPERATURES):
-                name = next(n for n in _TEMPERATURES if n in e)
+            elif any(n in e for n in TEMPERATURE_INPUTS):
+                name = next(n for n in TEMPERATURE_INPUTS if n in e)
                 out += [(t, f"{name.replace('_', ' ')} {v}: {seg.describe('K')}") for v, seg in e[name].items()]
             elif "fault" in e:
                 kind = signal_kind(str(e["target"])) if e["fault"] in SENSOR_FAULTS else ""
@@ -366,7 +363,7 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
                 _segment(f"{where}.{a}.{v}", t, d, "pressure", base, 0.0, supply[str(v)],
                          "a supply pressure (Pa) up to the configured one", role="supply pressure")
                 for v, d in per.items()}
-        elif a in _TEMPERATURES:
+        elif a in TEMPERATURE_INPUTS:
             _unknown(where, e, ("t", a))
             entry[a] = _temperatures(f"{where}.{a}", t, e[a], rig, a, base)
         elif a == "force":
@@ -405,7 +402,7 @@ def _temperatures(where: str, t: float, raw: Any, rig: RigParams, name: str, bas
     without = [v for v in wanted if v not in has] if per_valve else ([] if has else [v.name for v in rig.valves])
     if without:
         raise ScenarioError(f"{where}: valve {', '.join(without)} has no {name.replace('_', ' ')} input; its valve "
-                            f"YAML's {_TEMPERATURES[name]} brings it")
+                            f"YAML's {TEMPERATURE_INPUTS[name]} brings it")
     return {v: _segment(f"{where}.{v}" if per_valve else where, t, d, "temperature", base, MIN_TEMPERATURE,
                         MAX_TEMPERATURE, f"the {name.replace('_', ' ')} (K, or written in degC)")
             for v, d in wanted.items()}
@@ -592,8 +589,8 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
                 channels.setdefault((a, valve), []).append(seg)
         elif "force" in e:
             channels.setdefault(("force", ""), []).append(e["force"])
-        elif any(n in e for n in _TEMPERATURES):
-            name = next(n for n in _TEMPERATURES if n in e)
+        elif any(n in e for n in TEMPERATURE_INPUTS):
+            name = next(n for n in TEMPERATURE_INPUTS if n in e)
             for valve, seg in e[name].items():
                 channels.setdefault((name, valve), []).append(seg)
         elif "fault" in e:
@@ -609,7 +606,7 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
             x0 = initial[valve].initial_duty
         elif a == "force":
             apply, x0 = rig.set_external_force, 0.0
-        elif a in _TEMPERATURES:
+        elif a in TEMPERATURE_INPUTS:
             apply = functools.partial(rig.set_temperature, valve, a)
             x0 = rig.temperature(valve, a)
         else:
