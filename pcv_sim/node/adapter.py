@@ -75,8 +75,8 @@ from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
 from pcv_sim.device.settings import (
     MODEL_PREFIX,
     NODE_PARAMETERS,
+    SCHEMA,
     NodeSettings,
-    check_node_value,
     model_parameters,
     params_with,
     settings_with,
@@ -212,7 +212,7 @@ class EmulatorNode(DeviceNode):
         Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
         take (rcl drops one whose type differs from the params file's), and names nobody declares
         (unless allow_unknown_parameters) are refused too (see pcv_sim.device.parameters)."""
-        settings = NodeSettings.from_parameters(self.declare_settings(NODE_PARAMETERS, check_node_value))
+        settings = SCHEMA.settings_from(self.declare_settings(SCHEMA.parameters, SCHEMA.check))
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
         params = load_params(settings.valve_config or None)
         changes = {}

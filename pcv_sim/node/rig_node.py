@@ -108,13 +108,7 @@ from pcv_sim.node.base import (
 )
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
-from pcv_sim.node.rig_settings import (
-    RIG_PARAMETERS,
-    RigNodeSettings,
-    check_rig_value,
-    rig_settings_with,
-    settings_from,
-)
+from pcv_sim.node.rig_settings import SCHEMA, RigNodeSettings
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
@@ -216,7 +210,7 @@ class RigNode(DeviceNode):
         """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
         As the emulator: a key given twice in a params file, a `-p` override rcl dropped for its type,
         and names nobody declares are refused too (pcv_sim.device.parameters)."""
-        settings = settings_from(self.declare_settings(RIG_PARAMETERS, check_rig_value))
+        settings = SCHEMA.settings_from(self.declare_settings(SCHEMA.parameters, SCHEMA.check))
         self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
         self.refuse_unknown_names(settings.allow_unknown_parameters)
         self.set_retaken()
@@ -462,7 +456,7 @@ class RigNode(DeviceNode):
             return refused
         changes = {p.name: p.value for p in parameters if p.name in self._declared}
         try:
-            self._staged = rig_settings_with(self.settings, changes).check(self.rig.params) if changes else None
+            self._staged = SCHEMA.with_changes(self.settings, changes).check(self.rig.params) if changes else None
         except ParameterError as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
