@@ -36,6 +36,7 @@ from pcv_sim.device.faults import CYLINDER, Fault, valve_fault_parameters
 from pcv_sim.device.inputs import NEVER, InputQueue, WatchdogState
 from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
@@ -165,6 +166,16 @@ class Rig(Device):
         self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
                                for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
                                                       kernel.option_inputs(v.params), strict=True)]
+        #: The valve options' signals the valves have (`<valve>.<name>`, io.topics.OPTION_INTERFACE):
+        #: inputs (temperatures, K: `set_temperature`) and outputs, sampled with `signals` (their true
+        #: values at the last `sample()`: `option_sample`).
+        self.option_inputs = tuple(f"{v.name}.{name}" for v in valves
+                                   for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):])
+        self.option_outputs = tuple(f"{n}.{e.name}" for n in self.valve_names for e in OPTION_INTERFACE
+                                    if e.direction == "out" and f"{n}.{e.name}" in plant.outputs)
+        self._option_in_i = [plant.index("input", name) for name in self.option_inputs]
+        self._option_out_i = np.array([plant.index("output", name) for name in self.option_outputs], dtype=np.int64)
+        self.option_sample: list[float] = []
         #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
         self._exact_spool = [self.sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:-1]]
         self._state_off = plant.offsets("states")
@@ -253,6 +264,8 @@ class Rig(Device):
             hook(steps, f"{name}.duty_cycle", float(u[self._duty_i[k]]))
             hook(steps, f"{name}.supply_pressure", float(u[self._supply_i[k]]))
         hook(steps, EXTERNAL_FORCE, float(u[self._force_i]))
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            hook(steps, name, float(u[i]))
 
     def input_values(self) -> dict[str, float]:
         """The inputs in force now, by the names `on_input` uses (SI)."""
@@ -262,6 +275,8 @@ class Rig(Device):
             out[f"{name}.duty_cycle"] = float(u[self._duty_i[k]])
             out[f"{name}.supply_pressure"] = float(u[self._supply_i[k]])
         out[EXTERNAL_FORCE] = float(u[self._force_i])
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            out[name] = float(u[i])
         return out
 
     @property
@@ -286,6 +301,8 @@ class Rig(Device):
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
         self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
+        if len(self._option_out_i):
+            self.option_sample = y[self._option_out_i].tolist()
         return np.asarray(y[self._signal_i])
 
     def load_volumes(self) -> list[float]:
@@ -363,6 +380,8 @@ class Rig(Device):
                 self.sim.P[off + kernel.V_RATE] = rate
                 self.sim.refresh_rates()
         self.sim.u[self.plant.index("input", f"{valve}.{name}")] = value
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, f"{valve}.{name}", value)
 
     def _note(self, text: str) -> None:
         self.log.append((self.time, text))
