@@ -26,7 +26,7 @@ What is written, and when (log time = model sample time, one clock for inputs an
   ``ros2 bag play`` republishes each topic as the node does (docs/interface.md).
 
 Timing. The model loop must not wait for the disk, nor for the interpreter lock. Where the disk
-work runs is the ``writer`` argument:
+work runs is :class:`WriterSettings`' ``writer``:
 
 - ``process`` (what the nodes use): a call appends a tuple to a list (~1 µs per step with all
   signals); every ``batch_period`` s (or 4096 items) the loop pickles the list into a
@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import itertools
 import math
 import os
@@ -96,10 +97,12 @@ __all__ = [
     "RECORDABLE",
     "ROLE_QOS",
     "SWITCH_INTERVAL",
+    "WRITER_DEFAULTS",
     "BagRecorder",
     "QueuedBag",
     "RecorderStatus",
     "Writer",
+    "WriterSettings",
     "bag_name",
     "check_signals",
 ]
@@ -111,7 +114,7 @@ ROLE_QOS: Final[Mapping[str, Qos]] = {
     **{r: COMMAND_QOS for r in INPUT_ROLES},
 }
 
-#: Where a recorder's disk work runs (see BagRecorder's `writer`).
+#: Where a recorder's disk work runs (see `WriterSettings.writer`).
 Writer = Literal["process", "thread", "inline"]
 #: Signals a recorder can write, by role (the device's topic names).
 RECORDABLE: Final = ROLES
@@ -179,6 +182,54 @@ class RecorderStatus:
     error: str            # why writing failed ('' if it did not)
 
 
+@dataclass(frozen=True)
+class WriterSettings:
+    """How a recorder writes its bag, whatever it records (every recorder takes one; the writer
+    process gets it too): where the disk work runs, how often it takes the queue, how the bag is
+    flushed and split, what a full queue does. Checked when made (BagError saying what is accepted).
+
+    Attributes:
+        split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
+        writer: Where the disk work runs: ``process`` (a writer process fed through shared
+            memory, :mod:`pcv_sim.io.writer_process`: what the nodes use), ``thread`` (a writer
+            thread, default) or ``inline`` (inside each call).
+        batch_period: s between the writer's turns.
+        flush_period_s: The BagWriter's flush period (durability bound, wall clock).
+        chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
+        fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
+            the writer; inline it lands on a model step).
+        when_full: What a call does when the queue is full: ``drop`` (real time: count the
+            messages as dropped) or ``wait`` for the writer (simulated time, where the model may
+            run far faster than the writer: a complete bag).
+        ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
+            (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
+    """
+
+    split_size_bytes: int | None = None
+    writer: Writer = "thread"
+    batch_period: float = 0.02
+    flush_period_s: float = 0.9
+    chunk_size: int = 1 << 20
+    fsync: bool = True
+    when_full: Literal["drop", "wait"] = "drop"
+    ros_distro: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.writer not in ("process", "thread", "inline"):
+            msg = f"writer {self.writer!r}: accepted are 'process', 'thread' and 'inline'"
+            raise BagError(msg)
+        if not (math.isfinite(self.batch_period) and 0.0 < self.batch_period <= 0.1):
+            msg = f"batch_period {self.batch_period!r} s: accepted is 0 < batch_period <= 0.1"
+            raise BagError(msg)
+        if self.when_full not in ("drop", "wait"):
+            msg = f"when_full {self.when_full!r}: accepted are 'drop' and 'wait'"
+            raise BagError(msg)
+
+
+#: A recorder's writing unless told otherwise.
+WRITER_DEFAULTS: Final = WriterSettings()
+
+
 class QueuedBag:
     """What every recorder here shares: the bag directory (never overwritten), the BagWriter, the
     queue the model loop appends to, the writer thread, drop accounting, status and close.
@@ -192,26 +243,11 @@ class QueuedBag:
         topics: Mapping[str, str],
         qos: Mapping[str, Qos],
         max_items: int,
-        split_size_bytes: int | None,
-        writer: Writer,
-        batch_period: float,
-        flush_period_s: float,
-        chunk_size: int,
-        fsync: bool,
-        when_full: Literal["drop", "wait"],
-        ros_distro: str | None,
+        writing: WriterSettings,
         build: Mapping[str, Any],
         item_bytes: int,
     ) -> None:
-        if writer not in ("process", "thread", "inline"):
-            msg = f"writer {writer!r}: accepted are 'process', 'thread' and 'inline'"
-            raise BagError(msg)
-        if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
-            msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
-            raise BagError(msg)
-        if when_full not in ("drop", "wait"):
-            msg = f"when_full {when_full!r}: accepted are 'drop' and 'wait'"
-            raise BagError(msg)
+        writer, batch_period = writing.writer, writing.batch_period
         if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
             msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
                    f"'_', '-', '.' (the directory is given separately)")
@@ -234,7 +270,7 @@ class QueuedBag:
         self._lock = threading.Lock()          # writer side only: drain vs close
         self.writer = writer
         self.threaded = writer == "thread"
-        self.when_full = when_full
+        self.when_full = writing.when_full
         self.batch_period = batch_period
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -245,9 +281,8 @@ class QueuedBag:
             self._ship_due = time.monotonic() + batch_period
             self._proc = WriterProcess(
                 (type(self).__module__, type(self).__qualname__,
-                 {**build, "directory": directory, "name": name, "split_size_bytes": split_size_bytes,
-                  "batch_period": batch_period, "flush_period_s": flush_period_s, "chunk_size": chunk_size,
-                  "fsync": fsync, "ros_distro": ros_distro}),
+                 {**build, "directory": directory, "name": name,
+                  "writing": dataclasses.replace(writing, writer="inline")}),
                 capacity=max_items * item_bytes, batch_period=batch_period)
             self._writer: BagWriter | None = None
             return
@@ -255,11 +290,11 @@ class QueuedBag:
             self.path,
             topics=topics,
             qos=qos,
-            ros_distro=ros_distro,
-            flush_period_s=flush_period_s,
-            split_size_bytes=split_size_bytes,
-            chunk_size=chunk_size,
-            fsync=fsync,
+            ros_distro=writing.ros_distro,
+            flush_period_s=writing.flush_period_s,
+            split_size_bytes=writing.split_size_bytes,
+            chunk_size=writing.chunk_size,
+            fsync=writing.fsync,
         )
         if writer == "thread":
             self._thread = threading.Thread(target=self._run, name=f"{type(self).__name__}:{name}", daemon=True)
@@ -440,21 +475,8 @@ class BagRecorder(QueuedBag):
         dt_ns: Model step in ns.
         namespace: The node's namespace, for the topic names (:func:`bag_topic`).
         frame_id: ``header.frame_id`` of the FluidPressure messages.
-        split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
-        writer: Where the disk work runs: ``process`` (a writer process fed through shared
-            memory, :mod:`pcv_sim.io.writer_process`: what the nodes use), ``thread`` (a writer
-            thread, default) or ``inline`` (inside each call).
-        batch_period: s between the writer's turns.
-        max_queue_s: Longest backlog (in model time) the queue holds before dropping.
-        flush_period_s: The BagWriter's flush period (durability bound, wall clock).
-        chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
-        fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
-            the writer; inline it lands on a model step).
-        ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
-            (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
-        when_full: What a call does when ``max_queue_s`` of data is waiting: ``drop`` (real
-            time: count the messages as dropped) or ``wait`` for the writer thread (simulated
-            time, where the model may run far faster than the writer: a complete bag).
+        max_queue_s: Longest backlog (in model time) the queue holds before it is full.
+        writing: How the bag is written (:class:`WriterSettings`).
     """
 
     def __init__(
@@ -468,15 +490,8 @@ class BagRecorder(QueuedBag):
         dt_ns: int = 100_000,
         namespace: str = "/",
         frame_id: str = "",
-        split_size_bytes: int | None = None,
-        writer: Writer = "thread",
-        batch_period: float = 0.02,
         max_queue_s: float = 10.0,
-        flush_period_s: float = 0.9,
-        chunk_size: int = 1 << 20,
-        fsync: bool = True,
-        when_full: Literal["drop", "wait"] = "drop",
-        ros_distro: str | None = None,
+        writing: WriterSettings = WRITER_DEFAULTS,
     ) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             msg = f"every {every!r}: accepted is an integer >= 1 (model steps between output samples)"
@@ -522,9 +537,7 @@ class BagRecorder(QueuedBag):
             topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64)},
             qos={**{self.topics[r]: ROLE_QOS[r] for r in self.signals},
                  **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()}},
-            max_items=max_items, split_size_bytes=split_size_bytes, writer=writer, batch_period=batch_period,
-            flush_period_s=flush_period_s, chunk_size=chunk_size, fsync=fsync, when_full=when_full,
-            ros_distro=ros_distro, item_bytes=48,
+            max_items=max_items, writing=writing, item_bytes=48,
             build={"signals": self.signals, "options": self.options, "every": every, "dt_ns": dt_ns, "namespace": namespace,
                    "frame_id": frame_id, "max_queue_s": max_queue_s})
 

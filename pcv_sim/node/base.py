@@ -63,7 +63,7 @@ from pcv_sim.device.parameters import (
 )
 from pcv_sim.device.settings import SettingsSchema
 from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus, WriterSettings
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.polling import Waiter, drain, linger_for_rosout
 from pcv_sim.simulation.clock import (
@@ -790,10 +790,10 @@ class DeviceNode(Node):
             return None
         try:
             return make(os.path.expanduser(s.record_directory), name=s.record_name or None,
-                        namespace=self.get_namespace(),
-                        split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
-                        writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
-                        when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
+                        namespace=self.get_namespace(), writing=WriterSettings(
+                            split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                            writer="process",  # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
+                            when_full="wait" if self.simulated else "drop"))   # simulated time may outrun the writer
         except BagError as err:
             raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
 

@@ -15,13 +15,13 @@ import math
 import os
 import struct
 from collections.abc import Iterable, Mapping
-from typing import Any, Final, Literal
+from typing import Any, Final
 
 import numpy as np
 
 from pcv_sim.errors import BagError
 from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, Qos, cdr
-from pcv_sim.io.recorder import ROLE_QOS, QueuedBag, Writer, bag_name
+from pcv_sim.io.recorder import ROLE_QOS, WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_name
 from pcv_sim.io.topics import (
     CURRENT,
     CYLINDER,
@@ -127,6 +127,7 @@ class RigRecorder(QueuedBag):
             `Rig.option_outputs`; :data:`pcv_sim.io.topics.OPTION_INTERFACE`): inputs recorded on
             change, outputs with every sample, in this order after the inputs.
         max_items: Queue bound (items: one per sample, input change or text).
+        writing: How the bag is written (:class:`pcv_sim.io.recorder.WriterSettings`).
         Others: as :class:`BagRecorder`.
     """
 
@@ -139,15 +140,8 @@ class RigRecorder(QueuedBag):
         options: Iterable[str] = (),
         name: str | None = None,
         namespace: str = "/",
-        split_size_bytes: int | None = None,
-        writer: Writer = "thread",
-        batch_period: float = 0.02,
         max_items: int = 100_000,
-        flush_period_s: float = 0.9,
-        chunk_size: int = 1 << 20,
-        fsync: bool = True,
-        when_full: Literal["drop", "wait"] = "drop",
-        ros_distro: str | None = None,
+        writing: WriterSettings = WRITER_DEFAULTS,
     ) -> None:
         if name is None:
             name = bag_name(namespace, prefix="rig")
@@ -210,9 +204,7 @@ class RigRecorder(QueuedBag):
         self._joint_cdr: tuple[bytes, int, tuple[int, int, int]] | None = None
         self._per_row = 3 * len(self.valves) + len(self._chambers) + 1 + len(self._option_out)
         super().__init__(
-            directory, name, topics=topics, qos=qos, max_items=max_items, split_size_bytes=split_size_bytes,
-            writer=writer, batch_period=batch_period, flush_period_s=flush_period_s, chunk_size=chunk_size,
-            fsync=fsync, when_full=when_full, ros_distro=ros_distro,
+            directory, name, topics=topics, qos=qos, max_items=max_items, writing=writing,
             item_bytes=9 * (len(self.signals) + len(self._option_out)) + 48,
             build={"valves": self.valves, "signals": self.signals, "options": self.options, "namespace": namespace,
                    "max_items": max_items})

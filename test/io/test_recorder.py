@@ -17,7 +17,7 @@ import pytest
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, bag_name, check_signals
+from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, WriterSettings, bag_name, check_signals
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 
@@ -44,7 +44,7 @@ def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> Non
 
 @pytest.mark.parametrize("writer", ["process", "thread", "inline"])
 def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=10, writer=writer, frame_id="load_port")
+    rec = BagRecorder(tmp_path, name="b", every=10, frame_id="load_port", writing=WriterSettings(writer=writer))
     record(rec, 1000, {100: {"duty": 0.7}, 250: {"q": 1e-5}, 400: {"duty": 0.3, "ps": 150e5}, 401: {"duty": 0.3}})
     st = rec.close()
     assert (st.state, st.dropped, st.queued, st.error) == ("closed", 0, 0, "")
@@ -93,7 +93,7 @@ def test_output_grid_is_anchored_at_the_start_and_survives_gaps(tmp_path: Path) 
 
 
 def test_split_files(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, split_size_bytes=20_000, chunk_size=16_384)
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(split_size_bytes=20_000, chunk_size=16_384))
     record(rec, 6000, {})
     st = rec.close()
     bag = read_bag(tmp_path / "b")
@@ -107,7 +107,7 @@ def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path) -> None:
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
         BagRecorder(tmp_path, name="b")
     assert list((tmp_path / "b").iterdir()) == []
-    BagRecorder(tmp_path, name="c", writer="inline").close()
+    BagRecorder(tmp_path, name="c", writing=WriterSettings(writer="inline")).close()
     with pytest.raises(BagError, match="exists already"):
         BagRecorder(tmp_path, name="c")
     assert read_bag(tmp_path / "c").closed_cleanly
@@ -128,7 +128,6 @@ def test_timestamped_default_name(tmp_path: Path) -> None:
     ({"every": 0}, "every 0: accepted is an integer >= 1"),
     ({"every": 2.5}, "every 2.5"),
     ({"dt_ns": 0}, "dt_ns 0"),
-    ({"batch_period": 0.0}, "batch_period"),
     ({"max_queue_s": math.inf}, "max_queue_s"),
     ({"name": "../x"}, "plain directory name"),
     ({"name": ".."}, "plain directory name"),
@@ -139,13 +138,25 @@ def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str) -> None
     assert not (tmp_path / "b").exists()
 
 
+@pytest.mark.parametrize("kwargs, match", [
+    ({"batch_period": 0.0}, r"batch_period 0.0 s: accepted is 0 < batch_period <= 0.1"),
+    ({"batch_period": math.nan}, r"batch_period nan s"),
+    ({"writer": "disk"}, r"writer 'disk': accepted are 'process', 'thread' and 'inline'"),
+])
+def test_writer_settings_are_checked_when_made(kwargs: dict, match: str) -> None:
+    """Every recorder's writing in one object, refused with what is accepted before any bag exists."""
+    with pytest.raises(BagError, match=match):
+        WriterSettings(**kwargs)
+
+
 def test_check_signals_orders_and_accepts_aliases() -> None:
     assert check_signals(["position", "duty", "pressure", "duty_cycle"]) == ("duty_cycle", "pressure", "spool_position")
     assert check_signals(RECORDABLE) == RECORDABLE
 
 
 def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"], batch_period=0.1)
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"],
+                      writing=WriterSettings(batch_period=0.1))
     rec._max_items = 10
     rec.start(T0, signals(0))                              # 2 items: duty, outputs
     for k in range(1, 21):                                 # the writer thread sleeps 0.1 s first
@@ -159,7 +170,7 @@ def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("writer", ["thread", "inline"])
 def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writer=writer)
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writing=WriterSettings(writer=writer))
     record(rec, 10, {})
     rec.close()                                             # drain what came before
     rec._closed = False
@@ -200,7 +211,8 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
 
 
 def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], batch_period=0.005, when_full="wait")
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"],
+                      writing=WriterSettings(batch_period=0.005, when_full="wait"))
     rec._max_items = 50
     record(rec, 2000, {})
     st = rec.close()
@@ -209,7 +221,7 @@ def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
 
 def test_when_full_is_checked(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
-        BagRecorder(tmp_path, name="b", when_full="block")  # type: ignore[arg-type]
+        BagRecorder(tmp_path, name="b", writing=WriterSettings(when_full="block"))  # type: ignore[arg-type]
 
 
 def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from pcv_sim.cli import main
+from pcv_sim.io.recorder import WriterSettings
 from pcv_sim.params import load_params
 from pcv_sim.replay import ReplayError, load_recording, replay
 from pcv_sim.rig.bag import RigRecorder
@@ -27,7 +28,7 @@ def duties(t):
 def rig_bag(rig, tmp_path):
     """0.3 s of the rig, recorded at the 1 ms control period; returns (bag path, samples)."""
     rec = RigRecorder(tmp_path, name="b", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, namespace=NS, writer="inline")
+                      signals=rig.signals, namespace=NS, writing=WriterSettings(writer="inline"))
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     samples = []
     for k in range(301):
@@ -103,7 +104,7 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     from pcv_sim.rig.bag import JOINT_STATE
 
     rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, writer="inline")
+                      signals=rig.signals, writing=WriterSettings(writer="inline"))
     y = rig.sample()
     rec.start(0, rig.input_values())
     rec.sample(0, y, rig.load_volumes())
@@ -145,9 +146,9 @@ def test_the_valve_options_are_recorded_under_their_valve_and_read_back_by_the_m
     valves = [(v.name, v.chamber) for v in rig.params.valves]
     with pytest.raises(BagError, match=r"record option signal 'middle.coil_temperature': accepted are <valve>.<name>"):
         RigRecorder(tmp_path, name="x", valves=valves[:1], signals=rig.signals, options=["middle.coil_temperature"],
-                    writer="inline")
+                    writing=WriterSettings(writer="inline"))
     rec = RigRecorder(tmp_path, name="o", valves=valves, signals=rig.signals, namespace=NS,
-                      options=(*rig.option_inputs, *rig.option_outputs), writer="inline")
+                      options=(*rig.option_inputs, *rig.option_outputs), writing=WriterSettings(writer="inline"))
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     rig.set_duty("probe", 0.9)                  # the coil heats
     start = rig.input_values()
