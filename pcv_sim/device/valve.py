@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -170,6 +170,8 @@ class ValveDevice(Device):
         self.limits = PhysicalLimits.of(params)
         #: Active faults by (target, kind); sensor faults on MEASURED, sampled every sample period.
         self.faults: dict[tuple[str, str], Fault] = {}
+        #: Called with (step, the command as given) when a fault command acted (a recorder's hook).
+        self.on_fault_command: Callable[[int, str], None] | None = None
         self.sensors = Sensors(MEASURED, self.sample_every * self.dt, seed)
         self.stepper = rest_stepper(params, self.safe_duty)
         self._healthy = self.stepper.sim.P.copy()
@@ -329,6 +331,8 @@ class ValveDevice(Device):
             try:
                 if isinstance(value, FaultCommand):
                     self._fault_command(value)
+                    if self.on_fault_command is not None:
+                        self.on_fault_command(self.steps, value.text)
                 elif name == "duty_cycle":
                     self._apply_duty(value)
                     self.command = value

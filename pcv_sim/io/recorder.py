@@ -78,6 +78,7 @@ from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, SENSOR_DATA_QOS, BagWriter, Qos
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
+    FAULTS,
     INPUT_ROLES,
     LOAD_FLOW,
     OPTION_INTERFACE,
@@ -96,6 +97,7 @@ from pcv_sim.io.writer_process import WriterProcess
 __all__ = [
     "RECORDABLE",
     "ROLE_QOS",
+    "STRING",
     "SWITCH_INTERVAL",
     "WRITER_DEFAULTS",
     "BagRecorder",
@@ -134,6 +136,9 @@ _SOURCE: Final = {
 _IN: Final = 0     # queue item (_IN, role index, t_ns, value)
 _OUT: Final = 1    # queue item (_OUT, t_ns, pressure, current, spool_position)
 _BLOCK: Final = 4  # queue item (_BLOCK, t0_ns, dt_ns, rows of pressure, current, spool_position)
+_TEXT: Final = 2   # queue item (_TEXT, topic, t_ns, text)
+#: The type of the text topics (fault commands, events).
+STRING: Final = "std_msgs/msg/String"
 _SLICE: Final = 1024   # output samples per write_samples call (~130 kB with all three outputs)
 _SHIP_ITEMS: Final = 4096   # items per batch to the writer process at most (besides batch_period)
 _NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
@@ -476,6 +481,8 @@ class BagRecorder(QueuedBag):
         namespace: The node's namespace, for the topic names (:func:`bag_topic`).
         frame_id: ``header.frame_id`` of the FluidPressure messages.
         max_queue_s: Longest backlog (in model time) the queue holds before it is full.
+        faults: Record the fault commands too (``faults``, std_msgs/String, at the step each acted:
+            :meth:`fault_command`), as the rig's bag does; a device with its fault topic on.
         writing: How the bag is written (:class:`WriterSettings`).
     """
 
@@ -491,6 +498,7 @@ class BagRecorder(QueuedBag):
         namespace: str = "/",
         frame_id: str = "",
         max_queue_s: float = 10.0,
+        faults: bool = False,
         writing: WriterSettings = WRITER_DEFAULTS,
     ) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
@@ -530,16 +538,20 @@ class BagRecorder(QueuedBag):
         self._origin: int | None = None
         self._every_ns = every * dt_ns
         self._per_output = sum(r in self.signals for r in OUTPUT_ROLES)
+        self.faults_topic = bag_topic(FAULTS, namespace) if faults else None
+        texts = {self.faults_topic: STRING} if self.faults_topic else {}
         # Queue bound in items: outputs at their rate plus one input change per step.
         max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
         super().__init__(
             directory, name,
-            topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64)},
+            topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64),
+                    **texts},
             qos={**{self.topics[r]: ROLE_QOS[r] for r in self.signals},
-                 **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()}},
+                 **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()},
+                 **dict.fromkeys(texts, COMMAND_QOS)},
             max_items=max_items, writing=writing, item_bytes=48,
             build={"signals": self.signals, "options": self.options, "every": every, "dt_ns": dt_ns, "namespace": namespace,
-                   "frame_id": frame_id, "max_queue_s": max_queue_s})
+                   "frame_id": frame_id, "max_queue_s": max_queue_s, "faults": faults})
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -595,6 +607,11 @@ class BagRecorder(QueuedBag):
             for k in np.flatnonzero(on):
                 self._put((_OUT, int(t[k]), float(rows[k, 0]), float(rows[k, 1]), float(rows[k, 2])))
 
+    def fault_command(self, t_ns: int, text: str) -> None:
+        """A fault command that acted at ``t_ns`` (the command as given), with ``faults`` on."""
+        if self._origin is not None and self.faults_topic is not None:
+            self._put((_TEXT, self.faults_topic, t_ns, text))
+
     # --- the writer's side ------------------------------------------------------------------
 
     def _count(self, item: tuple[Any, ...]) -> int:
@@ -602,7 +619,7 @@ class BagRecorder(QueuedBag):
             return len(item[3]) * self._per_output
         return 1 if item[0] == _IN else self._per_output
 
-    def _write(self, item: tuple[float, ...]) -> None:
+    def _write(self, item: tuple[Any, ...]) -> None:
         w = self._bag
         if item[0] == _OUT:
             _, t, p, i, x = item
@@ -613,6 +630,9 @@ class BagRecorder(QueuedBag):
                 w.write_float64(self._i_topic, t, i)
             if self._x_topic is not None:
                 w.write_float64(self._x_topic, t, x)
+        elif item[0] == _TEXT:
+            _, topic, t, text = item
+            w.write(topic, int(t), {"data": text})
         else:
             _, k, t, v = item
             k, t = int(k), int(t)

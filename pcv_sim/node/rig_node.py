@@ -74,7 +74,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
-from std_msgs.msg import Float64, Header, String
+from std_msgs.msg import Float64, Header
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
@@ -179,8 +179,7 @@ class RigNode(DeviceNode):
             sub = self.create_subscription(JointState, COMMAND_TOPIC, self._on_command, COMMAND_QOS, raw=True,
                                            event_callbacks=self.input_events(COMMAND_TOPIC))
             self._inputs.append((sub, self._on_command))
-        if s.faults_enabled:                                # any node on the domain could break the bench
-            subscription(String, FAULTS, self._on_fault)
+        self.subscribe_faults()
         for name in rig.option_inputs:                      # the valve options' temperatures (K)
             valve, _, role = name.partition(".")
             subscription(Float64, valve_topic(valve, role), partial(self._on_option, valve, role))
@@ -291,11 +290,11 @@ class RigNode(DeviceNode):
         self.counts.last_rejection = f"{topic}: {reason}"
         self.log_rejection(key, topic, reason)
 
-    def _on_fault(self, msg: String, info: Any = None) -> None:
+    def _take_fault(self, text: str, info: Any) -> None:
+        """Checked with the rig's fault table now; it acts as the inputs do (and is recorded then)."""
         rig = self.rig
-        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
         try:
-            cmd = parse_fault_command(msg.data, valves=rig.valve_names, signals=rig.signals)
+            cmd = parse_fault_command(text, valves=rig.valve_names, signals=rig.signals)
         except FaultError as err:
             self._refuse_fault(str(err))
             return
@@ -312,7 +311,7 @@ class RigNode(DeviceNode):
                 self.counts.faults_accepted -= 1
                 self._refuse_fault(str(err))
             else:
-                self._record_text("faults", msg.data)
+                self._record_text("faults", text)
 
         self._when(_FAULTS_KEY, info, apply)
 

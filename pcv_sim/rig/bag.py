@@ -21,7 +21,7 @@ import numpy as np
 
 from pcv_sim.errors import BagError
 from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, Qos, cdr
-from pcv_sim.io.recorder import ROLE_QOS, WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_name
+from pcv_sim.io.recorder import ROLE_QOS, STRING, WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_name
 from pcv_sim.io.topics import (
     CURRENT,
     CYLINDER,
@@ -83,7 +83,6 @@ class RigBagLayout:
 
 _IN: Final = 0       # queue item (_IN, topic, t_ns, value)
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
-STRING: Final = "std_msgs/msg/String"
 _TEXT: Final = 2     # queue item (_TEXT, topic, t_ns, text)
 _STAMP_PACK: Final = struct.Struct("<iI")
 _JOINT_PACK: Final = struct.Struct("<d")

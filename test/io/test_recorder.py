@@ -251,3 +251,38 @@ def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_pat
         with open(next((tmp_path / name).glob("*.mcap")), "rb") as f:
             got[name] = sorted((c.topic, m.log_time, bytes(m.data)) for _s, c, m in make_reader(f).iter_messages())
     assert len(got["blocks"]) > 3 * 600 and got["blocks"] == got["single"]
+
+
+@pytest.mark.parametrize("faults", [True, False])
+def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_path: Path, faults: bool) -> None:
+    """As the rig's bag: `faults` (std_msgs/String) holds each command that acted, as given, at its
+    step (`ValveDevice.on_fault_command`); one refused when due is not in it; without `faults` the
+    bag has no such topic. Read back with the mcap reader (CDR decoded here)."""
+    import struct
+
+    from mcap.reader import make_reader
+
+    rec = BagRecorder(tmp_path, name="b", faults=faults, writing=WriterSettings(writer="inline"))
+    dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
+    dev.on_fault_command = lambda step, text: rec.fault_command(dev.stamp_ns(step), text)
+    rec.start(dev.stamp_ns(), dev.signals())
+    assert dev.submit_fault("{fault: coil_open}", at_step=100) is None
+    assert dev.submit_fault("{clear: bias, signal: pressure}", at_step=150) is None    # not active when due
+    assert dev.submit_fault("{clear: coil_open}", at_step=200) is None
+    dev.run(300)
+    assert dev.counts.rejected["faults"] == 1
+    st = rec.close()
+    assert st.dropped == 0 and st.error == ""
+    texts, topics = [], set()
+    [mcap_file] = (tmp_path / "b").glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            topics.add(channel.topic)
+            if channel.topic == "/faults":
+                assert schema.name == "std_msgs/msg/String"
+                (n,) = struct.unpack_from("<I", message.data, 4)
+                texts.append((message.log_time, message.data[8:8 + n - 1].decode()))
+    if faults:
+        assert texts == [(100 * dev.dt_ns, "{fault: coil_open}"), (200 * dev.dt_ns, "{clear: coil_open}")]
+    else:
+        assert "/faults" not in topics and "/pressure" in topics
