@@ -399,3 +399,101 @@ def test_inputs_act_at_their_step_in_the_order_they_came(rig):
     assert rig.commands["left"] == 0.5 and rig.commands["right"] == 0.4
     rig.advance_to(20)
     assert rig.commands["left"] == 0.7 and rig.watchdogs["left"].command_step == 20
+
+
+def test_a_controllers_array_form_gives_the_numbers_of_its_dict_form(rig):
+    """The example controller in the lockstep's array form (no sensor fault active) and in its dict
+    form (the same object behind a plain function), over a setpoint step and a dropout and a
+    noise fault that come and go (the array form gives way to the dict form meanwhile): the same
+    run to the last bit, flags and setpoint included."""
+    from pcv_sim.control.steering import PositionController
+    from pcv_sim.rig import parse_fault
+
+    def faults():
+        for t, kind, target, values in ((0.05, "dropout", "cylinder.position", {}),
+                                        (0.12, "noise", "left.current", {"std": 0.05})):
+            f = parse_fault(kind, target, values, valves=rig.valve_names, signals=rig.signals)
+            rig.schedule(t, lambda f=f: rig.inject(f))
+            rig.schedule(t + 0.03, lambda target=target, kind=kind: rig.clear(target, kind))
+
+    class Counted(PositionController):
+        def lockstep_arrays(self, signals, valves):
+            step, commanded, flags = super().lockstep_arrays(signals, valves)
+
+            def counted(t, y, out):
+                self.array_calls += 1
+                step(t, y, out)
+            return counted, commanded, flags
+
+    runs, calls = [], []
+    for wrapped in (False, True):
+        rig.reset()
+        faults()
+        law = Counted()
+        law.array_calls = 0
+        seen = []
+
+        def by_dict(t, m, law=law, seen=seen):
+            seen.append(t)
+            return law(t, m)
+
+        runs.append(run_lockstep(rig, by_dict if wrapped else law, 0.25, setpoint=lambda t: 0.01 if t >= 0.02 else 0.0))
+        calls.append((seen, law.array_calls))
+    arrays, dicts = runs
+    for name in ("true", "measured", "duties", "setpoint"):
+        assert np.array_equal(getattr(arrays, name), getattr(dicts, name), equal_nan=True), name
+    assert arrays.flags.keys() == dicts.flags.keys() == {"controller.fault_detected"}
+    assert np.array_equal(arrays.flags["controller.fault_detected"], dicts.flags["controller.fault_detected"],
+                          equal_nan=True)
+    assert arrays.log == dicts.log and np.isnan(arrays.measured).any()
+    assert len(calls[1][0]) == 250 and calls[1][1] == 0
+    assert calls[0][1] == 250 - 60 and len(calls[0][0]) == 0        # the dict form while a fault was on
+    assert arrays.signal("cylinder.position")[-1] > 5e-3
+
+
+class ArrayHold:
+    """A controller with both forms: a duty per valve (one out of range at 0.03 s) and a flag."""
+
+    def __init__(self, commanded=("right", "left"), flags=("k",)):
+        self.commanded, self.flags = commanded, flags
+        self.array_calls = 0
+
+    def duties(self, t):
+        return 1.5 if abs(t - 0.03) < 1e-9 else 0.6, 0.5 + t
+
+    def __call__(self, t, m):
+        right, left = self.duties(t)
+        return {"right": right, "left": left, "flags": {"k": t * 2}}
+
+    def lockstep_arrays(self, signals, valves):
+        def step(t, y, out):
+            self.array_calls += 1
+            assert len(y) == len(signals) and signals[-1] == "setpoint" and y[-1] != y[-1]
+            out[0], out[1] = self.duties(t)
+            out[2] = t * 2
+        return step, self.commanded, self.flags
+
+
+def test_an_array_forms_duties_are_taken_as_the_dict_forms_are(rig):
+    """A refused duty is counted and the last valid one kept, the valves in the order the array
+    form names them, its flags recorded: the same run as the same controller's dict form."""
+    hold = ArrayHold()
+    a = run_lockstep(rig, hold, 0.06)
+    assert hold.array_calls == 60
+    rig.reset()
+    d = run_lockstep(rig, lambda t, m: ArrayHold()(t, m), 0.06)
+    assert np.array_equal(a.true, d.true) and np.array_equal(a.duties, d.duties)
+    assert np.array_equal(a.flags["controller.k"], d.flags["controller.k"], equal_nan=True)
+    assert a.rejected == d.rejected and len(a.rejected) == 1 and "right" in a.rejected[0][1]
+    assert a.duties[31, a.valves.index("right")] == 0.6 and a.flags["controller.k"][-1] != a.flags["controller.k"][-1]
+
+
+@pytest.mark.parametrize(("commanded", "flags", "match"), [
+    (("left", "middle"), ("k",), r"'middle'.*accepted is a callable step and each of the valves left, right"),
+    (("left", "left"), ("k",), "at most once"),
+    (("left",), (3,), r"flags \(3,\); accepted are distinct names"),
+])
+def test_a_wrong_array_form_is_refused_before_the_run(rig, commanded, flags, match):
+    with pytest.raises(ControllerError, match=match):
+        run_lockstep(rig, ArrayHold(commanded, flags), 0.01)
+    assert rig.steps == 0
