@@ -29,17 +29,7 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from pcv_sim.io.topics import (
-    CURRENT,
-    DIAGNOSTICS,
-    DUTY_CYCLE,
-    FAULTS,
-    LOAD_FLOW,
-    PRESSURE,
-    RESET,
-    SPOOL_POSITION,
-    SUPPLY_PRESSURE,
-)
+from pcv_sim.io import topics
 
 __all__ = ["DeviceClient", "EmulatorClient", "PressureSample", "diagnostic_level", "sample_qos", "stamp_ns"]
 
@@ -93,7 +83,7 @@ class DeviceClient:
         self._own_node = node is None
         self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
         self.context = self.node.context
-        self.fault_pub = self.node.create_publisher(String, FAULTS, QoSProfile(depth=10))
+        self.fault_pub = self.node.create_publisher(String, topics.FAULTS, QoSProfile(depth=10))
         self._clients: dict[str, Any] = {}
 
     def send_fault(self, text: str) -> None:
@@ -116,7 +106,7 @@ class DeviceClient:
 
     def reset(self, timeout: float = 10.0) -> Any:
         """Call the device's `reset` service; its response (TimeoutError if none within `timeout` s)."""
-        return self.call(Trigger, RESET, Trigger.Request(), timeout)
+        return self.call(Trigger, topics.RESET, Trigger.Request(), timeout)
 
     def close(self) -> None:
         if self._own_node:
@@ -136,14 +126,14 @@ class EmulatorClient(DeviceClient):
 
     def __init__(
         self, namespace: str = "/", *, context: Any = None, node_name: str = "pcv_client",
-        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = (PRESSURE,),
+        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = (topics.PRESSURE,),
         on_pressure: Callable[[PressureSample], None] | None = None,
     ) -> None:
         super().__init__(namespace, context=context, node_name=node_name)
         ns = self.node.get_namespace().rstrip("/")
         self.emulator_name = f"{ns}/{emulator_node}"
         self.samples: list[PressureSample] = []
-        self.outputs: dict[str, list[tuple[int, float]]] = {CURRENT: [], SPOOL_POSITION: []}
+        self.outputs: dict[str, list[tuple[int, float]]] = {topics.CURRENT: [], topics.SPOOL_POSITION: []}
         self.diagnostics: list[dict[str, str]] = []
         self.diagnostic_levels: list[int] = []
         self.diagnostic_messages: list[str] = []
@@ -152,23 +142,23 @@ class EmulatorClient(DeviceClient):
         self._on_pressure = on_pressure
         qos = sample_qos(sample_depth)
         cmd = QoSProfile(depth=10)
-        self.pub_duty = self.node.create_publisher(Float64, DUTY_CYCLE, cmd)
-        self.pub_load_flow = self.node.create_publisher(Float64, LOAD_FLOW, cmd)
-        self.pub_supply = self.node.create_publisher(FluidPressure, SUPPLY_PRESSURE, cmd)
+        self.pub_duty = self.node.create_publisher(Float64, topics.DUTY_CYCLE, cmd)
+        self.pub_load_flow = self.node.create_publisher(Float64, topics.LOAD_FLOW, cmd)
+        self.pub_supply = self.node.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, cmd)
         # Callbacks of (message, MessageInfo): rclpy passes the info to a two-argument callback
         # (jazzy's annotation names only the one-argument form).
         with_info: Any
-        if PRESSURE in outputs:
+        if topics.PRESSURE in outputs:
             with_info = self._pressure
-            self.node.create_subscription(FluidPressure, PRESSURE, with_info, qos)
-        for name in (CURRENT, SPOOL_POSITION):
+            self.node.create_subscription(FluidPressure, topics.PRESSURE, with_info, qos)
+        for name in (topics.CURRENT, topics.SPOOL_POSITION):
             if name in outputs:
                 with_info = self._scalar(name)
                 self.node.create_subscription(Float64, name, with_info, qos)
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self._service(Trigger, RESET)
+        self._service(Trigger, topics.RESET)
         self._service(SetParameters, f"{self.emulator_name}/set_parameters")
 
     # --- callbacks ---------------------------------------------------------------------------
