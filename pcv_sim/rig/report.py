@@ -25,6 +25,7 @@ import numpy as np
 
 from pcv_sim.rig.assertions import Outcome, outcome_kind, signal_kind
 from pcv_sim.rig.lockstep import RigRun
+from pcv_sim.rig.rig import TEMPERATURE_INPUTS
 from pcv_sim.units import KINDS, display, fmt
 
 __all__ = ["outcome_kind", "plot_run", "render_html", "render_index"]
@@ -103,7 +104,8 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
             y = _series(run, extra, name)
             if y is None:
                 continue
-            style = "--" if name == "setpoint" or name.endswith(("oil_temperature", "ambient_temperature")) else "-"
+            # inputs dashed: the setpoint, the oil's and the ambient's temperatures
+            style = "--" if name == "setpoint" or name.rpartition(".")[2] in TEMPERATURE_INPUTS else "-"
             (line,) = ax.plot(t, y * f - z, style, lw=1.2,
                               label=name.replace("cylinder.", "").replace("controller.", "").replace("_", " "))
             where[name] = (ax, f, z)
