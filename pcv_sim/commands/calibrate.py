@@ -9,7 +9,6 @@ Exit status: 0 done, 1 the fit did not converge or a --fail-above/--fail-below l
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -27,7 +26,7 @@ from pcv_sim.calibration.report import (
     step_fits,
     step_rows,
 )
-from pcv_sim.commands.common import emit_json, params_from
+from pcv_sim.commands.common import emit_json, metric_limits, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
 from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
 from pcv_sim.replay import detect_steps, input_timeline, load_recording, parse_topic_map
@@ -68,18 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _limits(items: list[str] | None, flag: str) -> dict[str, float]:
-    """``["pressure_fit_percent=99,current_rmse_a=0.01"]`` -> {metric: limit}."""
-    out: dict[str, float] = {}
-    for part in (p for item in items or [] for p in item.split(",")):
-        key, sep, value = part.partition("=")
-        try:
-            limit = float(value)
-        except ValueError:
-            limit = math.nan
-        if not sep or not key.strip() or not math.isfinite(limit):
-            raise CalibrationError(f"{flag} {part!r}: expected METRIC=NUMBER, e.g. pressure_fit_percent=99")
-        out[key.strip()] = limit
-    return out
+    return metric_limits(items, flag, CalibrationError, "pressure_fit_percent=99")
 
 
 def _progress(k: int, cost: float, elapsed: float) -> None:

@@ -44,6 +44,24 @@ def positive(text: str) -> float:
     return v
 
 
+def metric_limits(items: list[str] | None, flag: str, error: type[Exception], example: str) -> dict[str, float]:
+    """``--fail-below`` style gates: ``["pressure_fit_percent=99,current_rmse_a=0.01"]`` -> {metric: limit}.
+
+    ``error`` is the subcommand's own error class, so the exit code and message prefix stay its own.
+    """
+    out: dict[str, float] = {}
+    for part in (p for item in items or [] for p in item.split(",")):
+        key, sep, value = part.partition("=")
+        try:
+            limit = float(value)
+        except ValueError:
+            limit = math.nan
+        if not sep or not key.strip() or not math.isfinite(limit):
+            raise error(f"{flag} {part!r}: expected METRIC=NUMBER, e.g. {example}")
+        out[key.strip()] = limit
+    return out
+
+
 def params_from(args: argparse.Namespace) -> ValveParams:
     return load_params(args.config)
 

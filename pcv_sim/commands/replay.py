@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-from pcv_sim.commands.common import emit_json, params_from
+from pcv_sim.commands.common import emit_json, metric_limits, params_from
 from pcv_sim.replay import ReplayError, check_thresholds, load_recording, parse_topic_map, replay
 from pcv_sim.replay.compare import RESYNC_S
 from pcv_sim.replay.report import plot_signals, render_html, render_markdown, render_text
@@ -25,19 +25,7 @@ HELP = "replay a bag's inputs through the model and compare with its recorded ou
 
 
 def _limits(items: list[str] | None, flag: str) -> dict[str, float]:
-    out: dict[str, float] = {}
-    for item in items or []:
-        for part in item.split(","):
-            key, sep, value = part.partition("=")
-            try:
-                limit = float(value)
-            except ValueError:
-                limit = math.nan
-            if not sep or not key.strip() or not math.isfinite(limit):
-                msg = f"{flag} {part!r}: expected METRIC=NUMBER, e.g. pressure_rmse_bar=0.5"
-                raise ReplayError(msg)
-            out[key.strip()] = limit
-    return out
+    return metric_limits(items, flag, ReplayError, "pressure_rmse_bar=0.5")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

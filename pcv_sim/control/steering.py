@@ -22,9 +22,22 @@ with it the settling no longer depends on the coils.)
 
 Measurements (SI): `left.pressure` (Pa), `cylinder.position` (m), `cylinder.velocity` (m/s),
 `setpoint` (m), ... A missing key is a dropped sample: the controller holds its last value.
+
+The rig's lockstep calls it in the array form as well (`lockstep_arrays`: the samples as a list,
+the duties and the flag into one; no dict built or parsed each period, a third of a 1 kHz
+period's Python). Both forms run one control law (`_law`) on one state, so they give the same
+numbers to the last bit and may alternate within a run.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+#: What the law reads, each with the attribute holding its last value (a dropped sample keeps it).
+_HELD = (("setpoint", "setpoint"), ("cylinder.position", "position"), ("cylinder.velocity", "velocity"),
+         ("left.current", "left_current"), ("right.current", "right_current"))
+_UNSEEN: Any = None             # a measurement not sampled yet: the law cannot run (KeyError names it)
 
 
 class PositionController:
@@ -37,44 +50,111 @@ class PositionController:
             raise ValueError(f"current_loop {current_loop!r}: accepted is a time constant in s >= 0 (0: off)")
         self.kp, self.ki, self.kv, self.base, self.period = kp, ki, kv, base, period
         self.fault_time, self.amps_per_duty = fault_time, coil_volts / coil_ohm
+        self._half_amps = 0.5 * self.amps_per_duty     # the coil monitor's threshold per unit duty
         self.current_loop = current_loop
         self.trim = {"left": 0.0, "right": 0.0}
         self.integral = 0.0
-        self.last: dict[str, float] = {}
+        # The last value seen of each measurement (None: none yet; a setpoint defaults to 0).
+        self.setpoint = 0.0
+        self.position: float = _UNSEEN
+        self.velocity: float = _UNSEEN
+        self.left_current: float = _UNSEEN
+        self.right_current: float = _UNSEEN
         self.low_since: dict[str, float | None] = {"left": None, "right": None}
-        self.duty = {"left": base, "right": base}
+        self.left_duty = self.right_duty = base        # the PI's duties of the last period
+        self.fault = 0.0
 
-    def __call__(self, t: float, m: dict[str, float]) -> dict[str, object]:
-        last = self.last
-        last.update(m)                   # a dropped sample keeps the last one seen
-        error = last.get("setpoint", 0.0) - last["cylinder.position"]
-        u_unsat = self.kp * error + self.ki * self.integral - self.kv * last["cylinder.velocity"]
-        u = max(-0.35, min(0.35, u_unsat))
+    @property
+    def duty(self) -> dict[str, float]:
+        """The PI's duty per valve, as last computed (before the current loop's trim)."""
+        return {"left": self.left_duty, "right": self.right_duty}
+
+    def __call__(self, t: float, m: Mapping[str, float]) -> dict[str, object]:
+        for key, attr in _HELD:
+            v = m.get(key)
+            if v is not None:
+                setattr(self, attr, v)
+        try:
+            left, right = self._law(t)
+        except TypeError:
+            missing = [key for key, attr in _HELD if getattr(self, attr) is None]
+            if missing:                  # never sampled yet: nothing to hold
+                raise KeyError(missing[0]) from None
+            raise
+        return {"left": left, "right": right, "flags": {"fault_detected": self.fault}}
+
+    def lockstep_arrays(self, signals: tuple[str, ...], valves: tuple[str, ...]
+                        ) -> tuple[Callable[[float, list[float], list[float]], None], tuple[str, ...],
+                                   tuple[str, ...]] | None:
+        """The array form for a lockstep over `signals` (the last one `setpoint`, NaN when the run has
+        none) and `valves`: (step, the valves it commands, its flags); `step(t, samples, out)` writes
+        the left and right duties and `fault_detected` into out. None when a signal it reads is not
+        there (the dict form then says which)."""
+        if "left" not in valves or "right" not in valves or any(key not in signals for key, _ in _HELD):
+            return None
+        isp, ipos, ivel, il, ir = (signals.index(key) for key, _ in _HELD)
+        law = self._law
+
+        def step(t: float, y: list[float], out: list[float]) -> None:
+            sp = y[isp]
+            if sp == sp:  # noqa: PLR0124 - NaN: the run has no setpoint (absent from the dict form)
+                self.setpoint = sp
+            self.position, self.velocity, self.left_current, self.right_current = y[ipos], y[ivel], y[il], y[ir]
+            out[0], out[1] = law(t)
+            out[2] = self.fault
+
+        return step, ("left", "right"), ("fault_detected",)
+
+    def _law(self, t: float) -> tuple[float, float]:
+        """One period on the held measurements: the duties to send (left, right); the flag in `fault`."""
+        error = self.setpoint - self.position
+        u_unsat = self.kp * error + self.ki * self.integral - self.kv * self.velocity
+        # max(-0.35, min(0.35, u_unsat)), as comparisons (the builtins cost more than the rest)
+        u = u_unsat if u_unsat < 0.35 else 0.35
+        if not u > -0.35:
+            u = -0.35
         if u == u_unsat:                 # anti-windup: integrate only while not saturated
             self.integral += error * self.period
+        # The coil monitor: a current below half of what the last duty drives at rest.
+        half, low_since, fault_time = self._half_amps, self.low_since, self.fault_time
         fault = False
-        duty, low_since, amps = self.duty, self.low_since, self.amps_per_duty
-        for valve, current in _CURRENTS:
-            low = last[current] < 0.5 * amps * duty[valve]
-            since = low_since[valve]
-            start = (since if since is not None else t) if low else None
-            low_since[valve] = start
-            fault = fault or (start is not None and t - start >= self.fault_time)
+        since = low_since["left"]
+        if self.left_current < half * self.left_duty:
+            start = since if since is not None else t
+            low_since["left"] = start
+            fault = t - start >= fault_time
+        elif since is not None:
+            low_since["left"] = None
+        since = low_since["right"]
+        if self.right_current < half * self.right_duty:
+            start = since if since is not None else t
+            low_since["right"] = start
+            fault = fault or t - start >= fault_time
+        elif since is not None:
+            low_since["right"] = None
+        self.fault = 1.0 if fault else 0.0
+        # min(1.0, max(0.3, base +- u))
         base = self.base
-        self.duty = duty = {"left": min(1.0, max(0.3, base + u)), "right": min(1.0, max(0.3, base - u))}
+        left = base + u
+        if not left > 0.3:
+            left = 0.3
+        elif not left < 1.0:
+            left = 1.0
+        right = base - u
+        if not right > 0.3:
+            right = 0.3
+        elif not right < 1.0:
+            right = 1.0
+        self.left_duty, self.right_duty = left, right
         if not self.current_loop:
-            return {**duty, "flags": {"fault_detected": float(fault)}}
-        sent: dict[str, object] = {}
-        for valve, current in _CURRENTS:          # the PI's duty as a current target, D V / R
-            target = duty[valve]
-            error = target - last[current] / amps
-            self.trim[valve] = max(-0.2, min(0.2, self.trim[valve] + error * self.period / self.current_loop))
-            sent[valve] = min(1.0, max(0.0, target + self.trim[valve]))
-        return {**sent, "flags": {"fault_detected": float(fault)}}
-
-
-#: Each valve with the name of its coil current's measurement.
-_CURRENTS = (("left", "left.current"), ("right", "right.current"))
+            return left, right
+        trim, amps, period, tau = self.trim, self.amps_per_duty, self.period, self.current_loop
+        # the PI's duty as a current target, D V / R, trimmed by the integral of the current error
+        error = left - self.left_current / amps
+        trim["left"] = max(-0.2, min(0.2, trim["left"] + error * period / tau))
+        error = right - self.right_current / amps
+        trim["right"] = max(-0.2, min(0.2, trim["right"] + error * period / tau))
+        return min(1.0, max(0.0, left + trim["left"])), min(1.0, max(0.0, right + trim["right"]))
 
 
 __all__ = ["PositionController"]

@@ -29,6 +29,8 @@ class Device:
     step counter (model time = steps * dt)."""
 
     steps: int
+    #: The device's parameters (its YAML: a valve's, a rig's), set by the subclass.
+    params: Any
     #: Active faults by (target, kind), and the sensors the sensor faults act on (set by the subclass).
     faults: dict[tuple[str, str], Fault]
     sensors: Sensors

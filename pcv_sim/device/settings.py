@@ -2,8 +2,10 @@
 
 No ROS here: values come in as plain Python (what rclpy's `Parameter.value` gives) and are
 validated by the one mechanism of `pcv_sim.params`: each node setting is a `NodeSettings` field
-declared once with `setting(default, unit, description, check, ...)`; `NODE_PARAMETERS` (what
-the node declares, its --help) is derived from those fields.
+declared once with `setting(default, unit, description, check, ...)`; a `SettingsSchema` over
+a settings dataclass derives what a node declares (its --help), checks a value by name and makes and
+changes the settings: every node's settings go through it (`SCHEMA` here, the rig node's in
+`pcv_sim.node.rig_settings`).
 
 Model parameters appear as `model.<section>.<key>` (e.g. `model.spool.mass`), every scalar and
 vector field of the valve YAML; the matrix-valued curve fits (`solenoid.force`, `fits.*` tables)
@@ -16,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import RECORDABLE, check_signals
@@ -42,10 +44,12 @@ __all__ = [
     "MODEL_PREFIX",
     "NODE_PARAMETERS",
     "RUNTIME_FIXED_MODEL",
+    "SCHEMA",
     "CommonSettings",
     "ModelParameter",
     "NodeParameter",
     "NodeSettings",
+    "SettingsSchema",
     "any_value",
     "check_node_value",
     "model_parameters",
@@ -60,6 +64,7 @@ __all__ = [
 ]
 
 MODEL_PREFIX = "model."
+S = TypeVar("S", bound="CommonSettings")
 _NULL_WORDS = ("null", "none", "~", "")
 
 #: Model parameters that cannot change while the node runs (the schedule is built on them).
@@ -221,18 +226,13 @@ class NodeSettings(CommonSettings):
         """Model steps per recorded output sample."""
         return steps_per(1.0 / self.record_rate_hz, dt, what="record period")
 
-    @classmethod
-    def from_parameters(cls, values: Mapping[str, Any]) -> NodeSettings:
-        """Settings from checked values keyed by parameter name (record.rate_hz, ...)."""
-        return cls(**{_NODE_BY_NAME[k].attr: v for k, v in values.items()})
-
 
 @dataclass(frozen=True)
 class NodeParameter:
-    """One node parameter as the node declares it (derived from NodeSettings' field)."""
+    """One node parameter as the node declares it (derived from its settings dataclass' field)."""
 
     name: str
-    attr: str            # the NodeSettings field
+    attr: str            # the settings field
     default: Any         # as a ROS parameter value (lists, not tuples)
     unit: str
     description: str
@@ -241,7 +241,6 @@ class NodeParameter:
 
     def check(self, name: str, value: Any) -> Any:
         return check_value(name, self.meta, value)
-
 
     @property
     def is_float(self) -> bool:
@@ -259,23 +258,38 @@ def parameters_of(settings: type) -> tuple[NodeParameter, ...]:
         for f in sorted(dataclasses.fields(settings), key=lambda f: f.name in common))
 
 
-NODE_PARAMETERS = parameters_of(NodeSettings)
-_NODE_BY_NAME = {p.name: p for p in NODE_PARAMETERS}
+class SettingsSchema(Generic[S]):
+    """Every node's settings the one way: the parameters derived from a settings dataclass (what the
+    node declares, its --help), one value checked by name, the settings made from checked values and
+    changed at run time. `more` ends the unknown-name message (what else the node accepts)."""
+
+    def __init__(self, settings: type[S], more: str = "") -> None:
+        self.settings = settings
+        self.parameters = parameters_of(settings)
+        self.by_name = {p.name: p for p in self.parameters}
+        self.more = more
+
+    def check(self, name: str, value: Any) -> Any:
+        """Convert and check one parameter; ParameterError naming it if refused."""
+        spec = self.by_name.get(name)
+        if spec is None:
+            raise ParameterError(f"unknown parameter {name!r}; accepted are: {', '.join(self.by_name)}{self.more}")
+        return spec.check(name, value)
+
+    def settings_from(self, values: Mapping[str, Any]) -> S:
+        """Settings from checked values keyed by parameter name (record.rate_hz, ...)."""
+        return self.settings(**{self.by_name[k].attr: v for k, v in values.items()})
+
+    def with_changes(self, settings: S, changes: Mapping[str, Any]) -> S:
+        """A copy of settings with parameters changed, each checked (not yet cross-checked)."""
+        return dataclasses.replace(settings, **{self.by_name[k].attr if k in self.by_name else k:  # type: ignore[type-var]
+                                                self.check(k, v) for k, v in changes.items()})
 
 
-def check_node_value(name: str, value: Any) -> Any:
-    """Convert and check one node parameter; ParameterError naming it if refused."""
-    spec = _NODE_BY_NAME.get(name)
-    if spec is None:
-        raise ParameterError(f"unknown parameter {name!r}; accepted are: {', '.join(_NODE_BY_NAME)} "
-                             f"and {MODEL_PREFIX}<section>.<key>")
-    return spec.check(name, value)
-
-
-def settings_with(settings: NodeSettings, changes: Mapping[str, Any]) -> NodeSettings:
-    """A copy of settings with node parameters changed, each checked (not yet cross-checked)."""
-    return dataclasses.replace(settings, **{_NODE_BY_NAME[k].attr if k in _NODE_BY_NAME else k: check_node_value(k, v)
-                                            for k, v in changes.items()})
+SCHEMA = SettingsSchema(NodeSettings, f" and {MODEL_PREFIX}<section>.<key>")
+NODE_PARAMETERS = SCHEMA.parameters
+check_node_value = SCHEMA.check
+settings_with = SCHEMA.with_changes
 
 
 # --- model parameters ------------------------------------------------------------------------

@@ -54,16 +54,11 @@ queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`re
 from __future__ import annotations
 
 import math
-import sys
 import time
-from collections import deque
-from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
@@ -74,15 +69,12 @@ from std_srvs.srv import Trigger
 from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
 from pcv_sim.device.settings import (
     MODEL_PREFIX,
-    NODE_PARAMETERS,
+    SCHEMA,
     NodeSettings,
-    check_node_value,
     model_parameters,
     params_with,
-    settings_with,
 )
 from pcv_sim.device.valve import VALVE, Recorder, Sample, ValveDevice, WatchdogState
-from pcv_sim.errors import ParameterError
 from pcv_sim.io.recorder import BagRecorder, RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
@@ -112,7 +104,6 @@ from pcv_sim.simulation.clock import (
 __all__ = ["EmulatorNode"]
 
 NODE_NAME = "emulator"
-JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 _UNKNOWN_HINT = (f"; model parameters are {MODEL_PREFIX}<section>.<key> for the scalar and vector keys of the "
                  "valve YAML (matrix fits: use valve_config); allow_unknown_parameters: true ignores unknown names")
 
@@ -124,31 +115,22 @@ class EmulatorNode(DeviceNode):
     _diag: DiagnosticsBuilder
 
     unknown_hint = _UNKNOWN_HINT
+    schema = SCHEMA
     lockstep_keys = (VALVE,)
 
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, argv=argv, **kwargs)
 
     def _setup(self, argv: list[str]) -> None:
-        self.settings, params = self._declare_parameters()
+        self.settings, params = self.declare_node_parameters()
         dt = params.simulation.time_step
         s = self.settings
         self.simulated = s.time_mode == "simulated"
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt), seed=s.seed)
         self._external = ExternalClock(self.device.dt_ns)   # use_sim_time: the latest /clock, model time anchored
-        # Rest states (25-60 ms of model solves) are computed off the loop: the loop takes parameter
-        # and reset requests, a worker thread validates and prepares them, the loop swaps the result
-        # in at the next wake and only then answers. One request at a time, in arrival order.
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcv_sim_prepare")
-        self._deferred: deque[tuple[Any, Any, Any]] = deque()       # (service, request, header)
-        self._job: tuple[Any, Any, Future[Any]] | None = None       # (service, header, answer)
-        self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
-        self._pending: tuple[NodeSettings, ValveParams] | None = None   # staged within the running job
-        self._staged: tuple[NodeSettings, ValveParams, Any] | None = None
         self.samples_published = 0
         self._last_published: tuple[Any, ...] | None = None   # `_send`'s arguments: step, measured values
-        self._switch_interval = sys.getswitchinterval()
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
         out, sensor = self._output_events, qos_profile_sensor_data
@@ -187,13 +169,11 @@ class EmulatorNode(DeviceNode):
                                                           event_callbacks=inp(CLOCK)), self._on_clock))
         self.collect_event_handlers()
         self.create_service(Trigger, RESET, self._on_reset)
-        self._deferred_callbacks = (self._on_set_parameters, self._on_set_parameters_atomically, self._on_reset)
+        self._deferred_callbacks += (self._on_reset,)      # rest states are computed off the loop
         self._msg_pressure = FluidPressure()
         self._msg_pressure.header.frame_id = s.frame_id
         self._msg_current = Float64()
         self._msg_spool = Float64()
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
         self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic())
         self.recorder = self._make_recorder()
         mode = ("simulated time" if self.simulated else "time from an external /clock (use_sim_time)"
@@ -206,77 +186,37 @@ class EmulatorNode(DeviceNode):
 
     # --- parameters --------------------------------------------------------------------------
 
-    def _declare_parameters(self) -> tuple[NodeSettings, ValveParams]:
-        """Declare node and model parameters; refuse invalid ones with a ParameterError.
-
-        Beyond what rcl checks: a params file with a key given twice, a `-p` override that did not
-        take (rcl drops one whose type differs from the params file's), and names nobody declares
-        (unless allow_unknown_parameters) are refused too (see pcv_sim.device.parameters)."""
-        settings = NodeSettings.from_parameters(self.declare_settings(NODE_PARAMETERS, check_node_value))
-        self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
+    def _device_parameters(self, settings: NodeSettings) -> ValveParams:
+        """The valve YAML (valve_config), with the model parameters declared from it (model.<section>.<key>)
+        applied."""
         params = load_params(settings.valve_config or None)
         changes = {}
         for mp in model_parameters(params):
             value = self.declare(mp.name, mp.value, f"[{mp.unit}] {mp.source}", is_float=mp.kind.startswith("float"))
             if value != mp.value:
                 changes[mp.name] = value
-        self.refuse_unknown_names(settings.allow_unknown_parameters)
-        self.set_retaken()
-        if changes:
-            params = params_with(params, changes)
-        return settings.check(params), params
+        return params_with(params, changes) if changes else params
 
-    def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
-        """on-set callback (worker thread): validate the whole change with the model's rules, prepare
-        the new model's rest state; stage it (the loop applies it, `_pump`)."""
-        node_changes: dict[str, Any] = {}
-        model_changes: dict[str, Any] = {}
-        names = {spec.name for spec in NODE_PARAMETERS}
-        for p in parameters:
-            if p.name.startswith(MODEL_PREFIX):
-                model_changes[p.name] = p.value
-            elif p.name in names:
-                node_changes[p.name] = p.value
-            elif (refused := self.sim_time_change_refused([p])) is not None:
-                return refused
-        base_settings, base_params = self._pending or (self.settings, self.device.params)
-        try:
-            settings = settings_with(base_settings, node_changes)
-            params = params_with(base_params, model_changes, runtime=True) if model_changes else base_params
-            settings.check(params)
-            stepper = self.device.prepare(params) if model_changes else None
-        except (ParameterError, ValueError) as err:
-            return SetParametersResult(successful=False, reason=str(err))
-        except Exception as err:
-            return SetParametersResult(successful=False,
-                                       reason=f"the model cannot run with these parameters: {type(err).__name__}: {err}")
-        self._staged = (settings, params, stepper)
-        return SetParametersResult(successful=True)
+    def _prepare(self, params: ValveParams, changes: dict[str, Any]) -> tuple[ValveParams, Any]:
+        """Worker thread: the model's parameters changed and the new model's rest state prepared."""
+        if not changes:
+            return params, None
+        params = params_with(params, changes, runtime=True)
+        return params, (self.device.prepare(params), ", ".join(changes))
 
-    def _apply_parameters(self, parameters: list[Any]) -> None:
-        """post-set callback (worker thread): queue what `_validate_parameters` staged for the loop."""
-        if self._staged is None:
-            return
-        settings, params, stepper = self._staged
-        self._staged = None
-        self._pending = (settings, params)
-        names = ", ".join(p.name for p in parameters if p.name.startswith(MODEL_PREFIX))
-        self._ready.append(lambda: self._apply(settings, stepper, names))
-
-    def _apply(self, settings: NodeSettings, stepper: Any, names: str) -> None:
-        """On the loop, between wakes: the new settings and model in force from the next step."""
+    def _apply_settings(self, settings: NodeSettings) -> None:
         dev = self.device
-        self.settings = settings
         dev.set_watchdog_timeout(settings.watchdog_timeout)
         dev.set_safe_duty(settings.safe_duty)
         dev.sample_every = settings.sample_every(dev.dt)
         dev.sensors.period = dev.sample_every * dev.dt      # a delay fault counts samples
         self._msg_pressure.header.frame_id = settings.frame_id
-        self._retime(settings)
-        if stepper is not None:
-            what = dev.install(stepper)
-            self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
-                                   f"operating point: {what}")
+
+    def _install(self, prepared: Any) -> None:
+        stepper, names = prepared
+        what = self.device.install(stepper)
+        self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
+                               f"operating point: {what}")
 
     # --- recording ---------------------------------------------------------------------------
 
@@ -300,12 +240,6 @@ class EmulatorNode(DeviceNode):
         self.recording_started(rec, f"{', '.join((*rec.signals, *rec.options))} to {rec.path} (outputs every "
                                     f"{rec.every * dev.dt * 1e3:g} ms of model time, inputs on change)")
 
-    def _stop_recording(self) -> None:
-        close = getattr(self.device.recorder, "close", None)
-        if self.recorder is None and callable(close):
-            close()
-        self.close_recorder(self.recorder)
-
     # --- recorder hook -----------------------------------------------------------------------
 
     def set_recorder(self, recorder: Recorder | None, every: int = 1) -> None:
@@ -320,7 +254,7 @@ class EmulatorNode(DeviceNode):
         at = self.acting_step(dev.timing, name, dev.steps + 1, dev.origin_ns, info)
         reason = dev.submit(name, value, at)
         if reason is not None:
-            self._log_rejection(name, reason)
+            self.log_rejection(name, name, reason)
         else:
             dev.timing.took(name, at)
 
@@ -344,52 +278,9 @@ class EmulatorNode(DeviceNode):
         at = self.acting_step(dev.timing, FAULTS, dev.steps + 1, dev.origin_ns, info)
         reason = dev.submit_fault(msg.data, at)
         if reason is not None:
-            self.log_rejection(FAULTS, FAULTS, reason, "nothing changed", self.settings.reject_log_period)
+            self.log_rejection(FAULTS, FAULTS, reason, "nothing changed")
         else:
             dev.timing.took(FAULTS, at)
-
-    def _log_rejection(self, name: str, reason: str) -> None:
-        self.log_rejection(name, name, reason, "the last valid value stays in force", self.settings.reject_log_period)
-
-    def _defer(self, srv: Any, request: Any, header: Any) -> None:
-        """Parameter sets and reset: to the worker thread, in arrival order (`_pump`)."""
-        self._deferred.append((srv, request, header))
-
-    def _pump(self) -> None:
-        """At a step boundary: apply a finished worker job (new model, settings) and answer its request;
-        start the next one. Cheap when idle: called at every wake."""
-        job = self._job
-        if job is not None:
-            srv, header, answer = job
-            if not answer.done():
-                return
-            self._job = None
-            sys.setswitchinterval(self._switch_interval)
-            for apply in self._ready:
-                apply()
-            self._ready.clear()
-            self._pending = None
-            srv.send_response(answer.result(), header)
-        if self._deferred:
-            srv, request, header = self._deferred.popleft()
-            # While the worker computes (~40 ms of Python) the loop waits for the interpreter lock at
-            # each wake: a short switch interval hands it over sooner (bench/node_restart.py).
-            self._switch_interval = sys.getswitchinterval()
-            sys.setswitchinterval(JOB_SWITCH_INTERVAL)
-            self._job = (srv, header, self._worker.submit(self._serve, srv, request))
-
-    def _serve(self, srv: Any, request: Any) -> Any:
-        """Worker thread: one deferred request; an unexpected error is logged and answered, not raised."""
-        response = srv.srv_type.Response()
-        try:
-            return srv.callback(request, response)
-        except Exception as err:
-            self._staged = None
-            self._ready.clear()
-            self.get_logger().error(f"{srv.srv_name}: {type(err).__name__}: {err}")
-            if hasattr(response, "message"):
-                response.success, response.message = False, f"{type(err).__name__}: {err}"
-            return response
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Worker thread: the rest state at the present operating point, on trial; the loop installs it."""
@@ -486,8 +377,10 @@ class EmulatorNode(DeviceNode):
     # --- loops -------------------------------------------------------------------------------
 
     def _finish(self) -> None:
-        self._worker.shutdown(wait=True, cancel_futures=True)
-        self._stop_recording()
+        close = getattr(self.device.recorder, "close", None)
+        if self.recorder is None and callable(close):
+            close()             # a recorder set through `set_recorder`
+        super()._finish()
 
     # --- the device under the node base's loops ----------------------------------------------
 

@@ -34,7 +34,9 @@ import math
 import os
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -59,6 +61,7 @@ from pcv_sim.device.parameters import (
     refuse_unknown,
     unknown_parameters_message,
 )
+from pcv_sim.device.settings import SettingsSchema
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
 from pcv_sim.io.topics import CLOCK
@@ -72,7 +75,8 @@ from pcv_sim.simulation.clock import (
 )
 
 __all__ = [
-    "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "LOCKSTEP_FULL_POLL",
+    "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "JOB_SWITCH_INTERVAL",
+    "LOCKSTEP_FULL_POLL",
     "LOCKSTEP_RESEND", "SERVICE_POLL_PERIOD",
     "DeviceNode", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
 ]
@@ -85,9 +89,11 @@ EVENT_POLL_EVERY = 10                       # service polls between QoS event po
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 LOCKSTEP_FULL_POLL = 1e-3                   # s (wall) between polls of every input while the lockstep waits for its answers
 SERVICE_POLL_PERIOD = 0.01                  # s (wall) between polls for service requests (reset, parameters)
+JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
 SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
                "ros2 topic echo --qos-reliability best_effort)")
 COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
+KEPT = "the last valid value stays in force"            # what a refused input leaves
 
 
 class StopFlag(Protocol):
@@ -107,6 +113,8 @@ class DeviceNode(Node):
 
     #: What the unknown-name message adds (where the other parameters are set).
     unknown_hint = ""
+    #: The node's settings (`pcv_sim.device.settings.SettingsSchema`): what it declares and how it checks.
+    schema: SettingsSchema[Any]
     settings: Any
     device: Device
     simulated: bool                 # time_mode simulated (else real: the wall clock, or an external /clock)
@@ -127,7 +135,18 @@ class DeviceNode(Node):
         self._retaken: dict[str, Override] = {}      # -p overrides rcl dropped, applied by us
         self._declared: set[str] = set()
         self._float_names: set[str] = set()
-        self._deferred_callbacks: tuple[Any, ...] = ()
+        # Parameter sets (and what else a node lists in `_deferred_callbacks`) go to a worker thread:
+        # it validates them and prepares what they need (an emulator's rest state: 25-60 ms of model
+        # solves), the loop swaps the result in at its next wake and only then answers. One request
+        # at a time, in arrival order (`_pump`).
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcv_sim_prepare")
+        self._deferred: deque[tuple[Any, Any, Any]] = deque()       # (service, request, header)
+        self._job: tuple[Any, Any, Future[Any]] | None = None       # (service, header, answer)
+        self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
+        self._pending: tuple[Any, Any] | None = None                # (settings, device parameters) of the running job
+        self._staged: tuple[Any, Any, Any] | None = None            # checked, about to be queued for the loop
+        self._switch_interval = sys.getswitchinterval()
+        self._deferred_callbacks: tuple[Any, ...] = (self._on_set_parameters, self._on_set_parameters_atomically)
         self._event_handlers: list[Any] = []
         self._polls = 0
         self._last_reject_log: dict[str, float] = {}
@@ -173,6 +192,86 @@ class DeviceNode(Node):
             return value
         self._retaken[name] = override
         return override.value
+
+    def declare_node_parameters(self) -> tuple[Any, Any]:
+        """Declare the node's settings (`schema`) and the device's parameters (`_device_parameters`);
+        the settings and the device's parameters, cross-checked. Refused (ParameterError naming it):
+        an invalid value, and beyond what rcl checks, a params file with a key given twice, a `-p`
+        override that did not take (rcl drops one whose type differs from the params file's), names
+        nobody declares (unless allow_unknown_parameters; see pcv_sim.device.parameters)."""
+        settings = self.schema.settings_from(self.declare_settings(self.schema.parameters, self.schema.check))
+        self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
+        params = self._device_parameters(settings)
+        self.refuse_unknown_names(settings.allow_unknown_parameters)
+        self.set_retaken()
+        settings.check(params)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        return settings, params
+
+    def _device_parameters(self, settings: Any) -> Any:
+        """The device's parameters (its YAML), with those the node declares for it applied."""
+        raise NotImplementedError
+
+    def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
+        """on-set callback (worker thread): the whole change checked with the rules at start (settings
+        by the schema, the device's parameters by `_prepare`), what it needs prepared and staged; the
+        loop applies it (`_pump`). use_sim_time cannot change; rclpy refuses the read-only ones."""
+        refused = self.sim_time_change_refused(parameters)
+        if refused is not None:
+            return refused
+        settings_changes = {p.name: p.value for p in parameters if p.name in self.schema.by_name}
+        device_changes = {p.name: p.value for p in parameters
+                          if p.name not in self.schema.by_name and p.name in self._declared}
+        base_settings, base_params = self._pending or (self.settings, self.device_params)
+        try:
+            settings = self.schema.with_changes(base_settings, settings_changes)
+            params, prepared = self._prepare(base_params, device_changes)
+            settings.check(params)
+        except (ParameterError, ValueError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        except Exception as err:
+            return SetParametersResult(successful=False,
+                                       reason=f"the model cannot run with these parameters: {type(err).__name__}: {err}")
+        self._staged = (settings, params, prepared)
+        return SetParametersResult(successful=True)
+
+    @property
+    def device_params(self) -> Any:
+        """The device's parameters in force."""
+        return self.device.params
+
+    def _prepare(self, params: Any, changes: dict[str, Any]) -> tuple[Any, Any]:
+        """Worker thread: `params` with the device's parameter `changes`, and what the loop installs for
+        them (None: nothing); ParameterError for a refused change."""
+        return params, None
+
+    def _apply_parameters(self, parameters: list[Any]) -> None:
+        """post-set callback (worker thread): queue what `_validate_parameters` staged for the loop."""
+        if self._staged is None:
+            return
+        settings, params, prepared = self._staged
+        self._staged = None
+        self._pending = (settings, params)
+        changed = ", ".join(f"{p.name} = {p.value!r}" for p in parameters)
+        self._ready.append(lambda: self._apply(settings, prepared, changed))
+
+    def _apply(self, settings: Any, prepared: Any, changed: str) -> None:
+        """On the loop, between wakes: the new settings (and what the device prepared) in force from the
+        next step."""
+        self.settings = settings
+        self._apply_settings(settings)
+        self._retime(settings)
+        self.get_logger().info(f"parameters changed: {changed}")
+        if prepared is not None:
+            self._install(prepared)
+
+    def _apply_settings(self, settings: Any) -> None:
+        """The settings the device holds (watchdog, safe duty...) into it (none here)."""
+
+    def _install(self, prepared: Any) -> None:
+        """What `_prepare` made, into the device (on the loop)."""
+        raise NotImplementedError
 
     def declare_settings(self, specs: Iterable[Any], check: Callable[[str, Any], Any]) -> dict[str, Any]:
         """Declare each setting from its one declaration (`pcv_sim.params.setting`); its value checked
@@ -255,10 +354,10 @@ class DeviceNode(Node):
 
     # --- inputs ----------------------------------------------------------------------------------
 
-    def log_rejection(self, key: str, topic: str, reason: str, outcome: str, period: float) -> None:
-        """One log line per `key` per `period` s for refused inputs (the device counts them all)."""
+    def log_rejection(self, key: str, topic: str, reason: str, outcome: str = KEPT) -> None:
+        """One log line per `key` per reject_log_period for refused inputs (the device counts them all)."""
         now = time.monotonic()
-        if now - self._last_reject_log.get(key, -math.inf) < period:
+        if now - self._last_reject_log.get(key, -math.inf) < self.settings.reject_log_period:
             self._suppressed[key] = self._suppressed.get(key, 0) + 1
             return
         more = self._suppressed.pop(key, 0)
@@ -305,10 +404,45 @@ class DeviceNode(Node):
             self._poll_events()
 
     def _defer(self, srv: Any, request: Any, header: Any) -> None:
-        srv.send_response(srv.callback(request, srv.srv_type.Response()), header)
+        """Parameter sets (and the node's other `_deferred_callbacks`): to the worker thread, in arrival
+        order (`_pump`)."""
+        self._deferred.append((srv, request, header))
 
     def _pump(self) -> None:
-        """Finish deferred requests (none here)."""
+        """At a step boundary: apply a finished worker job (new settings, model) and answer its request;
+        start the next one. Cheap when idle: called at every wake."""
+        job = self._job
+        if job is not None:
+            srv, header, answer = job
+            if not answer.done():
+                return
+            self._job = None
+            sys.setswitchinterval(self._switch_interval)
+            for apply in self._ready:
+                apply()
+            self._ready.clear()
+            self._pending = None
+            srv.send_response(answer.result(), header)
+        if self._deferred:
+            srv, request, header = self._deferred.popleft()
+            # While the worker computes (~40 ms of Python) the loop waits for the interpreter lock at
+            # each wake: a short switch interval hands it over sooner (bench/node_restart.py).
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(JOB_SWITCH_INTERVAL)
+            self._job = (srv, header, self._worker.submit(self._serve, srv, request))
+
+    def _serve(self, srv: Any, request: Any) -> Any:
+        """Worker thread: one deferred request; an unexpected error is logged and answered, not raised."""
+        response = srv.srv_type.Response()
+        try:
+            return srv.callback(request, response)
+        except Exception as err:
+            self._staged = None
+            self._ready.clear()
+            self.get_logger().error(f"{srv.srv_name}: {type(err).__name__}: {err}")
+            if hasattr(response, "message"):
+                response.success, response.message = False, f"{type(err).__name__}: {err}"
+            return response
 
     def output_events(self, topic: str, hint: str = COMMAND_HINT) -> PublisherEventCallbacks:
         return PublisherEventCallbacks(incompatible_qos=lambda info: self._incompatible(
@@ -485,7 +619,8 @@ class DeviceNode(Node):
         self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _finish(self) -> None:
-        """After the loop: the recorder closed."""
+        """After the loop: the worker stopped, the recorder closed."""
+        self._worker.shutdown(wait=True, cancel_futures=True)
         self.close_recorder(self.recorder)
 
     def _run_real_time(self, stop: StopFlag) -> None:

@@ -69,7 +69,6 @@ from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
@@ -78,7 +77,7 @@ from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
 from pcv_sim.device.faults import parse_fault_command
-from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import (
     CLOCK,
@@ -108,15 +107,10 @@ from pcv_sim.node.base import (
 )
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
 from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
-from pcv_sim.node.rig_settings import (
-    RIG_PARAMETERS,
-    RigNodeSettings,
-    check_rig_value,
-    rig_settings_with,
-    settings_from,
-)
+from pcv_sim.node.rig_settings import SCHEMA, RigNodeSettings
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
+from pcv_sim.rig.params import RigParams
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.simulation.clock import (
     ExternalClock,
@@ -137,6 +131,7 @@ class RigNode(DeviceNode):
     _diag: RigDiagnostics
 
     unknown_hint = "; the physics is set in the rig YAML (rig_config)"
+    schema = SCHEMA
 
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, argv=argv, **kwargs)
@@ -144,16 +139,14 @@ class RigNode(DeviceNode):
     # --- set-up --------------------------------------------------------------------------------
 
     def _setup(self, argv: list[str]) -> None:
-        s = self.settings = self._declare_parameters()
-        loaded = load_rig(s.rig_config or None)
-        rig_params = s.check(loaded).rig_params(loaded)
+        self.settings, rig_params = self.declare_node_parameters()
+        s = self.settings
         self.device = rig = Rig(rig_params, seed=s.seed)
         self.simulated = s.time_mode == "simulated"
-        self.per = rig_params.steps_per_period
+        self.per: int = rig_params.steps_per_period
         self.dt_ns = rig.dt_ns
         self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
         self.lockstep_keys = rig.valve_names
-        self._staged: RigNodeSettings | None = None        # parameters checked, about to be applied
         self._logged = 0                                    # rig.log entries forwarded to the logger
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
         #: values sent in the lockstep sample after the rig's signals (a scenario's `setpoint`)
@@ -212,15 +205,9 @@ class RigNode(DeviceNode):
         self._setup_more_interface()
         self.collect_event_handlers()
 
-    def _declare_parameters(self) -> RigNodeSettings:
-        """Declare the node's parameters; refuse invalid ones (ParameterError naming the parameter).
-        As the emulator: a key given twice in a params file, a `-p` override rcl dropped for its type,
-        and names nobody declares are refused too (pcv_sim.device.parameters)."""
-        settings = settings_from(self.declare_settings(RIG_PARAMETERS, check_rig_value))
-        self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), settings.time_mode == "simulated")
-        self.refuse_unknown_names(settings.allow_unknown_parameters)
-        self.set_retaken()
-        return settings
+    def _device_parameters(self, settings: RigNodeSettings) -> RigParams:
+        """The rig YAML (rig_config) with this node's control_period (when set)."""
+        return settings.rig_params(load_rig(settings.rig_config or None))
 
     # --- inputs --------------------------------------------------------------------------------
 
@@ -247,7 +234,7 @@ class RigNode(DeviceNode):
             duties, flags = split_command(names, values, rig.valve_names)
         except CommandError as err:
             self.counts.last_rejection = f"{COMMAND_TOPIC}: {err}"
-            self._log_rejection(COMMAND_TOPIC, COMMAND_TOPIC, str(err), "the sample stays unanswered")
+            self.log_rejection(COMMAND_TOPIC, COMMAND_TOPIC, str(err), "the sample stays unanswered")
             return
         if stamp != rig.stamp_ns(self._shown) or len(self._answered) == len(rig.valve_names):
             return
@@ -264,7 +251,7 @@ class RigNode(DeviceNode):
         except CommandError as err:
             self.counts.rejected[valve] += 1
             self.counts.last_rejection = f"{valve}/{DUTY_CYCLE}: {err}"
-            self._log_rejection(valve, f"{valve}/{DUTY_CYCLE}", str(err), "the last valid value stays in force")
+            self.log_rejection(valve, f"{valve}/{DUTY_CYCLE}", str(err))
             return
         self.counts.accepted[valve] += 1
         self._when(valve, info, partial(rig.set_duty, valve, duty))
@@ -297,10 +284,7 @@ class RigNode(DeviceNode):
     def _refuse_fault(self, reason: str) -> None:
         self.counts.faults_rejected += 1
         self.counts.last_rejection = f"{FAULTS}: {reason}"
-        self._log_rejection(_FAULTS_KEY, FAULTS, reason, "nothing changed")
-
-    def _log_rejection(self, key: str, topic: str, reason: str, outcome: str) -> None:
-        self.log_rejection(key, topic, reason, outcome, self.settings.reject_log_period)
+        self.log_rejection(_FAULTS_KEY, FAULTS, reason, "nothing changed")
 
     def add_input(self, msg_type: Any, topic: str, handler: Callable[..., None], qos: Any) -> Any:
         """One more input taken with the node's own (`handler(msg, info)`, after the duties and faults)."""
@@ -435,8 +419,6 @@ class RigNode(DeviceNode):
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
                                    "received, the model computes up to each new one")
         self.create_service(Trigger, RESET, self._on_reset)
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
         self._rec_logged = 0                                # rig.log entries written to the bag
         self.recorder = self._make_recorder()
 
@@ -447,34 +429,10 @@ class RigNode(DeviceNode):
         except CommandError as err:
             self.counts.force_rejected += 1
             self.counts.last_rejection = f"{EXTERNAL_FORCE_TOPIC}: {err}"
-            self._log_rejection(EXTERNAL_FORCE_TOPIC, EXTERNAL_FORCE_TOPIC, str(err),
-                                "the last valid value stays in force")
+            self.log_rejection(EXTERNAL_FORCE_TOPIC, EXTERNAL_FORCE_TOPIC, str(err))
             return
         self.counts.force_accepted += 1
         self._when(EXTERNAL_FORCE, info, partial(self.rig.set_external_force, force))
-
-    def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
-        """on-set callback (the loop answers the parameter services): the changed settings checked with
-        the same rules as at start, staged for `_apply_parameters`; use_sim_time cannot change.
-        rclpy refuses the read-only ones (what the rig and its schedule are built on) before this."""
-        refused = self.sim_time_change_refused(parameters)
-        if refused is not None:
-            return refused
-        changes = {p.name: p.value for p in parameters if p.name in self._declared}
-        try:
-            self._staged = rig_settings_with(self.settings, changes).check(self.rig.params) if changes else None
-        except ParameterError as err:
-            return SetParametersResult(successful=False, reason=str(err))
-        return SetParametersResult(successful=True)
-
-    def _apply_parameters(self, parameters: list[Any]) -> None:
-        """post-set callback (on the loop, between steps): the staged settings in force from now on."""
-        settings, self._staged = self._staged, None
-        if settings is None:
-            return
-        self.settings = settings
-        self._retime(settings)
-        self.get_logger().info(f"parameters changed: {', '.join(f'{p.name} = {p.value!r}' for p in parameters)}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The rig back to rest: valves at their initial duty, piston at its initial position and at

@@ -1,7 +1,8 @@
 """The rig node's parameters and its fault commands, without ROS.
 
 Node settings follow the emulator's mechanism (`pcv_sim.params.setting`: default, unit,
-description, check and read-only declared once; `RIG_PARAMETERS` is derived from the fields).
+description, check and read-only declared once; `SCHEMA`, a `SettingsSchema` as the emulator's,
+derives the parameters and checks and changes the settings).
 The physics (valves, cylinder, timing step, watchdog) comes from the rig YAML named by
 `rig_config`, validated by `pcv_sim.rig.params`.
 Fault commands (the `faults` topic) are the device's: `pcv_sim.device.faults.parse_fault_command`.
@@ -10,25 +11,23 @@ Fault commands (the `faults` topic) are the device's: `pcv_sim.device.faults.par
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from pcv_sim.device.settings import (
     CommonSettings,
+    SettingsSchema,
     any_value,
     bag_name_check,
     non_negative,
     one_of,
-    parameters_of,
     real_time_factor,
 )
 from pcv_sim.errors import ParameterError
-from pcv_sim.params import check_value, setting
+from pcv_sim.params import setting
 from pcv_sim.rig.params import RigParams
 from pcv_sim.simulation.clock import steps_per
 
-__all__ = ["RIG_PARAMETERS", "RigNodeSettings", "check_rig_value", "rig_settings_with", "settings_from"]
+__all__ = ["RIG_PARAMETERS", "SCHEMA", "RigNodeSettings", "check_rig_value"]
 
 
 @dataclass(frozen=True)
@@ -83,22 +82,6 @@ class RigNodeSettings(CommonSettings):
         return dataclasses.replace(rig, timing=dataclasses.replace(rig.timing, control_period=self.control_period))
 
 
-RIG_PARAMETERS = parameters_of(RigNodeSettings)
-_BY_NAME = {p.name: p for p in RIG_PARAMETERS}
-
-
-def check_rig_value(name: str, value: Any) -> Any:
-    """Convert and check one rig node parameter; ParameterError naming it if refused."""
-    spec = _BY_NAME.get(name)
-    if spec is None:
-        raise ParameterError(f"unknown parameter {name!r}; accepted are: {', '.join(_BY_NAME)}")
-    return check_value(name, spec.meta, value)
-
-
-def settings_from(values: Mapping[str, Any]) -> RigNodeSettings:
-    return RigNodeSettings(**{_BY_NAME[k].attr: v for k, v in values.items()})
-
-
-def rig_settings_with(settings: RigNodeSettings, changes: Mapping[str, Any]) -> RigNodeSettings:
-    """A copy of settings with parameters changed, each checked (not yet cross-checked)."""
-    return dataclasses.replace(settings, **{_BY_NAME[k].attr: check_rig_value(k, v) for k, v in changes.items()})
+SCHEMA = SettingsSchema(RigNodeSettings)
+RIG_PARAMETERS = SCHEMA.parameters
+check_rig_value = SCHEMA.check

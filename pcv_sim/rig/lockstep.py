@@ -13,6 +13,18 @@ they existed, so it shows the inputs in force at t_k (the project's one rule: a 
 shows the inputs in force from k on; an input acts from the first step not yet shown). The rig
 then runs to the next instant, and so on: deterministic bit for bit, as fast as the machine
 allows. The rig node in lockstep applies a controller's answers at the same step.
+
+A controller may also offer an array form, which the lockstep then calls instead while no sensor
+fault is active (a dropped sample has no place in it; the dict form is called then):
+
+    controller.lockstep_arrays(signals, valves) -> (step, commanded, flags) | None
+    step(t, samples, out) -> None
+
+`signals` are the rig's signals and `setpoint` last; `samples` a list of that period's values
+in that order (NaN for the setpoint when the run has none); `step` writes the duties of the
+valves `commanded` and then the values of `flags`, in those orders, into the list `out`. Each
+is then taken as the dict form's would be (a refused duty counted, the last valid one kept).
+It saves building and parsing two dicts each period; None keeps the dict form.
 """
 
 from __future__ import annotations
@@ -22,7 +34,7 @@ import functools
 import math
 import operator
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,12 +150,74 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
         return rig.next_due() if armed else -1, rig.commands, rig.duties, rig.on_input, sensors.active
 
     horizon, in_command, in_force_now, hook, active = sync()
+    array_step, commanded, flag_rows = _array_form(controller, names, valves, flags, n)
+    out = [math.nan] * (len(commanded) + len(flag_rows))
+    #: the array form's valves with their slots, and each flag's row with its place in `out`
+    out_slots = [(v, *slots[v]) for v in commanded]
+    out_flags = [(row, len(commanded) + f) for f, row in enumerate(flag_rows)]
     # The setpoint at every instant before the run, where it is a profile (its segments evaluated
     # in one pass: the same numbers as calling it at each instant).
     sp_all = setpoint.sample([(k0 + k * per) * dt for k in range(n + 1)]) if isinstance(setpoint, Profile) else None
+
+    def refuse(j: int, key: str, value: Any) -> None:
+        """A duty the fast path does not write (not a float in the valve's range): its watchdog told
+        of the last valid command, then the rig's set_duty refuses it (counted in rig.rejected)."""
+        if (step := heard[j]) is not None:
+            watchdogs[j].command(step)
+            heard[j] = None
+        try:                        # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
+            rig.set_duty(key, value)
+        except CommandError:
+            pass
+
     wall0 = time.perf_counter()
     try:
-        for k in range(n + 1):
+        k = 0
+        while k <= n:
+            if array_step is not None and hook is None and not active and k < n and sim.steps <= k0 + k * per:
+                # A stretch of periods in which nothing but the array form's duties falls due (the
+                # fast path's tests below, made once for the stretch: the step before which a fed
+                # input, a queued one or a watchdog deadline falls; the array form's step sees only
+                # its samples, so nothing it does can queue one). The same numbers as below.
+                fs = rig._feed_steps
+                r = rig._feed_next
+                due = min(horizon, queue.next_step, fs[r] if r < len(fs) else NEVER)
+                start, end = k, min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
+                now = sim.steps
+                feed_i, feed_v = rig._feed_i, rig._feed_v
+                for k in range(start, end):
+                    at = k0 + k * per
+                    y = true[k]
+                    try:
+                        norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
+                    except MODEL_FAILURES as err:
+                        rig._fail(f"model step failed ({type(err).__name__}: {err})")
+                    sim.steps = now = at + 1
+                    if not isfinite(norm):
+                        rig._check_finite()
+                    t = at * dt
+                    measure(t, y)                   # no sensor fault: y itself (kept for a later fault)
+                    samples = y.tolist()
+                    if sp_all is not None:
+                        sp[k] = now_sp = sp_all[k]
+                    elif setpoint is not None:
+                        sp[k] = now_sp = setpoint(t)
+                    else:
+                        now_sp = math.nan
+                    samples.append(now_sp)
+                    array_step((at * dt_ns) * 1e-9, samples, out)
+                    for flag_row, f in out_flags:
+                        flag_row[k] = float(out[f])
+                    for (key, lo, hi, i, j), value in zip(out_slots, out):
+                        if type(value) is float and lo <= value <= hi:
+                            in_command[key] = in_force_now[key] = u[i] = value      # as set_duty
+                            heard[j] = now
+                        else:
+                            refuse(j, key, value)
+                    duty_rows.append(in_force(in_force_now))
+                if end > start:
+                    k = end
+                    continue
             at = k0 + k * per
             answer = k < n and controller is not None
             last = at + 1 if answer else at
@@ -176,52 +250,82 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if m is not y:
                 measured[k] = m
             if answer and controller is not None:
-                # A dropped (NaN) measurement is absent from the controller's dict.
-                measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if active
-                               else dict(zip(names, m.tolist())))
-                if setpoint is not None:
-                    sp[k] = measurement["setpoint"] = sp_all[k] if sp_all is not None else setpoint(t)
                 # The time a controller node reads from the sample's stamp (integer ns x 1e-9), so that
                 # a callable and a node see the same number to the last bit (steps x dt may differ).
-                commands = controller((at * dt_ns) * 1e-9, measurement)
-                taken = sim.steps == at + 1       # the step after the sample was taken with it
-                if commands is not None:
-                    if type(commands) is not dict and not isinstance(commands, Mapping):
-                        raise ControllerError(f"the controller returned {type(commands).__name__} at t = {t:g} s; "
+                commands: Iterable[tuple[str, Any]]
+                if array_step is not None and not active:
+                    samples = m.tolist()
+                    if sp_all is not None:
+                        sp[k] = now_sp = sp_all[k]
+                    elif setpoint is not None:
+                        sp[k] = now_sp = setpoint(t)
+                    else:
+                        now_sp = math.nan
+                    samples.append(now_sp)
+                    array_step((at * dt_ns) * 1e-9, samples, out)
+                    for flag_row, f in out_flags:
+                        flag_row[k] = float(out[f])
+                    if fast:
+                        # rig.set_duty's effect for each valid duty (its watchdog told at the next sync)
+                        for (key, lo, hi, i, j), value in zip(out_slots, out):
+                            if type(value) is float and lo <= value <= hi:
+                                in_command[key] = in_force_now[key] = u[i] = value
+                                heard[j] = last
+                                if hook is not None:
+                                    hook(last, duty_name[j], value)
+                            else:
+                                refuse(j, key, value)
+                        commands = ()
+                    else:
+                        commands = zip(commanded, out)
+                else:
+                    # A dropped (NaN) measurement is absent from the controller's dict.
+                    measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if active
+                                   else dict(zip(names, m.tolist())))
+                    if setpoint is not None:
+                        sp[k] = measurement["setpoint"] = sp_all[k] if sp_all is not None else setpoint(t)
+                    answered = controller((at * dt_ns) * 1e-9, measurement)
+                    if answered is None:
+                        commands = ()
+                    elif type(answered) is dict or isinstance(answered, Mapping):
+                        commands = answered.items()
+                    else:
+                        raise ControllerError(f"the controller returned {type(answered).__name__} at t = {t:g} s; "
                                               f"accepted is a mapping valve -> duty ({', '.join(valves)}) "
                                               "with an optional 'flags' mapping")
-                    for key, value in commands.items():
-                        slot = slots.get(key)
-                        if slot is not None:
-                            if fast:
-                                lo, hi, i, j = slot
-                                if type(value) is float and lo <= value <= hi:
-                                    # rig.set_duty's effect, its watchdog told at the next sync
-                                    in_command[key] = in_force_now[key] = u[i] = value
-                                    heard[j] = last
-                                    if hook is not None:
-                                        hook(last, duty_name[j], value)
-                                    continue
-                                if (step := heard[j]) is not None:      # its last valid command first
-                                    watchdogs[j].command(step)
-                                    heard[j] = None
-                            if taken:             # nothing else falls due at at + 1: it acts from now
-                                try:              # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
-                                    rig.set_duty(key, value)
-                                except CommandError:
-                                    pass          # counted in rig.rejected; the last valid command stays
-                            else:                 # as the rig node schedules an answer: after the step's
-                                # timeline inputs, before its watchdog check
-                                rig.schedule((at + 1) * dt, functools.partial(_set_duty, rig, key, value))
-                        elif key == "flags":
-                            for fname, fv in (value if type(value) is dict else dict(value)).items():
-                                arr = flags.get(fname)
-                                if arr is None:
-                                    arr = flags[fname] = [math.nan] * (n + 1)
-                                arr[k] = float(fv)
-                        else:
-                            raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
-                                                  f"valves {', '.join(valves)} and 'flags'")
+                taken = sim.steps == at + 1       # the step after the sample was taken with it
+                for key, value in commands:
+                    slot = slots.get(key)
+                    if slot is not None:
+                        if fast:
+                            lo, hi, i, j = slot
+                            if type(value) is float and lo <= value <= hi:
+                                # rig.set_duty's effect, its watchdog told at the next sync
+                                in_command[key] = in_force_now[key] = u[i] = value
+                                heard[j] = last
+                                if hook is not None:
+                                    hook(last, duty_name[j], value)
+                                continue
+                            if (step := heard[j]) is not None:      # its last valid command first
+                                watchdogs[j].command(step)
+                                heard[j] = None
+                        if taken:             # nothing else falls due at at + 1: it acts from now
+                            try:              # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
+                                rig.set_duty(key, value)
+                            except CommandError:
+                                pass          # counted in rig.rejected; the last valid command stays
+                        else:                 # as the rig node schedules an answer: after the step's
+                            # timeline inputs, before its watchdog check
+                            rig.schedule((at + 1) * dt, functools.partial(_set_duty, rig, key, value))
+                    elif key == "flags":
+                        for fname, fv in (value if type(value) is dict else dict(value)).items():
+                            arr = flags.get(fname)
+                            if arr is None:
+                                arr = flags[fname] = [math.nan] * (n + 1)
+                            arr[k] = float(fv)
+                    else:
+                        raise ControllerError(f"the controller commanded {key!r} at t = {t:g} s; accepted are the "
+                                              f"valves {', '.join(valves)} and 'flags'")
                 if not taken:
                     rig.advance_to(at + 1)
             elif setpoint is not None:
@@ -229,6 +333,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if not fast:                        # what ran there may have scheduled, fired, armed, reset
                 horizon, in_command, in_force_now, hook, active = sync()
             duty_rows.append(in_force(in_force_now))
+            k += 1
     finally:
         sync()                                  # the watchdogs know every command, also after an error
     wall = time.perf_counter() - wall0
@@ -239,6 +344,29 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     duties = np.array(duty_rows, dtype=float).reshape(n + 1, len(valves))
     return RigRun(times, names, true, meas, duties, valves, np.array(sp),
                   {f"controller.{f}": np.array(a) for f, a in flags.items()}, list(rig.log), list(rig.rejected), wall)
+
+
+def _array_form(controller: Controller | None, signals: tuple[str, ...], valves: tuple[str, ...],
+                flags: dict[str, list[float]], n: int
+                ) -> tuple[Callable[[float, list[float], list[float]], None] | None, tuple[str, ...],
+                           list[list[float]]]:
+    """The controller's array form (step, commanded valves, the rows of its flags, added to `flags`),
+    or (None, (), []) when it offers none."""
+    bind = getattr(controller, "lockstep_arrays", None)
+    form = bind((*signals, "setpoint"), valves) if bind is not None and n > 0 else None
+    if form is None:
+        return None, (), []
+    step, commanded, flag_names = form
+    commanded, flag_names = tuple(commanded), tuple(flag_names)
+    wrong = [v for v in commanded if v not in valves]
+    if wrong or len(set(commanded)) != len(commanded) or not callable(step):
+        raise ControllerError(f"the controller's array form commands {', '.join(map(repr, commanded))}; accepted "
+                              f"is a callable step and each of the valves {', '.join(valves)} at most once")
+    if not all(isinstance(f, str) for f in flag_names) or len(set(flag_names)) != len(flag_names):
+        raise ControllerError(f"the controller's array form names the flags {flag_names!r}; accepted are "
+                              "distinct names (str)")
+    rows = [flags.setdefault(f, [math.nan] * (n + 1)) for f in flag_names]
+    return step, commanded, rows
 
 
 def _set_duty(rig: Rig, valve: str, value: Any) -> None:
