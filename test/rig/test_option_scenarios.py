@@ -82,6 +82,13 @@ def test_a_ros_controller_refuses_the_overlay():
         scenario_from_mapping(data, path=EXAMPLES / "ros" / "step.yaml")
 
 
+def test_the_command_with_a_ros_node_refuses_the_overlay(capsys):
+    from pcv_sim.cli import main
+
+    assert main(["scenario", "run", str(EXAMPLES / "fast_release.yaml"), "--ros", "/steering", "--wait", "1"]) == 2
+    assert "BAD FILE" in (err := capsys.readouterr().err) and "valves: with --ros the rig node loads the rig YAML" in err
+
+
 def test_the_oil_of_the_overlay_is_checked_against_the_rigs_step():
     """A separate core keeps the explicit bound on the spool's pole (R34): oil at -20 degC at the
     rig's 0.1 ms step is refused when the rig is built, naming the key, not integrated into a
