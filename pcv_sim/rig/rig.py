@@ -26,7 +26,7 @@ raises RigError and is the device's fault state (`fault`, `pcv_sim.device.device
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, NoReturn
@@ -37,7 +37,7 @@ from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
 from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.device.sensors import Sensors
-from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.errors import CommandError, ParameterError, PcvSimError
 from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
@@ -49,6 +49,7 @@ from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.stepper import check_oil_step, check_temperature
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_integrator, valve_system
+from pcv_sim.units import kelvin
 
 __all__ = [
     "CYLINDER_SIGNALS",
@@ -61,6 +62,7 @@ __all__ = [
     "RigError",
     "RigStatus",
     "check_external_force",
+    "rig_signals",
     "signal_kind",
     "signal_names",
 ]
@@ -69,9 +71,20 @@ VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
 
 
-def signal_names(valve_names: Sequence[str]) -> tuple[str, ...]:
-    """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve, then `cylinder.<...>`."""
-    return tuple(f"{n}.{s}" for n in valve_names for s in VALVE_SIGNALS) + tuple(f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+def signal_names(valve_names: Sequence[str], options: Mapping[str, Sequence[str]] | None = None) -> tuple[str, ...]:
+    """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve and the
+    outputs its options bring (`options`: valve -> names), then `cylinder.<...>`."""
+    opts = options or {}
+    return tuple(f"{n}.{s}" for n in valve_names for s in (*VALVE_SIGNALS, *opts.get(n, ()))) + tuple(
+        f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+
+
+def rig_signals(params: RigParams) -> tuple[str, ...]:
+    """`signal_names` of a rig's valves with the outputs of their options (docs/model.md R33-R35:
+    coil_temperature and coil_resistance of a heating coil, core_position of a separate core)."""
+    kind = params.valves[0].params.simulation.model
+    return signal_names([v.name for v in params.valves],
+                        {v.name: kernel.layout(v.params, kind).outputs[len(kernel.OUTPUTS):] for v in params.valves})
 
 
 def signal_kind(signal: str) -> str:
@@ -80,7 +93,9 @@ def signal_kind(signal: str) -> str:
         return "number"
     tail = signal.rsplit(".", 1)[-1]
     return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
-            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length"}.get(tail, "number")
+            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length",
+            "coil_temperature": "temperature", "core_position": "length",
+            "oil_temperature": "temperature", "ambient_temperature": "temperature"}.get(tail, "number")
 
 
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.
@@ -159,7 +174,7 @@ class Rig(Device):
         #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
         self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
                              v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
-        self.signals = signal_names(self.valve_names)
+        self.signals = rig_signals(params)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
         #: per valve: the output its load volume is wired from (the chamber's), or -1 (its own, constant)
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
@@ -182,6 +197,13 @@ class Rig(Device):
         self.option_sample: list[float] = []
         #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
         self._exact_spool = [self.sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:-1]]
+        for k, v in enumerate(valves):
+            if v.params.fluid.oil_temperature_model:      # the YAML's oil, as set_temperature checks one
+                try:
+                    check_oil_step(v.params, systems[k].p, self.dt, self._exact_spool[k],
+                                   kelvin(v.params.fluid.oil_temperature_c))
+                except CommandError as err:
+                    raise ParameterError(f"valves.{v.name}: fluid.oil_temperature_c: {err}") from None
         self._state_off = plant.offsets("states")
         self._configured = [s.p.copy() for s in systems[:-1]]     # the valves' YAML (at reset)
         self._healthy = [s.p.copy() for s in systems[:-1]]        # and the temperatures set since
