@@ -1,7 +1,6 @@
 """The emulator's fault topic over real DDS: off unless faults.enabled; a sensor fault changes what
 is published, a physical fault the valve; each command is logged with its publisher's node name."""
 import pytest
-from std_msgs.msg import String
 
 from pcv_sim.io.topics import CURRENT, FAULTS, PRESSURE
 
@@ -12,9 +11,8 @@ def test_the_fault_topic_is_off_unless_enabled(ros):
     emu = ros.start('off', params={'safe_duty': 0.3})
     c = ros.client('off')
     assert c.wait_for_emulator(START), emu.output()
-    pub = c.node.create_publisher(String, FAULTS, 10)
     c.spin_for(1.0)
-    assert pub.get_subscription_count() == 0
+    assert c.fault_pub.get_subscription_count() == 0
     assert 'fault topic off (faults.enabled: false)' in emu.output()
 
 
@@ -23,29 +21,28 @@ def test_faults_change_what_is_published_and_are_logged_with_their_publisher(ros
                                   'diagnostics_period': 0.2})
     c = ros.client('on', outputs=(PRESSURE, CURRENT))
     assert c.wait_for_emulator(START), emu.output()
-    pub = c.node.create_publisher(String, FAULTS, 10)
-    assert c.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    assert c.spin_until(lambda: c.fault_pub.get_subscription_count() > 0, 10)
     c.spin_for(0.5)
     before = c.samples[-1].pressure
     current = c.outputs[CURRENT][-1][1]
     assert current > 0.3
 
-    pub.publish(String(data='{fault: bias, signal: pressure, value: 1.0e+5}'))
+    c.send_fault('{fault: bias, signal: pressure, value: 1.0e+5}')
     assert c.spin_until(lambda: c.samples[-1].pressure == pytest.approx(before + 1e5, abs=100.0), 10), \
         (before, c.samples[-1].pressure)
     diag = c.wait_for_diagnostics(lambda d: d['faults_active'] == 'bias@pressure', timeout=10)
     assert diag is not None and diag['accepted.faults'] == '1'
     assert 'faults active: bias@pressure' in c.diagnostic_statuses[-1]['inputs'][1]
 
-    pub.publish(String(data='{fault: coil_open}'))               # the one valve: no target needed
+    c.send_fault('{fault: coil_open}')               # the one valve: no target needed
     assert c.spin_until(lambda: abs(c.outputs[CURRENT][-1][1]) < 0.01 * current, 10)
 
-    pub.publish(String(data='{fault: nosuch}'))
+    c.send_fault('{fault: nosuch}')
     diag = c.wait_for_diagnostics(lambda d: d['rejected.faults'] == '1', timeout=10)
     assert diag is not None and "kind 'nosuch'" in diag['last_rejection']
 
-    pub.publish(String(data='{clear: bias, signal: pressure}'))
-    pub.publish(String(data='{clear: coil_open}'))
+    c.send_fault('{clear: bias, signal: pressure}')
+    c.send_fault('{clear: coil_open}')
     assert c.spin_until(lambda: abs(c.outputs[CURRENT][-1][1] - current) < 0.01 * current, 10)
     diag = c.wait_for_diagnostics(lambda d: d['faults_active'] == '', timeout=10)
     assert diag is not None
@@ -72,12 +69,11 @@ def test_fault_commands_are_recorded_at_the_step_they_acted_as_in_the_rigs_bag(r
                                    'record.directory': str(bags), 'record.name': 'run'})
     c = ros.client('rec')
     assert c.wait_for_emulator(START), emu.output()
-    pub = c.node.create_publisher(String, FAULTS, 10)
-    assert c.spin_until(lambda: pub.get_subscription_count() > 0, 10)
-    pub.publish(String(data='{fault: coil_open}'))
-    pub.publish(String(data='{clear: bias, signal: pressure}'))       # not active when due: refused then
+    assert c.spin_until(lambda: c.fault_pub.get_subscription_count() > 0, 10)
+    c.send_fault('{fault: coil_open}')
+    c.send_fault('{clear: bias, signal: pressure}')       # not active when due: refused then
     c.spin_for(0.3)
-    pub.publish(String(data='{clear: coil_open}'))
+    c.send_fault('{clear: coil_open}')
     diag = c.wait_for_diagnostics(lambda d: d['rejected.faults'] == '1' and d['accepted.faults'] == '2', timeout=10)
     assert diag is not None, c.diagnostics[-1:]
     c.spin_for(0.3)
