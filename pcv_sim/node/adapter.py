@@ -61,7 +61,6 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
@@ -77,7 +76,6 @@ from pcv_sim.device.settings import (
 from pcv_sim.device.valve import VALVE, Recorder, Sample, ValveDevice, WatchdogState
 from pcv_sim.io.recorder import BagRecorder, RecorderStatus
 from pcv_sim.io.topics import (
-    CLOCK,
     CURRENT,
     DIAGNOSTICS,
     DUTY_CYCLE,
@@ -89,7 +87,6 @@ from pcv_sim.io.topics import (
     SUPPLY_PRESSURE,
 )
 from pcv_sim.node.base import (
-    CLOCK_QOS,
     COMMAND_HINT,
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
@@ -97,9 +94,6 @@ from pcv_sim.node.base import (
     DeviceNode,
 )
 from pcv_sim.params import ValveParams, load_params
-from pcv_sim.simulation.clock import (
-    ExternalClock,
-)
 
 __all__ = ["EmulatorNode"]
 
@@ -128,7 +122,6 @@ class EmulatorNode(DeviceNode):
         self.simulated = s.time_mode == "simulated"
         self.device = ValveDevice(params, safe_duty=s.safe_duty, watchdog_timeout=s.watchdog_timeout,
                                   sample_every=s.sample_every(dt), seed=s.seed)
-        self._external = ExternalClock(self.device.dt_ns)   # use_sim_time: the latest /clock, model time anchored
         self.samples_published = 0
         self._last_published: tuple[Any, ...] | None = None   # `_send`'s arguments: step, measured values
         self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
@@ -143,11 +136,8 @@ class EmulatorNode(DeviceNode):
         self._msg_option = Float64()
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
                                                event_callbacks=out(DIAGNOSTICS))
-        if self.simulated:
-            self.refuse_a_second_clock("run this emulator with use_sim_time:=true (time_mode real) to follow the "
-                                       "other clock, or simulate several valves in one process (the multi-valve rig)")
-        self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=out(CLOCK))
-                           if self.simulated else None)
+        self.publish_clock("run this emulator with use_sim_time:=true (time_mode real) to follow the other "
+                           "clock, or simulate several valves in one process (the multi-valve rig)")
         inp = self.input_events
         self._inputs += [
             (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
@@ -162,9 +152,7 @@ class EmulatorNode(DeviceNode):
             self._inputs.append((self.create_subscription(Float64, name, handler, COMMAND_QOS,
                                                           event_callbacks=inp(name)), handler))
         self.subscribe_faults()
-        if self.external_clock:
-            self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
-                                                          event_callbacks=inp(CLOCK)), self._on_clock))
+        self.follow_clock()
         self.collect_event_handlers()
         self.create_service(Trigger, RESET, self._on_reset)
         self._deferred_callbacks += (self._on_reset,)      # rest states are computed off the loop

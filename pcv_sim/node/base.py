@@ -337,6 +337,22 @@ class DeviceNode(Node):
 
     # --- clock -----------------------------------------------------------------------------------
 
+    def publish_clock(self, accepted: str) -> None:
+        """In simulated time the /clock publisher, the domain's one clock: refused beside another
+        (`accepted` says what to do instead); otherwise none."""
+        if self.simulated:
+            self.refuse_a_second_clock(accepted)
+        self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=self.output_events(CLOCK))
+                           if self.simulated else None)
+
+    def follow_clock(self) -> None:
+        """With use_sim_time, /clock in: the model follows it (`ExternalClock`, `_run_external_clock`)."""
+        self._external = ExternalClock(self.device.dt_ns)
+        if self.external_clock:
+            sub = self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
+                                           event_callbacks=self.input_events(CLOCK))
+            self._inputs.append((sub, self._on_clock))
+
     def refuse_a_second_clock(self, accepted: str) -> None:
         """Two simulated-time nodes would both publish /clock, and every node with use_sim_time would see
         time jump between them. Before creating its own /clock publisher the node looks for another one

@@ -72,7 +72,6 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, Header
 from std_srvs.srv import Trigger
@@ -82,7 +81,6 @@ from pcv_sim.device.faults import parse_fault_command
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import (
-    CLOCK,
     CURRENT,
     CYLINDER,
     DIAGNOSTICS,
@@ -100,7 +98,6 @@ from pcv_sim.io.topics import (
     EXTERNAL_FORCE as EXTERNAL_FORCE_ROLE,
 )
 from pcv_sim.node.base import (
-    CLOCK_QOS,
     COMMAND_HINT,
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
@@ -114,9 +111,6 @@ from pcv_sim.rig.diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.rig.params import RigParams
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.rig.settings import SCHEMA, RigNodeSettings
-from pcv_sim.simulation.clock import (
-    ExternalClock,
-)
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import check_temperature
 
@@ -168,9 +162,11 @@ class RigNode(DeviceNode):
         self._publisher = publisher
         self._subscription = subscription
         for name in rig.valve_names:
+            # by name: a valve's options bring more signals after its own three (`rig_signals`)
             self._valve_pubs.append((publisher(FluidPressure, valve_topic(name, PRESSURE)),
                                      publisher(Float64, valve_topic(name, CURRENT)),
-                                     publisher(Float64, valve_topic(name, SPOOL_POSITION))))
+                                     publisher(Float64, valve_topic(name, SPOOL_POSITION)),
+                                     tuple(rig.signals.index(f"{name}.{q}") for q in (PRESSURE, CURRENT, SPOOL_POSITION))))
             subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
         self._pub_sample = None
         if self.simulated and s.lockstep:
@@ -197,9 +193,7 @@ class RigNode(DeviceNode):
         self._msg_float = Float64()
         self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
         self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
-        if self.simulated:
-            self.refuse_a_second_clock("stop the other simulation, or run this rig with time_mode real")
-        self._pub_clock = publisher(Clock, CLOCK, CLOCK_QOS, COMMAND_HINT) if self.simulated else None
+        self.publish_clock("stop the other simulation, or run this rig with time_mode real")
         self._n_signals = len(rig.signals)
         self._cyl_i = [rig.signals.index(f"{CYLINDER}.{q}") for q in ("position", "velocity", "effort")]
         self._diag = RigDiagnostics(self.get_fully_qualified_name(), time.monotonic())
@@ -363,8 +357,8 @@ class RigNode(DeviceNode):
         published = 0
         msg_p, msg_f = self._msg_pressure, self._msg_float
         msg_p.header.stamp.sec, msg_p.header.stamp.nanosec = sec, nsec
-        for k, (pub_p, pub_i, pub_x) in enumerate(self._valve_pubs):
-            p, i, x = y[3 * k:3 * k + 3]
+        for pub_p, pub_i, pub_x, (jp, ji, jx) in self._valve_pubs:
+            p, i, x = y[jp], y[ji], y[jx]
             if isfinite(p):
                 published += 1
                 if pub_p.get_subscription_count():
@@ -454,9 +448,8 @@ class RigNode(DeviceNode):
         """The endpoints beside the samples and the duty and fault commands: `cylinder/external_force`,
         the `reset` service, /clock in (use_sim_time), the recorder (record.enabled)."""
         self._subscription(Float64, EXTERNAL_FORCE_TOPIC, self._on_external_force)
-        self._external = ExternalClock(self.dt_ns)
+        self.follow_clock()
         if self.external_clock:
-            self._subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS)
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
                                    "received, the model computes up to each new one")
         self.create_service(Trigger, RESET, self._on_reset)

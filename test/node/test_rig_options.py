@@ -8,6 +8,7 @@ answers every control period."""
 import signal
 import struct
 
+from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 
 from pcv_sim.node.client import sample_qos
@@ -32,6 +33,9 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
     for name, values in got.items():
         client.add_input(node.create_subscription(Float64, f'probe/{name}', lambda _m: None, sample_qos(1000)),
                          lambda m, _i, v=values: v.append(m.data))
+    right = []                        # a valve after the probe in the rig's signals (options between): its own
+    client.add_input(node.create_subscription(FluidPressure, 'right/pressure', lambda _m: None, sample_qos(1000)),
+                     lambda m, _i: right.append((m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, m.fluid_pressure)))
     oil = node.create_publisher(Float64, 'probe/oil_temperature', 10)
     assert client.wait_for_rig(START), rig.output()
     assert wait_until(lambda: oil.get_subscription_count() > 0, 10)
@@ -44,6 +48,9 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
     temps = got['coil_temperature']
     assert temps[-1] > temps[0] > kelvin(-60.0)                                # K: it warmed at 90 %
     assert all(0.5 < r < 200.0 for r in got['coil_resistance'])               # ohm
+    # The client reads these very topics, so the check is physical: a pressure of tens of bar, not
+    # the probe's coil temperature (~313 K) or resistance that stand before it in the rig's signals.
+    assert len(right) > 100 and all(10e5 < p < 300e5 for _, p in right), right[-3:]
 
     oil.publish(Float64(data=kelvin(50.0)))
     client.run(heat, 100, timeout=60)
