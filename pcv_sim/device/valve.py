@@ -130,6 +130,8 @@ class ValveDevice(Device):
     """One emulated valve: the model stepper plus the device behaviour around it (a `Device` of
     one valve and no plant)."""
 
+    params: ValveParams
+
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
         sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1, seed: int = 0,

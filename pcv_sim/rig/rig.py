@@ -126,6 +126,8 @@ class Rig(Device):
     docstring). Its queue holds inputs (`submit`), fault commands (`submit_fault`) and actions
     (`schedule`)."""
 
+    params: RigParams
+
     def __init__(self, params: RigParams, *, seed: int = 0) -> None:
         valves = params.valves
         super().__init__(params.timing.time_step, [v.name for v in valves],
