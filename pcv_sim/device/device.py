@@ -116,6 +116,8 @@ class Device:
         #: a long-running device counts them in `counts` only).
         self.rejected: list[tuple[float, str]] = []
         self.keep_rejections = keep_rejections
+        #: Called with (step, the command as given) when a fault command acted (a recorder's hook).
+        self.on_fault_command: Callable[[int, str], None] | None = None
 
     @property
     def time(self) -> float:
@@ -219,6 +221,8 @@ class Device:
             try:
                 if name == FAULTS:
                     self._fault_command(value)
+                    if self.on_fault_command is not None:
+                        self.on_fault_command(self.steps, value.text)
                 else:
                     self.inputs[name].apply(value)
             except (CommandError, FaultError) as err:   # valid on arrival, refused now (e.g. duty_range

@@ -152,13 +152,72 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
     horizon, in_command, in_force_now, hook, active = sync()
     array_step, commanded, flag_rows = _array_form(controller, names, valves, flags, n)
     out = [math.nan] * (len(commanded) + len(flag_rows))
-    nc = len(commanded)
+    #: the array form's valves with their slots, and each flag's row with its place in `out`
+    out_slots = [(v, *slots[v]) for v in commanded]
+    out_flags = [(row, len(commanded) + f) for f, row in enumerate(flag_rows)]
     # The setpoint at every instant before the run, where it is a profile (its segments evaluated
     # in one pass: the same numbers as calling it at each instant).
     sp_all = setpoint.sample([(k0 + k * per) * dt for k in range(n + 1)]) if isinstance(setpoint, Profile) else None
+
+    def refuse(j: int, key: str, value: Any) -> None:
+        """A duty the fast path does not write (not a float in the valve's range): its watchdog told
+        of the last valid command, then the rig's set_duty refuses it (counted in rig.rejected)."""
+        if (step := heard[j]) is not None:
+            watchdogs[j].command(step)
+            heard[j] = None
+        try:                        # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
+            rig.set_duty(key, value)
+        except CommandError:
+            pass
+
     wall0 = time.perf_counter()
     try:
-        for k in range(n + 1):
+        k = 0
+        while k <= n:
+            if array_step is not None and hook is None and not active and k < n and sim.steps <= k0 + k * per:
+                # A stretch of periods in which nothing but the array form's duties falls due (the
+                # fast path's tests below, made once for the stretch: the step before which a fed
+                # input, a queued one or a watchdog deadline falls; the array form's step sees only
+                # its samples, so nothing it does can queue one). The same numbers as below.
+                fs = rig._feed_steps
+                r = rig._feed_next
+                due = min(horizon, queue.next_step, fs[r] if r < len(fs) else NEVER)
+                start, end = k, min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
+                now = sim.steps
+                feed_i, feed_v = rig._feed_i, rig._feed_v
+                for k in range(start, end):
+                    at = k0 + k * per
+                    y = true[k]
+                    try:
+                        norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
+                    except MODEL_FAILURES as err:
+                        rig._fail(f"model step failed ({type(err).__name__}: {err})")
+                    sim.steps = now = at + 1
+                    if not isfinite(norm):
+                        rig._check_finite()
+                    t = at * dt
+                    measure(t, y)                   # no sensor fault: y itself (kept for a later fault)
+                    samples = y.tolist()
+                    if sp_all is not None:
+                        sp[k] = now_sp = sp_all[k]
+                    elif setpoint is not None:
+                        sp[k] = now_sp = setpoint(t)
+                    else:
+                        now_sp = math.nan
+                    samples.append(now_sp)
+                    array_step((at * dt_ns) * 1e-9, samples, out)
+                    for flag_row, f in out_flags:
+                        flag_row[k] = float(out[f])
+                    for (key, lo, hi, i, j), value in zip(out_slots, out):
+                        if type(value) is float and lo <= value <= hi:
+                            in_command[key] = in_force_now[key] = u[i] = value      # as set_duty
+                            heard[j] = now
+                        else:
+                            refuse(j, key, value)
+                    duty_rows.append(in_force(in_force_now))
+                if end > start:
+                    k = end
+                    continue
             at = k0 + k * per
             answer = k < n and controller is not None
             last = at + 1 if answer else at
@@ -196,15 +255,29 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                 commands: Iterable[tuple[str, Any]]
                 if array_step is not None and not active:
                     samples = m.tolist()
-                    if setpoint is not None:
-                        sp[k] = now_sp = sp_all[k] if sp_all is not None else setpoint(t)
-                        samples.append(now_sp)
+                    if sp_all is not None:
+                        sp[k] = now_sp = sp_all[k]
+                    elif setpoint is not None:
+                        sp[k] = now_sp = setpoint(t)
                     else:
-                        samples.append(math.nan)
+                        now_sp = math.nan
+                    samples.append(now_sp)
                     array_step((at * dt_ns) * 1e-9, samples, out)
-                    commands = zip(commanded, out)
-                    for j, flag_row in enumerate(flag_rows):
-                        flag_row[k] = float(out[nc + j])
+                    for flag_row, f in out_flags:
+                        flag_row[k] = float(out[f])
+                    if fast:
+                        # rig.set_duty's effect for each valid duty (its watchdog told at the next sync)
+                        for (key, lo, hi, i, j), value in zip(out_slots, out):
+                            if type(value) is float and lo <= value <= hi:
+                                in_command[key] = in_force_now[key] = u[i] = value
+                                heard[j] = last
+                                if hook is not None:
+                                    hook(last, duty_name[j], value)
+                            else:
+                                refuse(j, key, value)
+                        commands = ()
+                    else:
+                        commands = zip(commanded, out)
                 else:
                     # A dropped (NaN) measurement is absent from the controller's dict.
                     measurement = ({s: v for s, v in zip(names, m.tolist()) if not math.isnan(v)} if active
@@ -260,6 +333,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
             if not fast:                        # what ran there may have scheduled, fired, armed, reset
                 horizon, in_command, in_force_now, hook, active = sync()
             duty_rows.append(in_force(in_force_now))
+            k += 1
     finally:
         sync()                                  # the watchdogs know every command, also after an error
     wall = time.perf_counter() - wall0

@@ -26,7 +26,7 @@ raises RigError and is the device's fault state (`fault`, `pcv_sim.device.device
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, NoReturn
@@ -37,7 +37,8 @@ from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
 from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.device.sensors import Sensors
-from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
@@ -48,6 +49,7 @@ from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.stepper import check_oil_step, check_temperature
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_integrator, valve_system
+from pcv_sim.units import kelvin
 
 __all__ = [
     "CYLINDER_SIGNALS",
@@ -60,6 +62,7 @@ __all__ = [
     "RigError",
     "RigStatus",
     "check_external_force",
+    "rig_signals",
     "signal_kind",
     "signal_names",
 ]
@@ -68,9 +71,20 @@ VALVE_SIGNALS = ("pressure", "current", "spool_position")
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
 
 
-def signal_names(valve_names: Sequence[str]) -> tuple[str, ...]:
-    """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve, then `cylinder.<...>`."""
-    return tuple(f"{n}.{s}" for n in valve_names for s in VALVE_SIGNALS) + tuple(f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+def signal_names(valve_names: Sequence[str], options: Mapping[str, Sequence[str]] | None = None) -> tuple[str, ...]:
+    """The rig's sampled signals in their order: `<valve>.<VALVE_SIGNALS>` per valve and the
+    outputs its options bring (`options`: valve -> names), then `cylinder.<...>`."""
+    opts = options or {}
+    return tuple(f"{n}.{s}" for n in valve_names for s in (*VALVE_SIGNALS, *opts.get(n, ()))) + tuple(
+        f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+
+
+def rig_signals(params: RigParams) -> tuple[str, ...]:
+    """`signal_names` of a rig's valves with the outputs of their options (docs/model.md R33-R35:
+    coil_temperature and coil_resistance of a heating coil, core_position of a separate core)."""
+    kind = params.valves[0].params.simulation.model
+    return signal_names([v.name for v in params.valves],
+                        {v.name: kernel.layout(v.params, kind).outputs[len(kernel.OUTPUTS):] for v in params.valves})
 
 
 def signal_kind(signal: str) -> str:
@@ -79,7 +93,9 @@ def signal_kind(signal: str) -> str:
         return "number"
     tail = signal.rsplit(".", 1)[-1]
     return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
-            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length"}.get(tail, "number")
+            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length",
+            "coil_temperature": "temperature", "core_position": "length",
+            "oil_temperature": "temperature", "ambient_temperature": "temperature"}.get(tail, "number")
 
 
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.
@@ -158,7 +174,7 @@ class Rig(Device):
         #: Valves on their own load volume: (input index of load_flow, of load_volume, the volume).
         self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
                              v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
-        self.signals = signal_names(self.valve_names)
+        self.signals = rig_signals(params)
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
         #: per valve: the output its load volume is wired from (the chamber's), or -1 (its own, constant)
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
@@ -169,8 +185,25 @@ class Rig(Device):
         self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
                                for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
                                                       kernel.option_inputs(v.params), strict=True)]
+        #: The valve options' signals the valves have (`<valve>.<name>`, io.topics.OPTION_INTERFACE):
+        #: inputs (temperatures, K: `set_temperature`) and outputs, sampled with `signals` (their true
+        #: values at the last `sample()`: `option_sample`).
+        self.option_inputs = tuple(f"{v.name}.{name}" for v in valves
+                                   for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):])
+        self.option_outputs = tuple(f"{n}.{e.name}" for n in self.valve_names for e in OPTION_INTERFACE
+                                    if e.direction == "out" and f"{n}.{e.name}" in plant.outputs)
+        self._option_in_i = [plant.index("input", name) for name in self.option_inputs]
+        self._option_out_i = np.array([plant.index("output", name) for name in self.option_outputs], dtype=np.int64)
+        self.option_sample: list[float] = []
         #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
         self._exact_spool = [self.sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:-1]]
+        for k, v in enumerate(valves):
+            if v.params.fluid.oil_temperature_model:      # the YAML's oil, as set_temperature checks one
+                try:
+                    check_oil_step(v.params, systems[k].p, self.dt, self._exact_spool[k],
+                                   kelvin(v.params.fluid.oil_temperature_c))
+                except CommandError as err:
+                    raise ParameterError(f"valves.{v.name}: fluid.oil_temperature_c: {err}") from None
         self._state_off = plant.offsets("states")
         self._configured = [s.p.copy() for s in systems[:-1]]     # the valves' YAML (at reset)
         self._healthy = [s.p.copy() for s in systems[:-1]]        # and the temperatures set since
@@ -264,6 +297,8 @@ class Rig(Device):
             hook(steps, f"{name}.duty_cycle", float(u[self._duty_i[k]]))
             hook(steps, f"{name}.supply_pressure", float(u[self._supply_i[k]]))
         hook(steps, EXTERNAL_FORCE, float(u[self._force_i]))
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            hook(steps, name, float(u[i]))
 
     def input_values(self) -> dict[str, float]:
         """The inputs in force now, by the names `on_input` uses (SI)."""
@@ -273,6 +308,8 @@ class Rig(Device):
             out[f"{name}.duty_cycle"] = float(u[self._duty_i[k]])
             out[f"{name}.supply_pressure"] = float(u[self._supply_i[k]])
         out[EXTERNAL_FORCE] = float(u[self._force_i])
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            out[name] = float(u[i])
         return out
 
     @property
@@ -297,6 +334,8 @@ class Rig(Device):
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
         self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
+        if len(self._option_out_i):
+            self.option_sample = y[self._option_out_i].tolist()
         return np.asarray(y[self._signal_i])
 
     def load_volumes(self) -> list[float]:
@@ -380,6 +419,8 @@ class Rig(Device):
                 self.sim.P[off + kernel.V_RATE] = rate
                 self.sim.refresh_rates()
         self.sim.u[self.plant.index("input", f"{valve}.{name}")] = value
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, f"{valve}.{name}", value)
 
     def _apply_plant_faults(self) -> None:
         """The cylinder's parameter vector: healthy, then every active fault on it."""

@@ -452,25 +452,26 @@ def test_a_controllers_array_form_gives_the_numbers_of_its_dict_form(rig):
 
 
 class ArrayHold:
-    """A controller with both forms: a duty per valve (one out of range at 0.03 s) and a flag."""
+    """A controller with both forms: a duty per valve of `commanded` (right: one out of range at
+    0.03 s) and a flag."""
 
     def __init__(self, commanded=("right", "left"), flags=("k",)):
         self.commanded, self.flags = commanded, flags
         self.array_calls = 0
 
     def duties(self, t):
-        return 1.5 if abs(t - 0.03) < 1e-9 else 0.6, 0.5 + t
+        return tuple({"right": 1.5 if abs(t - 0.03) < 1e-9 else 0.55 + 0.1 * t, "left": 0.5 + t}.get(v, 0.5)
+                     for v in self.commanded)
 
     def __call__(self, t, m):
-        right, left = self.duties(t)
-        return {"right": right, "left": left, "flags": {"k": t * 2}}
+        return {**dict(zip(self.commanded, self.duties(t))), "flags": {"k": t * 2}}
 
     def lockstep_arrays(self, signals, valves):
         def step(t, y, out):
             self.array_calls += 1
             assert len(y) == len(signals) and signals[-1] == "setpoint" and y[-1] != y[-1]
-            out[0], out[1] = self.duties(t)
-            out[2] = t * 2
+            out[:len(self.commanded)] = self.duties(t)
+            out[len(self.commanded)] = t * 2
         return step, self.commanded, self.flags
 
 
@@ -481,11 +482,17 @@ def test_an_array_forms_duties_are_taken_as_the_dict_forms_are(rig):
     a = run_lockstep(rig, hold, 0.06)
     assert hold.array_calls == 60
     rig.reset()
-    d = run_lockstep(rig, lambda t, m: ArrayHold()(t, m), 0.06)
+    same = ArrayHold()
+
+    def by_dict(t, m):                  # a plain function: the dict form only
+        return same(t, m)
+
+    d = run_lockstep(rig, by_dict, 0.06)
     assert np.array_equal(a.true, d.true) and np.array_equal(a.duties, d.duties)
     assert np.array_equal(a.flags["controller.k"], d.flags["controller.k"], equal_nan=True)
     assert a.rejected == d.rejected and len(a.rejected) == 1 and "right" in a.rejected[0][1]
-    assert a.duties[31, a.valves.index("right")] == 0.6 and a.flags["controller.k"][-1] != a.flags["controller.k"][-1]
+    right = a.duties[:, a.valves.index("right")]
+    assert right[30] == right[29] < right[31] and a.flags["controller.k"][-1] != a.flags["controller.k"][-1]
 
 
 @pytest.mark.parametrize(("commanded", "flags", "match"), [
@@ -497,3 +504,36 @@ def test_a_wrong_array_form_is_refused_before_the_run(rig, commanded, flags, mat
     with pytest.raises(ControllerError, match=match):
         run_lockstep(rig, ArrayHold(commanded, flags), 0.01)
     assert rig.steps == 0
+
+
+def test_the_array_forms_stretches_give_the_numbers_of_the_rigs_own_path(rig):
+    """The lockstep runs an array-form controller's periods in stretches planned ahead (to the next
+    fed input, queued input or watchdog deadline); with a no-op scheduled on every step after a
+    sample every period goes through the rig's own path instead. Bit for bit the same run: fed
+    forces, a refused duty, the left valve (commanded once before the run, never by the
+    controller) left until its watchdog fires; the same log, refusals, watchdogs and flags."""
+    from pcv_sim.rig.rig import EXTERNAL_FORCE
+
+    per = rig.params.steps_per_period
+    t_wd = rig.params.timing.watchdog_timeout
+    duration = t_wd + 0.1
+    runs, ends = [], []
+    for forced in (False, True):
+        rig.reset()
+        rig.set_duty("left", 0.6)
+        rig.feed(EXTERNAL_FORCE, [4 * per, 20 * per, 20 * per + 3, 90 * per + 5], [150.0, -300.0, 80.0, 10.0])
+        if forced:
+            for k in range(round(duration / rig.params.timing.control_period) + 1):
+                rig.schedule_step(k * per + 1, lambda: None)
+        ctrl = ArrayHold(("right",), ("k",))
+        runs.append(run_lockstep(rig, ctrl, duration))
+        assert ctrl.array_calls == round(duration / rig.params.timing.control_period)
+        ends.append((rig.sim.x.copy(), {v: (w.state, w.command_step) for v, w in rig.watchdogs.items()}))
+    planned, own = runs
+    assert np.array_equal(planned.true, own.true) and np.array_equal(planned.duties, own.duties)
+    assert np.array_equal(planned.flags["controller.k"], own.flags["controller.k"], equal_nan=True)
+    assert planned.log == own.log and planned.rejected == own.rejected
+    assert np.array_equal(ends[0][0], ends[1][0]) and ends[0][1] == ends[1][1]
+    safe = rig.params.timing.safe_duty
+    assert [text for _, text in planned.log if "watchdog" in text] == [f"left: watchdog fired, duty -> {safe:g}"]
+    assert len(planned.rejected) == 1 and planned.duties[-1, planned.valves.index("left")] == safe
