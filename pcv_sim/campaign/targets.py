@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from pcv_sim.errors import PcvSimError
-from pcv_sim.params import DEFAULT_CONFIG, ValveParams, params_from_mapping, read_yaml, validate_section_value
+from pcv_sim.params import ValveParams, read_yaml, validate_section_value
 from pcv_sim.plant.params import CylinderParams
-from pcv_sim.rig.params import DEFAULT_RIG, TimingParams, rig_from_mapping
+from pcv_sim.rig.params import DEFAULT_RIG, TimingParams, read_rig_files, rig_from_mapping, valve_data_with, valve_with
 from pcv_sim.rig.scenario import Scenario, scenario_from_mapping
 
 __all__ = ["ALL_VALVES", "FAULT_COLUMNS", "Base", "CampaignError", "Target", "load_base", "parse_target"]
@@ -129,12 +129,11 @@ class Base:
                 raise CampaignError(f"{column}: not a column of this campaign")
         rig = self.scenario.rig
         if valve_values or rig_values:
-            params: dict[str, ValveParams] = {}
-            for name, changes in valve_values.items():
-                data = dict(self.valve_data[name])        # only the sections written to are copied
-                for (section, key), v in changes.items():
-                    data[section] = {**data[section], key: v}
-                params[name] = params_from_mapping(data, origin=f"valve {name}", prefix=f"{name}.")
+            # the valves the scenario's `valves:` changed (in valve_data) stand in for their files too
+            params: dict[str, ValveParams] = {
+                name: valve_with(self.valve_data[name], valve_values.get(name, {}), origin=f"valve {name}",
+                                 prefix=f"{name}.")
+                for name in self.valve_data if name in valve_values or name in self.scenario.valve_changes}
             rig_data = dict(self.rig_data)
             for (section, key), v in rig_values.items():
                 rig_data[section] = {**rig_data[section], key: v}
@@ -168,13 +167,9 @@ def load_base(scenario: Any, campaign_file: Path) -> Base:
     if sc.ros is not None:
         raise CampaignError("scenario.controller: a ROS controller node; a campaign runs a Python controller "
                             "('module:callable') in each worker: accepted is module:callable")
-    rig_file = (file.parent / data["rig"]) if data.get("rig") else DEFAULT_RIG
-    rig_data = read_yaml(rig_file, "rig", CampaignError, unique=True)
-    valve_data = {}
-    for name, slot in rig_data["valves"].items():
-        config = slot.get("config") or ""
-        valve_data[name] = read_yaml(rig_file.parent / config if config else DEFAULT_CONFIG, f"valve {name}'s YAML",
-                                     CampaignError, unique=True)
+    rig_file, rig_data, valve_data = read_rig_files((file.parent / data["rig"]) if data.get("rig") else DEFAULT_RIG,
+                                                    error=CampaignError)
+    valve_data = {name: valve_data_with(d, sc.valve_changes.get(name, {})) for name, d in valve_data.items()}
     return Base(data, file, rig_data, rig_file, valve_data, sc)
 
 

@@ -76,10 +76,13 @@ def _load(path: Path, ros: str | None, wait: float) -> Any:
     """The scenario, its controller replaced by the ROS node in `ros` when given."""
     import dataclasses
 
-    from pcv_sim.rig.scenario import RosController, load_scenario, ros_controller
+    from pcv_sim.rig.scenario import RosController, ScenarioError, load_scenario, ros_controller
 
     scenario = load_scenario(path)
     if ros is not None:
+        if scenario.valve_changes:
+            raise ScenarioError(f"{path}: valves: with --ros the rig node loads the rig YAML itself (its rig_config); "
+                                "accepted is a rig whose valve YAMLs hold these keys, named by `rig`")
         spec: RosController = ros_controller({"ros": {"namespace": ros, "wait": wait}})
         scenario = dataclasses.replace(scenario, controller=None, controller_params=None, ros=spec)
     return scenario

@@ -10,6 +10,11 @@ and the steering cylinder, validated on load like the valve YAML.
 
 Unknown keys, wrong types and values outside their range are refused with a `ParameterError`
 naming the key and what is accepted.
+
+A valve's keys can be changed over its YAML without editing the file (`ValveChanges`, as a
+scenario's `valves:` overlay and a campaign's variants do): `valve_with` writes them into the
+file's mapping and validates the result as the file itself would be, `load_rig(valve_changes=)`
+builds the rig with them.
 """
 
 from __future__ import annotations
@@ -17,26 +22,31 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.params import (
+    DEFAULT_CONFIG,
     ValveParams,
     fraction,
     load_params,
     one_of,
     parameter,
+    params_from_mapping,
     plausible_range,
     read_yaml,
     section_from_mapping,
 )
 from pcv_sim.plant.params import CylinderParams
 
-__all__ = ["DEFAULT_RIG", "RigParams", "SlotSettings", "TimingParams", "ValveSlot", "load_rig", "rig_from_mapping"]
+__all__ = ["DEFAULT_RIG", "RigParams", "SlotSettings", "TimingParams", "ValveChanges", "ValveSlot", "load_rig",
+           "read_rig_files", "rig_from_mapping", "valve_data_with", "valve_with"]
 
 DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "rig.yaml"
 CHAMBERS = ("a", "b")
 NO_CHAMBER = "none"
+#: Keys of a valve YAML changed over the file: (section, key) -> the value as the YAML would hold it.
+ValveChanges: TypeAlias = Mapping[tuple[str, str], Any]
 
 
 @dataclass(frozen=True)
@@ -157,7 +167,53 @@ def _installed_default() -> Path:
         return DEFAULT_RIG
 
 
-def load_rig(path: str | Path | None = None) -> RigParams:
-    """Load and validate a rig YAML file (default: config/rig.yaml)."""
+def valve_data_with(data: Mapping[str, Any], changes: ValveChanges) -> dict[str, Any]:
+    """A valve YAML's mapping with `changes` written in (only the sections written to are copied;
+    a section the file lacks is made, for the loader to name)."""
+    out = dict(data)
+    for (section, key), value in changes.items():
+        old = out.get(section)
+        out[section] = {**(old if isinstance(old, Mapping) else {}), key: value}
+    return out
+
+
+def valve_with(data: Mapping[str, Any], changes: ValveChanges, *, origin: str | None,
+               prefix: str = "") -> ValveParams:
+    """The parameters of a valve YAML's mapping with `changes` written in, validated as the file
+    itself would be (ParameterError naming `<prefix>section.key`)."""
+    return params_from_mapping(valve_data_with(data, changes), origin=origin, prefix=prefix)
+
+
+def read_rig_files(path: str | Path | None = None, *, error: type[PcvSimError] = ParameterError
+                   ) -> tuple[Path, Any, dict[str, Any]]:
+    """The rig YAML (default: config/rig.yaml) as written: its path, its mapping and each valve's
+    YAML mapping by valve name (the entries `rig_from_mapping` would refuse are left to it); a
+    file that cannot be read, is not YAML or holds a key twice raises `error`."""
     p = Path(path) if path is not None else _installed_default()
-    return rig_from_mapping(read_yaml(p, "rig file"), origin=str(p), base=p.parent)
+    data = read_yaml(p, "rig file", error, unique=True)
+    valves = data.get("valves") if isinstance(data, Mapping) else None
+    valve_data: dict[str, Any] = {}
+    for name, slot in (valves.items() if isinstance(valves, Mapping) else ()):
+        config = slot.get("config") if isinstance(slot, Mapping) else None
+        if config is None or isinstance(config, str):
+            valve_data[str(name)] = read_yaml(p.parent / config if config else DEFAULT_CONFIG,
+                                              f"valve {name}'s YAML", error, unique=True)
+    return p, data, valve_data
+
+
+def load_rig(path: str | Path | None = None, *, valve_changes: Mapping[str, ValveChanges] | None = None,
+             where: str = "valves") -> RigParams:
+    """Load and validate a rig YAML file (default: config/rig.yaml); `valve_changes` (valve name ->
+    its changes) are written over those valves' YAML, and a refused one is named
+    `<where>.<valve>: section.key`."""
+    if not valve_changes:
+        p = Path(path) if path is not None else _installed_default()
+        return rig_from_mapping(read_yaml(p, "rig file"), origin=str(p), base=p.parent)
+    p, data, valve_data = read_rig_files(path)
+    unknown = sorted(set(valve_changes) - set(valve_data))
+    if unknown:
+        raise ParameterError(f"{where}: no valve {', '.join(map(repr, unknown))} in the rig {p}; valves: "
+                             f"{', '.join(valve_data)}")
+    params = {name: valve_with(valve_data[name], changes, origin=f"{where}.{name}")
+              for name, changes in valve_changes.items() if changes}
+    return rig_from_mapping(data, origin=str(p), base=p.parent, valve_params=params)

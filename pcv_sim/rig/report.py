@@ -3,8 +3,10 @@
 Engineering units throughout (bar, mm, mm/s, ms, %, N, A; `pcv_sim.units.display`); each
 assertion with its value, limit, margin and the time of its worst point; limits and bands drawn
 on the plot of their signal, each violation marked there (a red x and line) and named in the
-table; every event (the timeline's duty, force, supply, faults and clears, the rig's watchdog
-and rejected commands) in a table and as numbered lines on every plot; the measured signal
+table; with a valve option on (docs/model.md R33-R35) the coil and oil temperatures, the coil
+resistance and the core's gap to the spool in panels of their own; every event (the timeline's
+duty, force, supply, temperatures, faults and clears, the rig's watchdog and rejected commands)
+in a table and as numbered lines on every plot; the measured signal
 beside the true one where a sensor fault made them differ; the run's metadata (package version,
 seed, the config's hash, date). `render_index` is the page of a folder run.
 """
@@ -23,7 +25,8 @@ import numpy as np
 
 from pcv_sim.rig.assertions import Outcome, outcome_kind, signal_kind
 from pcv_sim.rig.lockstep import RigRun
-from pcv_sim.units import display, fmt
+from pcv_sim.rig.rig import TEMPERATURE_INPUTS
+from pcv_sim.units import KINDS, display, fmt
 
 __all__ = ["outcome_kind", "plot_run", "render_html", "render_index"]
 
@@ -31,18 +34,45 @@ _VIOLATION = "#d62728"
 _BAND = "#2ca02c"
 
 
+#: Series a report derives from a run's signals: name -> (minuend, subtrahend) per valve.
+_GAP = "core_gap"
+
+
+def _derived(run: RigRun) -> dict[str, np.ndarray]:
+    """The core's gap to the spool (spool position - core position, m) of each valve whose core
+    is its own body (R35): zero while they move as one."""
+    return {f"{v}.{_GAP}": run.signal(f"{v}.spool_position") - run.signal(f"{v}.core_position")
+            for v in run.valves if f"{v}.core_position" in run.signals}
+
+
 def _panels(run: RigRun, extra: Mapping[str, np.ndarray]) -> list[tuple[str, str, list[str]]]:
-    """(title, kind, signals) per plot."""
+    """(title, kind, signals) per plot: the rig's, then those of the valve options that are on."""
     v = list(run.valves)
+    present = set(run.signals) | set(extra)
+    forces = [n for n in extra if "." not in n]             # the timeline's inputs on the piston
     out = [("piston position", "length", ["cylinder.position", "setpoint"]),
            ("chamber pressures", "pressure", [f"{x}.pressure" for x in v]),
            ("duties", "fraction", [f"{x}.duty" for x in v]),
            ("coil currents", "current", [f"{x}.current" for x in v]),
            ("piston velocity", "velocity", ["cylinder.velocity"]),
-           ("forces", "force", ["cylinder.effort", *extra])]
+           ("forces", "force", ["cylinder.effort", *forces])]
+    temperatures = [f"{x}.{n}" for x in v for n in ("coil_temperature", "ambient_temperature", "oil_temperature")
+                    if f"{x}.{n}" in present]
+    if temperatures:
+        out.append(("temperatures", "temperature", temperatures))
+    if any(f"{x}.coil_resistance" in present for x in v):
+        out.append(("coil resistances [ohm]", "number", [f"{x}.coil_resistance" for x in v]))
+    if any(f"{x}.{_GAP}" in present for x in v):
+        out.append(("core gap to the spool", "length", [f"{x}.{_GAP}" for x in v]))
     if run.flags:
         out.append(("controller flags", "number", list(run.flags)))
     return out
+
+
+def _scale(kind: str) -> tuple[str, float, float]:
+    """The unit a panel of `kind` is drawn in, the factor SI -> it and its zero (degC's 273.15)."""
+    unit, f = display(kind)
+    return unit, f, KINDS[kind].zero(unit)
 
 
 def _series(run: RigRun, extra: Mapping[str, np.ndarray], name: str, measured: bool = False) -> np.ndarray | None:
@@ -63,23 +93,25 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
     from pcv_sim.plotting import pyplot
 
     plt = pyplot()
-    extra = dict(extra or {})
+    extra = {**_derived(run), **(extra or {})}
     panels = _panels(run, extra)
     fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.3 * len(panels) + 0.6), sharex=True)
     t = run.times
     where: dict[str, Any] = {}
     for ax, (label, kind, names) in zip(axes, panels):
-        unit, f = display(kind)
+        unit, f, z = _scale(kind)
         for name in names:
             y = _series(run, extra, name)
             if y is None:
                 continue
-            style = "--" if name == "setpoint" else "-"
-            (line,) = ax.plot(t, y * f, style, lw=1.2, label=name.replace("cylinder.", "").replace("controller.", ""))
-            where[name] = (ax, f)
+            # inputs dashed: the setpoint, the oil's and the ambient's temperatures
+            style = "--" if name == "setpoint" or name.rpartition(".")[2] in TEMPERATURE_INPUTS else "-"
+            (line,) = ax.plot(t, y * f - z, style, lw=1.2,
+                              label=name.replace("cylinder.", "").replace("controller.", "").replace("_", " "))
+            where[name] = (ax, f, z)
             m = _series(run, extra, name, measured=True)
             if m is not None and name in run.signals and not np.array_equal(m, y, equal_nan=True):
-                ax.plot(t, m * f, ":", lw=1.2, color=line.get_color(), label=f"{name} measured")
+                ax.plot(t, m * f - z, ":", lw=1.2, color=line.get_color(), label=f"{name} measured")
         ax.set_ylabel(f"{label}\n[{unit}]" if unit != "-" else label, fontsize=8)
         ax.grid(True, alpha=0.3)
     for o in outcomes:
@@ -87,30 +119,30 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
         sig = d.get("signal", o.signal)
         if sig not in where:
             continue
-        ax, f = where[sig]
+        ax, f, z = where[sig]
         t0, t1 = d.get("t0", t[0]), d.get("t1", t[-1])
         if "tolerance" in d:
             ref = d.get("reference")
             tt = t[(t >= t0 - 1e-12) & (t <= t1 + 1e-12)]
             r = (np.full(len(tt), float(ref)) if isinstance(ref, (int, float)) else
                  np.interp(tt, t, run.signal(str(ref))))
-            ax.fill_between(tt, (r - d["tolerance"]) * f, (r + d["tolerance"]) * f, color=_BAND, alpha=0.18, lw=0,
-                            label=f"band: {o.name}")
+            ax.fill_between(tt, (r - d["tolerance"]) * f - z, (r + d["tolerance"]) * f - z, color=_BAND, alpha=0.18,
+                            lw=0, label=f"band: {o.name}")
         for key in ("hi", "lo"):
             if key in d:
-                ax.hlines(d[key] * f, t0, t1, colors=_BAND if o.passed else _VIOLATION, linestyles="--", lw=1.2,
+                ax.hlines(d[key] * f - z, t0, t1, colors=_BAND if o.passed else _VIOLATION, linestyles="--", lw=1.2,
                           label=f"limit: {o.name}")
         if "deadline" in d:
             ax.axvline(d["deadline"], color=_BAND if o.passed else _VIOLATION, ls="--", lw=1.0,
                        label=f"deadline: {o.name}")
         if "baseline" in d:
             tb, yb = d["baseline"]
-            ax.plot(tb, np.asarray(yb) * f, color="0.4", lw=1.0, ls="-.", label="baseline")
+            ax.plot(tb, np.asarray(yb) * f - z, color="0.4", lw=1.0, ls="-.", label="baseline")
         if not o.passed and o.time is not None and math.isfinite(o.time):
             y = _series(run, extra, sig)
             if y is not None:
                 k = int(np.argmin(np.abs(t - o.time)))
-                ax.plot([o.time], [y[k] * f], "x", color=_VIOLATION, ms=11, mew=2.5,
+                ax.plot([o.time], [y[k] * f - z], "x", color=_VIOLATION, ms=11, mew=2.5,
                         label=f"violation {o.time:.3f} s")
             ax.axvline(o.time, color=_VIOLATION, lw=1.0)
     for n, (te, _text) in enumerate(events, start=1):

@@ -2,6 +2,9 @@
 
     name: step                       # optional (default: the file name)
     rig: ../config/rig.yaml          # relative to this file (default: the shipped config/rig.yaml)
+    valves:                          # optional: valve YAML keys written over the rig's valve files
+      fluid: {temperature: input}    # a section: every valve (here: the oil temperature an input, R34)
+      left: {solenoid: {coil_temperature: lumped}}   # a valve's name: that valve only (wins over the above)
     duration: 2.0                    # s
     seed: 0                          # sensor noise
     controller: steering:PositionController   # `module:callable`; module.py beside this file or importable
@@ -56,13 +59,16 @@ time, KeyValue `name: value`); docs/interface.md. A controller that does not ans
 (or whose command exits) fails the run with that reason (the CLI exits 1, as for a model that ran
 away; 2 stays for a file that is wrong as written).
 
-Signals: `<valve>.pressure|current|spool_position|duty`, `cylinder.position|velocity|effort`,
-`setpoint`, and the controller's flags `controller.<name>`. A bad file raises `ScenarioError`
+Signals: `<valve>.pressure|current|spool_position|duty`, with a valve's options also
+`<valve>.coil_temperature|coil_resistance` (solenoid.coil_temperature: lumped) and
+`<valve>.core_position` (spool.core: separate), `cylinder.position|velocity|effort`, `setpoint`,
+and the controller's flags `controller.<name>`. A bad file raises `ScenarioError`
 naming the key and what is accepted (the CLI exits 2).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import functools
 import hashlib
@@ -85,12 +91,12 @@ from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, 
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.keys import closest, missing_message, unknown_message
 from pcv_sim.model import kernel
-from pcv_sim.params import read_yaml
+from pcv_sim.params import ValveParams, read_yaml
 from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
-from pcv_sim.rig.params import RigParams, load_rig
+from pcv_sim.rig.params import RigParams, ValveChanges, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
-from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, signal_names
+from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, rig_signals
 from pcv_sim.simulation.stepper import MAX_TEMPERATURE, MIN_TEMPERATURE
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
@@ -107,9 +113,12 @@ __all__ = [
     "scenario_result",
 ]
 
-_TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions")
+_TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions",
+        "valves")
 _MAX_DURATION = 3600.0
 _ROS_KEYS = ("namespace", "command", "wait")
+#: The sections of a valve YAML (the `valves:` overlay's keys for every valve).
+VALVE_SECTIONS = tuple(f.name for f in dataclasses.fields(ValveParams))
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
 _ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
 #: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
@@ -152,6 +161,9 @@ class Scenario:
     rig_file: Path | None = None            # the rig YAML (None: the shipped one), for the rig node
     notes: tuple[str, ...] = ()             # what the loader changed (timeline events after the duration)
     config_hash: str = ""                   # sha256 of the scenario as loaded (and its rig), for reports
+    #: The file's `valves:` keys per valve, written over the valves' YAML in `rig` (a campaign
+    #: writes its variants over them).
+    valve_changes: Mapping[str, ValveChanges] = field(default_factory=dict)
 
     def setpoint_function(self) -> Callable[[float], float] | None:
         """The setpoint (m) as a function of time, or None when the scenario has none."""
@@ -164,12 +176,21 @@ class Scenario:
         return next((s.t for s in self.setpoint if s.t > t + 1e-12), self.duration + 1.0)
 
     def inputs(self, times: np.ndarray) -> dict[str, np.ndarray]:
-        """The external force (N) the timeline applies, at `times` (none without force entries)."""
+        """The inputs the timeline gives at `times` that the rig does not sample: the external force
+        (N, with force entries) and the valves' temperature inputs (`<valve>.oil_temperature`,
+        `<valve>.ambient_temperature`, K: from the YAML's value on, wherever the option is on)."""
+        out: dict[str, np.ndarray] = {}
         segs = [e["force"] for e in self.timeline if "force" in e]
-        if not segs:
-            return {}
-        profile = Profile(sorted(segs, key=lambda s: s.t), initial=0.0)
-        return {"external force": np.array([profile(float(t)) for t in times])}
+        if segs:
+            profile = Profile(sorted(segs, key=lambda s: s.t), initial=0.0)
+            out["external force"] = np.array([profile(float(t)) for t in times])
+        for v in self.rig.valves:
+            layout_inputs = kernel.layout(v.params, "simplified").inputs[len(kernel.INPUTS):]
+            for name, initial in zip(layout_inputs, kernel.option_inputs(v.params), strict=True):
+                segs = [e[name][v.name] for e in self.timeline if name in e and v.name in e[name]]
+                profile = Profile(sorted(segs, key=lambda s: s.t), initial=initial)
+                out[f"{v.name}.{name}"] = np.array([profile(float(t)) for t in times])
+        return out
 
     def events(self) -> list[tuple[float, str]]:
         """The timeline in words, in time order (SI values shown in engineering units)."""
@@ -261,8 +282,7 @@ def _unknown(where: str, v: Mapping[str, Any], keys: tuple[str, ...]) -> None:
 
 
 def _signals(rig: RigParams) -> tuple[str, ...]:
-    names = [v.name for v in rig.valves]
-    return (*signal_names(names), *(f"{n}.duty" for n in names), "setpoint")
+    return (*rig_signals(rig), *(f"{v.name}.duty" for v in rig.valves), "setpoint")
 
 
 def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, lo: float, hi: float, what: str,
@@ -337,8 +357,7 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
     if not isinstance(raw, list):
         raise ScenarioError(f"timeline: accepted is a list of entries {{t, {' | '.join(_ACTIONS)}, ...}}")
     valves = tuple(v.name for v in rig.valves)
-    signals = tuple(f"{v}.{s}" for v in valves for s in ("pressure", "current", "spool_position")) + tuple(
-        f"cylinder.{s}" for s in ("position", "velocity", "effort"))
+    signals = rig_signals(rig)
     supply = {v.name: v.params.circuit.supply_pressure for v in rig.valves}
     out: list[Mapping[str, Any]] = []
     notes: list[str] = []
@@ -433,9 +452,43 @@ def _check_assertions(raw: Any, rig: RigParams, has_setpoint: bool, timeline: tu
     return tuple(out)
 
 
+def _valve_changes(raw: Any, valves: tuple[str, ...]) -> dict[str, ValveChanges]:
+    """The file's `valves:` as changes per valve: a section's keys for every valve, a valve's own
+    (`{left: {solenoid: {...}}}`) over them."""
+    if raw is None:
+        return {}
+    accepted = (*VALVE_SECTIONS, *valves)
+    _mapping("valves", raw, accepted)
+    _unknown("valves", raw, accepted)
+    clash = sorted(set(valves) & set(VALVE_SECTIONS))
+    if clash:
+        raise ScenarioError(f"valves: the rig has a valve named {clash[0]!r}, a section of the valve YAML too, so the "
+                            "key is ambiguous; rename the valve")
+
+    def section(where: str, keys: Any) -> dict[tuple[str, str], Any]:
+        if not isinstance(keys, Mapping) or not keys:
+            raise ScenarioError(f"{where}: got {keys!r}; accepted is a mapping key: value of the valve YAML's "
+                                f"{where.rsplit('.', 1)[-1]} section")
+        return {(where.rsplit(".", 1)[-1], str(k)): v for k, v in keys.items()}
+
+    every: dict[tuple[str, str], Any] = {}
+    own: dict[str, dict[tuple[str, str], Any]] = {}
+    for key, value in raw.items():
+        if key in VALVE_SECTIONS:
+            every.update(section(f"valves.{key}", value))
+        else:
+            _mapping(f"valves.{key}", value, VALVE_SECTIONS)
+            _unknown(f"valves.{key}", value, VALVE_SECTIONS)
+            own[key] = {}
+            for name, keys in value.items():
+                own[key].update(section(f"valves.{key}.{name}", keys))
+    return {v: {**every, **own.get(v, {})} for v in valves if every or own.get(v)}
+
+
 def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: RigParams | None = None) -> Scenario:
     """A validated Scenario (ScenarioError naming the key otherwise). `rig_params`, when given,
-    stand in for the parameters of the file that `rig` names (a campaign's variant of the rig)."""
+    stand in for the parameters of the file that `rig` names with the file's `valves:` keys
+    written in (a campaign's variant of the rig)."""
     origin = str(path) if path else "scenario"
     try:
         if not isinstance(data, Mapping):
@@ -449,6 +502,12 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
             rig = rig_params if rig_params is not None else load_rig(base / rig_file if rig_file else None)
         except PcvSimError as err:
             raise ScenarioError(f"rig: {err}") from None
+        valve_changes = _valve_changes(data.get("valves"), tuple(v.name for v in rig.valves))
+        if valve_changes and rig_params is None:
+            try:
+                rig = load_rig(base / rig_file if rig_file else None, valve_changes=valve_changes)
+            except PcvSimError as err:
+                raise ScenarioError(str(err)) from None
         if "duration" not in data:
             raise ScenarioError("duration: missing; accepted is the run's length in s")
         duration = _num("duration", data["duration"], lo=rig.timing.control_period, hi=_MAX_DURATION,
@@ -472,6 +531,9 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
                                 "(in its command: --ros-args -p name:=value)")
         if params is not None and ctrl is None:
             raise ScenarioError("controller_params: given without a controller")
+        if valve_changes and ros is not None:
+            raise ScenarioError("valves: the rig node of a ROS controller loads the rig YAML itself (its rig_config); "
+                                "accepted is a rig whose valve YAMLs hold these keys, named by `rig`")
         setpoint = _check_setpoint(data.get("setpoint"), base)
         timeline, notes = _check_timeline(data.get("timeline"), rig, duration, base)
         assertions = _check_assertions(data.get("assertions"), rig, bool(setpoint), timeline, base)
@@ -482,7 +544,7 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
         raise ScenarioError(f"{origin}: {err}") from None
     digest = hashlib.sha256(json.dumps([data, repr(rig)], sort_keys=True, default=str).encode()).hexdigest()
     return Scenario(name, path, rig, duration, seed, ctrl, params, setpoint, timeline, assertions, ros,
-                    (base / rig_file).resolve() if rig_file else None, tuple(notes), digest[:16])
+                    (base / rig_file).resolve() if rig_file else None, tuple(notes), digest[:16], valve_changes)
 
 
 def ros_controller(raw: Any) -> RosController:
