@@ -13,8 +13,9 @@ The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthen
    worker makes (median over K variants): the variant's scenario (its values into the YAML
    mappings and the loaders' validation), the controller (import and instance), the new rig
    (composing the plant, the compiled module looked up, of it the valves' rest states), the
-   lockstep loop (of it the controller's calls, timed inside the loop: the timer's own cost,
-   ~0.1 us a call, is in that figure) and the assertions with the row.
+   lockstep loop (of it the controller's calls, timed inside the loop, in the array form the
+   lockstep calls when the controller has one: the timer's own cost, ~0.1 us a call, is in that
+   figure) and the assertions with the row.
 3. Scaling: a Monte Carlo of `--scaling` variants on 1 and on 2 local workers (variants/s of the
    run; the workers' set-up, one warm-up variant before the fork, counted apart).
 4. Dask against local: the same campaign on a localhost Dask cluster (a `dask scheduler` and two
@@ -76,6 +77,34 @@ def _timed_campaign(path: Path, out: Path, **kwargs) -> tuple[float, list[dict],
         return wall, list(csv.DictReader(f)), result.summary
 
 
+class _Timed:
+    """A controller with each call of either of its forms (the dict form, the array form the
+    lockstep calls when there is one) timed into `spent` (s)."""
+
+    def __init__(self, inner):
+        self.inner, self.spent = inner, 0.0
+
+    def __call__(self, t, m):
+        t0 = time.perf_counter()
+        out = self.inner(t, m)
+        self.spent += time.perf_counter() - t0
+        return out
+
+    def lockstep_arrays(self, signals, valves):
+        bind = getattr(self.inner, "lockstep_arrays", None)
+        form = bind(signals, valves) if bind is not None else None
+        if form is None:
+            return None
+        step, commanded, flags = form
+
+        def timed(t, y, out):
+            t0 = time.perf_counter()
+            step(t, y, out)
+            self.spent += time.perf_counter() - t0
+
+        return timed, commanded, flags
+
+
 def _where(mc: Path, k: int) -> dict[str, float]:
     """Median seconds per part of a Monte Carlo variant (see the module docstring, 2)."""
     from pcv_sim.campaign.runner import Worker
@@ -111,14 +140,7 @@ def _where(mc: Path, k: int) -> dict[str, float]:
             rest = spent[0]
             t.append(time.perf_counter())
             schedule_timeline(rig, sc)
-            in_ctrl = [0.0]
-
-            def counted(tt, m, ctrl=ctrl, in_ctrl=in_ctrl):
-                t0 = time.perf_counter()
-                out = ctrl(tt, m)
-                in_ctrl[0] += time.perf_counter() - t0
-                return out
-
+            counted = _Timed(ctrl)
             run = run_lockstep(rig, counted, sc.duration, setpoint=sc.setpoint_function())
             t.append(time.perf_counter())
             scenario_result(sc, run)
@@ -127,7 +149,7 @@ def _where(mc: Path, k: int) -> dict[str, float]:
                                ("lockstep_s", 3, 4), ("assertions_s", 4, 5)):
                 parts.setdefault(name, []).append(t[b] - t[a])
             parts.setdefault("of_new_rig_rest_states_s", []).append(rest)
-            parts.setdefault("of_lockstep_controller_calls_s", []).append(in_ctrl[0])
+            parts.setdefault("of_lockstep_controller_calls_s", []).append(counted.spent)
             parts.setdefault("lockstep_real_time_factor", []).append(run.real_time_factor)
     finally:
         rig_module.rest_state = rest_solve                  # type: ignore[attr-defined]

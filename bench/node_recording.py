@@ -61,7 +61,7 @@ LOOP_CONFIGS = ("off", "hook", "inline", "thread per-message 5ms", "thread per-m
 def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
     import ctypes
 
-    from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder
+    from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, WriterSettings
     _PerMessageRecorder = _per_message_recorder()
     from pcv_sim.device.valve import ValveDevice
     from pcv_sim.params import load_params
@@ -100,7 +100,7 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
     elif config != "off":
         cls = _PerMessageRecorder if "per-message" in config else BagRecorder
         writer = "inline" if config == "inline" else "process" if config == "process" else "thread"
-        rec = cls(out_dir, name="bag", every=1, dt_ns=dev.dt_ns, frame_id="load_port", writer=writer)
+        rec = cls(out_dir, name="bag", every=1, dt_ns=dev.dt_ns, frame_id="load_port", writing=WriterSettings(writer=writer))
         dev.recorder, dev.record_every = Timed(rec), 1
         sys.setswitchinterval(0.005 if config.endswith("5ms") else
                               float(config.split("@")[1]) * 1e-3 if "@" in config else SWITCH_INTERVAL)

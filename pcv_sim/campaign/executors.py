@@ -21,7 +21,6 @@ caller counts the set-up apart from the run.
 
 from __future__ import annotations
 
-import math
 import multiprocessing
 import signal
 import time
@@ -40,10 +39,18 @@ OnReady = Callable[[], None] | None
 
 
 def chunks(indices: Sequence[int], workers: int, *, most: int = 8) -> list[list[int]]:
-    """`indices` in chunks: small enough to share the work out evenly (about four per worker)
-    and to lose little at an interrupt, large enough that a task's overhead stays small."""
-    size = max(1, min(most, math.ceil(len(indices) / (4 * max(1, workers)))))
-    return [list(indices[i:i + size]) for i in range(0, len(indices), size)]
+    """`indices` in chunks of falling size, each half of what is left per worker (at most `most`,
+    at least one; "factoring"): large while much is left, so a task's overhead stays small, and
+    single variants at the end, so that no worker waits for another's last chunk longer than a
+    variant (with equal chunks it waited up to a chunk) and an interrupt loses little."""
+    share = 2 * max(1, workers)
+    out: list[list[int]] = []
+    i = 0
+    while i < len(indices):
+        size = max(1, min(most, (len(indices) - i) // share))
+        out.append(list(indices[i:i + size]))
+        i += size
+    return out
 
 
 def run_inline(campaign: Campaign, indices: Sequence[int], on_row: OnRow, on_ready: OnReady = None) -> None:

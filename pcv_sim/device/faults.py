@@ -148,6 +148,7 @@ class FaultCommand:
     kind: str
     target: str
     fault: Fault | None
+    text: str = ""              # the command as given (a bag's `faults` topic records it)
 
 
 _TARGET_KEYS = ("valve", "signal", "target")
@@ -194,9 +195,9 @@ def parse_fault_command(text: str, *, valves: tuple[str, ...], signals: tuple[st
         except FaultError as err:
             if "needs" not in str(err):            # a kind that takes values: those are not needed to clear it
                 raise
-        return FaultCommand(True, str(kind), str(target), None)
+        return FaultCommand(True, str(kind), str(target), None, text)
     fault = parse_fault(kind, target, values, valves=valves, signals=signals, where="fault")
-    return FaultCommand(False, fault.kind, fault.target, fault)
+    return FaultCommand(False, fault.kind, fault.target, fault, text)
 
 
 def valve_fault_parameters(healthy: np.ndarray, supply: float, faults: Iterable[Fault]) -> tuple[np.ndarray, float, bool]:

@@ -26,29 +26,18 @@ Everything is deterministic for a given sequence of (step, input) pairs.
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import partial
 from typing import Protocol
 
 import numpy as np
 
-from pcv_sim.device.device import MODEL_FAILURES, Device
-from pcv_sim.device.faults import (
-    CYLINDER,
-    CYLINDER_FAULTS,
-    SENSOR_FAULTS,
-    VALVE_FAULTS,
-    Fault,
-    FaultCommand,
-    FaultError,
-    parse_fault_command,
-    valve_fault_parameters,
-)
-from pcv_sim.device.inputs import InputQueue, Watchdog, WatchdogState
+from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
+from pcv_sim.device.inputs import Watchdog, WatchdogState
 from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError
-from pcv_sim.io.topics import FAULTS, INPUT_ROLES
+from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import (
@@ -133,35 +122,29 @@ class Sample:
     options: tuple[float, ...] = ()   # the valve's `option_outputs` (SI: K, ohm, m)
 
 
-@dataclass
-class _Inputs:
-    accepted: dict[str, int] = field(default_factory=lambda: dict.fromkeys((*INPUTS, FAULTS), 0))
-    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys((*INPUTS, FAULTS), 0))
-    last_rejection: str = ""
-
-
 #: The name of the emulator's one valve (its watchdog's key).
 VALVE = "valve"
 
 
 class ValveDevice(Device):
-    """One emulated valve: the model stepper plus the device behaviour around it."""
+    """One emulated valve: the model stepper plus the device behaviour around it (a `Device` of
+    one valve and no plant)."""
 
-    queue: InputQueue[tuple[str, float | FaultCommand]]       # (input name, value)
+    params: ValveParams
 
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
         sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1, seed: int = 0,
     ) -> None:
-        super().__init__(params.simulation.time_step, (VALVE,), 0)
+        # The inputs come at any rate for as long as the node runs: refusals are counted, not kept.
+        super().__init__(params.simulation.time_step, (VALVE,), 0,
+                         safe_duty=check_duty(safe_duty, params.command.duty_range), keep_rejections=False)
         self.params = params
         self.steps = 0
-        self.safe_duty = check_duty(safe_duty, params.command.duty_range)
         self.sample_every = _positive_int(sample_every, "sample_every")
         self.recorder = recorder
         self.record_every = _positive_int(record_every, "record_every")
-        self.counts = _Inputs()
-        self.command = self.safe_duty       # last valid duty command (the safe duty before any)
+        self.commands[VALVE] = self.duties[VALVE] = self.safe_duty   # the safe duty before any command
         self.load_flow = 0.0
         self.supply_pressure: float | None = None   # None: the parameter file's circuit.supply_pressure
         self.watchdog: Watchdog = self.watchdogs[VALVE]   # the safe duty while it holds (waiting, fired)
@@ -169,7 +152,7 @@ class ValveDevice(Device):
         self.last_good: Sample | None = None
         self.limits = PhysicalLimits.of(params)
         #: Active faults by (target, kind); sensor faults on MEASURED, sampled every sample period.
-        self.faults: dict[tuple[str, str], Fault] = {}
+        self.faults = {}
         self.sensors = Sensors(MEASURED, self.sample_every * self.dt, seed)
         self.stepper = rest_stepper(params, self.safe_duty)
         self._healthy = self.stepper.sim.P.copy()
@@ -187,24 +170,26 @@ class ValveDevice(Device):
         self.option_outputs = tuple(n for n, _, is_input in self._option_signals if not is_input)
         self._option_out_i = [i for _, i, is_input in self._option_signals if not is_input]
         self.option_values: dict[str, float] = {}
-        for name in self.option_inputs:
-            self.counts.accepted[name] = self.counts.rejected[name] = 0
+        duty = InputKind(lambda v: check_duty(v, self.params.command.duty_range),
+                         lambda d: self._take_command(VALVE, d))
+        self._declare_inputs({
+            "duty_cycle": duty,
+            "load_flow": InputKind(check_load_flow, self._set_load_flow),
+            "supply_pressure": InputKind(check_supply_pressure, self._set_supply_pressure),
+            **{name: InputKind(partial(check_temperature, name.replace("_", " ")), partial(self._set_option, name))
+               for name in self.option_inputs}})
         self.stepper.warm_up()
         self.last_good = self.sample()
 
     # --- configuration -----------------------------------------------------------------------
 
-    def set_watchdog_timeout(self, timeout: float) -> None:
-        """Seconds of model time without a valid duty command before the safe duty; 0 = off."""
-        if not (math.isfinite(timeout) and timeout >= 0.0):
-            raise ValueError(f"watchdog_timeout {timeout!r} s: accepted is a finite number >= 0 (0 = off)")
-        if self.watchdog.set_timeout(round(timeout / self.dt)):
-            self._apply_duty(self.command)
+    def duty_range(self, valve: str) -> tuple[float, ...]:
+        return self.params.command.duty_range
 
-    def set_safe_duty(self, duty: float) -> None:
-        self.safe_duty = check_duty(duty, self.params.command.duty_range)
-        if self.watchdog.holds:
-            self._apply_duty(self.safe_duty)
+    @property
+    def command(self) -> float:
+        """The last valid duty command (the safe duty before any)."""
+        return self.commands[VALVE]
 
     @property
     def watchdog_state(self) -> str:
@@ -270,108 +255,47 @@ class ValveDevice(Device):
 
     # --- inputs ------------------------------------------------------------------------------
 
-    def submit(self, name: str, value: float, at_step: int | None = None) -> str | None:
-        """Validate an input now; if valid it takes effect at step max(at_step, now + 1). Returns
-        the reason it was refused (counted, and the last valid value stays), or None.
-
-        The present step has been shown already (sample, recorder): an input that arrives now
-        can act from the next step at the earliest, so that every sample shows the inputs in
-        force at its stamp."""
-        try:
-            if name == "duty_cycle":
-                value = check_duty(value, self.params.command.duty_range)
-            elif name == "load_flow":
-                value = check_load_flow(value)
-            elif name == "supply_pressure":
-                value = check_supply_pressure(value)
-            elif name in self.option_inputs:
-                value = check_temperature(name.replace("_", " "), value)
-            else:
-                raise ValueError(f"unknown input {name!r}; accepted are {', '.join((*INPUTS, *self.option_inputs))}")
-        except CommandError as err:
-            return self._reject(name, str(err))
-        step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
-        self.queue.push(step, (name, value))
-        return None
-
-    def submit_fault(self, text: str, at_step: int | None = None) -> str | None:
-        """A fault command (`parse_fault_command`: one line of YAML, on VALVE or a MEASURED signal)
-        validated now, acting at step max(at_step, now + 1) as `submit`'s inputs; the reason it was
-        refused (counted), or None. Clearing a fault that is not active then is refused (counted)
-        when it is due."""
-        try:
-            command = parse_fault_command(text, valves=(VALVE,), signals=MEASURED)
-            if command.kind in CYLINDER_FAULTS:
-                raise FaultError(f"{command.kind}: this device has no {CYLINDER}; accepted are "
-                                 f"{', '.join(VALVE_FAULTS)} (on the valve) and {', '.join(SENSOR_FAULTS)} "
-                                 f"(on {', '.join(MEASURED)})")
-        except FaultError as err:
-            return self._reject(FAULTS, str(err))
-        step = self.steps + 1 if at_step is None else max(int(at_step), self.steps + 1)
-        self.queue.push(step, (FAULTS, command))
-        return None
-
-    def _reject(self, name: str, reason: str) -> str:
-        self.counts.rejected[name] += 1
-        self.counts.last_rejection = f"{name}: {reason}"
-        return reason
-
     @property
     def duty_command_in_force(self) -> float:
-        return self.safe_duty if self.watchdog.holds else self.command
+        return self.duty_held(VALVE)
 
-    def _apply_duty(self, duty: float) -> None:
+    def first_open_step(self) -> int:
+        """The present step has been shown already (sample, recorder): an input that arrives now
+        can act from the next step at the earliest."""
+        return self.steps + 1
+
+    def _put_duty(self, valve: str, duty: float) -> None:
         self.stepper.set_duty(duty)
 
-    def _apply_due_inputs(self) -> None:
-        while (due := self.queue.pop_due(self.steps)) is not None:
-            name, value = due
-            try:
-                if isinstance(value, FaultCommand):
-                    self._fault_command(value)
-                elif name == "duty_cycle":
-                    self._apply_duty(value)
-                    self.command = value
-                    self.watchdog.command(self.steps)
-                elif name == "load_flow":
-                    self.stepper.set_load_flow(value)
-                    self.load_flow = value
-                elif name in self.option_inputs:
-                    self.stepper.set_input(name, value)
-                    self.option_values[name] = value
-                else:
-                    self.supply_pressure = value
-                    if self.faults:          # a supply fault holds over the input
-                        self._apply_valve_faults()
-                    else:
-                        self.stepper.set_supply_pressure(value)
-            except (CommandError, FaultError) as err:   # valid on arrival, refused now (e.g. duty_range
-                self._reject(name, str(err))           # changed since, a fault cleared that is not active)
-                continue
-            self.counts.accepted[name] += 1
+    def _waiting_duty(self, valve: str) -> float:
+        return self.safe_duty
 
-    def _fault_command(self, command: FaultCommand) -> None:
-        if command.clear:
-            self.clear(command.target, command.kind)
+    def _set_load_flow(self, value: float) -> None:
+        self.stepper.set_load_flow(value)
+        self.load_flow = value
+
+    def _set_option(self, name: str, value: float) -> None:
+        self.stepper.set_input(name, value)
+        self.option_values[name] = value
+
+    def _set_supply_pressure(self, value: float) -> None:
+        self.supply_pressure = value
+        if self.faults:          # a supply fault holds over the input
+            self._apply_valve_faults(VALVE)
         else:
-            assert command.fault is not None     # a command that is not a clear carries its fault
-            self.inject(command.fault)
+            self.stepper.set_supply_pressure(value)
 
-    def _fault_targets(self, fault: Fault) -> str | None:
-        return None if fault.target == VALVE and not fault.on_cylinder else f"is the valve {VALVE}"
+    def _healthy_parameters(self, valve: str) -> np.ndarray:
+        return self._healthy
 
-    def _apply_physical_faults(self, fault: Fault) -> None:
-        self._apply_valve_faults()
+    def _supply_in_force(self, valve: str) -> float:
+        return self.params.circuit.supply_pressure if self.supply_pressure is None else self.supply_pressure
 
-    def _apply_valve_faults(self) -> None:
-        """The valve's parameters and supply: healthy, then every active physical fault."""
+    def _put_valve(self, valve: str, parameters: np.ndarray, supply: float, stuck: bool) -> None:
         st = self.stepper
-        supply = self.params.circuit.supply_pressure if self.supply_pressure is None else self.supply_pressure
-        p, supply, stuck = valve_fault_parameters(self._healthy, supply,
-                                                  (f for f in self.faults.values() if not f.sensor))
-        if stuck:   # seized where it is: no velocity (the continuity's A v term stops with it)
+        if stuck:
             st.sim.x[2] = 0.0
-        st.sim.set_parameters(0, p)
+        st.sim.set_parameters(0, parameters)
         st.set_supply_pressure(supply)
 
     def measure(self, sample: Sample) -> tuple[float, float, float]:
@@ -382,10 +306,6 @@ class ValveDevice(Device):
         y = self.sensors.measure(sample.step * self.dt,
                                  np.array([sample.pressure, sample.current, sample.spool_position]))
         return float(y[0]), float(y[1]), float(y[2])
-
-    def _check_watchdog(self) -> None:
-        if self.watchdog.check(self.steps):
-            self._apply_duty(self.safe_duty)
 
     def _next_event(self, end: int) -> int:
         s = self.steps
@@ -406,7 +326,7 @@ class ValveDevice(Device):
         out: list[Sample] = []
         end = self.steps + n
         self._apply_due_inputs()
-        self._check_watchdog()
+        self._check_watchdogs()
         while self.steps < end:
             stop = self._next_event(end)
             if self.fault is None:
@@ -435,7 +355,7 @@ class ValveDevice(Device):
             # A sample at step k shows the state at k and the inputs in force from k on: inputs
             # and a watchdog timeout due at k act before it (right-continuous, as replay does).
             self._apply_due_inputs()
-            self._check_watchdog()
+            self._check_watchdogs()
             if self.fault is None:
                 try:
                     sample = self.sample() if stop % self.sample_every == 0 else None

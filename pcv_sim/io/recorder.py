@@ -26,7 +26,7 @@ What is written, and when (log time = model sample time, one clock for inputs an
   ``ros2 bag play`` republishes each topic as the node does (docs/interface.md).
 
 Timing. The model loop must not wait for the disk, nor for the interpreter lock. Where the disk
-work runs is the ``writer`` argument:
+work runs is :class:`WriterSettings`' ``writer``:
 
 - ``process`` (what the nodes use): a call appends a tuple to a list (~1 µs per step with all
   signals); every ``batch_period`` s (or 4096 items) the loop pickles the list into a
@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import itertools
 import math
 import os
@@ -77,6 +78,7 @@ from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, SENSOR_DATA_QOS, BagWriter, Qos
 from pcv_sim.io.topics import (
     CURRENT,
     DUTY_CYCLE,
+    FAULTS,
     INPUT_ROLES,
     LOAD_FLOW,
     OPTION_INTERFACE,
@@ -95,11 +97,14 @@ from pcv_sim.io.writer_process import WriterProcess
 __all__ = [
     "RECORDABLE",
     "ROLE_QOS",
+    "STRING",
     "SWITCH_INTERVAL",
+    "WRITER_DEFAULTS",
     "BagRecorder",
     "QueuedBag",
     "RecorderStatus",
     "Writer",
+    "WriterSettings",
     "bag_name",
     "check_signals",
 ]
@@ -111,7 +116,7 @@ ROLE_QOS: Final[Mapping[str, Qos]] = {
     **{r: COMMAND_QOS for r in INPUT_ROLES},
 }
 
-#: Where a recorder's disk work runs (see BagRecorder's `writer`).
+#: Where a recorder's disk work runs (see `WriterSettings.writer`).
 Writer = Literal["process", "thread", "inline"]
 #: Signals a recorder can write, by role (the device's topic names).
 RECORDABLE: Final = ROLES
@@ -131,6 +136,9 @@ _SOURCE: Final = {
 _IN: Final = 0     # queue item (_IN, role index, t_ns, value)
 _OUT: Final = 1    # queue item (_OUT, t_ns, pressure, current, spool_position)
 _BLOCK: Final = 4  # queue item (_BLOCK, t0_ns, dt_ns, rows of pressure, current, spool_position)
+_TEXT: Final = 2   # queue item (_TEXT, topic, t_ns, text)
+#: The type of the text topics (fault commands, events).
+STRING: Final = "std_msgs/msg/String"
 _SLICE: Final = 1024   # output samples per write_samples call (~130 kB with all three outputs)
 _SHIP_ITEMS: Final = 4096   # items per batch to the writer process at most (besides batch_period)
 _NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
@@ -179,6 +187,54 @@ class RecorderStatus:
     error: str            # why writing failed ('' if it did not)
 
 
+@dataclass(frozen=True)
+class WriterSettings:
+    """How a recorder writes its bag, whatever it records (every recorder takes one; the writer
+    process gets it too): where the disk work runs, how often it takes the queue, how the bag is
+    flushed and split, what a full queue does. Checked when made (BagError saying what is accepted).
+
+    Attributes:
+        split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
+        writer: Where the disk work runs: ``process`` (a writer process fed through shared
+            memory, :mod:`pcv_sim.io.writer_process`: what the nodes use), ``thread`` (a writer
+            thread, default) or ``inline`` (inside each call).
+        batch_period: s between the writer's turns.
+        flush_period_s: The BagWriter's flush period (durability bound, wall clock).
+        chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
+        fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
+            the writer; inline it lands on a model step).
+        when_full: What a call does when the queue is full: ``drop`` (real time: count the
+            messages as dropped) or ``wait`` for the writer (simulated time, where the model may
+            run far faster than the writer: a complete bag).
+        ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
+            (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
+    """
+
+    split_size_bytes: int | None = None
+    writer: Writer = "thread"
+    batch_period: float = 0.02
+    flush_period_s: float = 0.9
+    chunk_size: int = 1 << 20
+    fsync: bool = True
+    when_full: Literal["drop", "wait"] = "drop"
+    ros_distro: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.writer not in ("process", "thread", "inline"):
+            msg = f"writer {self.writer!r}: accepted are 'process', 'thread' and 'inline'"
+            raise BagError(msg)
+        if not (math.isfinite(self.batch_period) and 0.0 < self.batch_period <= 0.1):
+            msg = f"batch_period {self.batch_period!r} s: accepted is 0 < batch_period <= 0.1"
+            raise BagError(msg)
+        if self.when_full not in ("drop", "wait"):
+            msg = f"when_full {self.when_full!r}: accepted are 'drop' and 'wait'"
+            raise BagError(msg)
+
+
+#: A recorder's writing unless told otherwise.
+WRITER_DEFAULTS: Final = WriterSettings()
+
+
 class QueuedBag:
     """What every recorder here shares: the bag directory (never overwritten), the BagWriter, the
     queue the model loop appends to, the writer thread, drop accounting, status and close.
@@ -192,26 +248,11 @@ class QueuedBag:
         topics: Mapping[str, str],
         qos: Mapping[str, Qos],
         max_items: int,
-        split_size_bytes: int | None,
-        writer: Writer,
-        batch_period: float,
-        flush_period_s: float,
-        chunk_size: int,
-        fsync: bool,
-        when_full: Literal["drop", "wait"],
-        ros_distro: str | None,
+        writing: WriterSettings,
         build: Mapping[str, Any],
         item_bytes: int,
     ) -> None:
-        if writer not in ("process", "thread", "inline"):
-            msg = f"writer {writer!r}: accepted are 'process', 'thread' and 'inline'"
-            raise BagError(msg)
-        if not (math.isfinite(batch_period) and 0.0 < batch_period <= 0.1):
-            msg = f"batch_period {batch_period!r} s: accepted is 0 < batch_period <= 0.1"
-            raise BagError(msg)
-        if when_full not in ("drop", "wait"):
-            msg = f"when_full {when_full!r}: accepted are 'drop' and 'wait'"
-            raise BagError(msg)
+        writer, batch_period = writing.writer, writing.batch_period
         if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
             msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
                    f"'_', '-', '.' (the directory is given separately)")
@@ -234,7 +275,7 @@ class QueuedBag:
         self._lock = threading.Lock()          # writer side only: drain vs close
         self.writer = writer
         self.threaded = writer == "thread"
-        self.when_full = when_full
+        self.when_full = writing.when_full
         self.batch_period = batch_period
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -245,9 +286,8 @@ class QueuedBag:
             self._ship_due = time.monotonic() + batch_period
             self._proc = WriterProcess(
                 (type(self).__module__, type(self).__qualname__,
-                 {**build, "directory": directory, "name": name, "split_size_bytes": split_size_bytes,
-                  "batch_period": batch_period, "flush_period_s": flush_period_s, "chunk_size": chunk_size,
-                  "fsync": fsync, "ros_distro": ros_distro}),
+                 {**build, "directory": directory, "name": name,
+                  "writing": dataclasses.replace(writing, writer="inline")}),
                 capacity=max_items * item_bytes, batch_period=batch_period)
             self._writer: BagWriter | None = None
             return
@@ -255,11 +295,11 @@ class QueuedBag:
             self.path,
             topics=topics,
             qos=qos,
-            ros_distro=ros_distro,
-            flush_period_s=flush_period_s,
-            split_size_bytes=split_size_bytes,
-            chunk_size=chunk_size,
-            fsync=fsync,
+            ros_distro=writing.ros_distro,
+            flush_period_s=writing.flush_period_s,
+            split_size_bytes=writing.split_size_bytes,
+            chunk_size=writing.chunk_size,
+            fsync=writing.fsync,
         )
         if writer == "thread":
             self._thread = threading.Thread(target=self._run, name=f"{type(self).__name__}:{name}", daemon=True)
@@ -440,21 +480,10 @@ class BagRecorder(QueuedBag):
         dt_ns: Model step in ns.
         namespace: The node's namespace, for the topic names (:func:`bag_topic`).
         frame_id: ``header.frame_id`` of the FluidPressure messages.
-        split_size_bytes: Start a new MCAP file when one reaches this size; None = never.
-        writer: Where the disk work runs: ``process`` (a writer process fed through shared
-            memory, :mod:`pcv_sim.io.writer_process`: what the nodes use), ``thread`` (a writer
-            thread, default) or ``inline`` (inside each call).
-        batch_period: s between the writer's turns.
-        max_queue_s: Longest backlog (in model time) the queue holds before dropping.
-        flush_period_s: The BagWriter's flush period (durability bound, wall clock).
-        chunk_size: Uncompressed MCAP chunk size that forces a flush earlier.
-        fsync: ``os.fsync`` at every flush, so flushed chunks also survive a power cut (done by
-            the writer; inline it lands on a model step).
-        ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
-            (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
-        when_full: What a call does when ``max_queue_s`` of data is waiting: ``drop`` (real
-            time: count the messages as dropped) or ``wait`` for the writer thread (simulated
-            time, where the model may run far faster than the writer: a complete bag).
+        max_queue_s: Longest backlog (in model time) the queue holds before it is full.
+        faults: Record the fault commands too (``faults``, std_msgs/String, at the step each acted:
+            :meth:`fault_command`), as the rig's bag does; a device with its fault topic on.
+        writing: How the bag is written (:class:`WriterSettings`).
     """
 
     def __init__(
@@ -468,15 +497,9 @@ class BagRecorder(QueuedBag):
         dt_ns: int = 100_000,
         namespace: str = "/",
         frame_id: str = "",
-        split_size_bytes: int | None = None,
-        writer: Writer = "thread",
-        batch_period: float = 0.02,
         max_queue_s: float = 10.0,
-        flush_period_s: float = 0.9,
-        chunk_size: int = 1 << 20,
-        fsync: bool = True,
-        when_full: Literal["drop", "wait"] = "drop",
-        ros_distro: str | None = None,
+        faults: bool = False,
+        writing: WriterSettings = WRITER_DEFAULTS,
     ) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             msg = f"every {every!r}: accepted is an integer >= 1 (model steps between output samples)"
@@ -515,18 +538,20 @@ class BagRecorder(QueuedBag):
         self._origin: int | None = None
         self._every_ns = every * dt_ns
         self._per_output = sum(r in self.signals for r in OUTPUT_ROLES)
+        self.faults_topic = bag_topic(FAULTS, namespace) if faults else None
+        texts = {self.faults_topic: STRING} if self.faults_topic else {}
         # Queue bound in items: outputs at their rate plus one input change per step.
         max_items = max(1000, int(max_queue_s * 1e9 / self._every_ns) + int(max_queue_s * 1e9 / dt_ns))
         super().__init__(
             directory, name,
-            topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64)},
+            topics={**{self.topics[r]: ROLE_TYPES[r] for r in self.signals}, **dict.fromkeys(option_topics, FLOAT64),
+                    **texts},
             qos={**{self.topics[r]: ROLE_QOS[r] for r in self.signals},
-                 **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()}},
-            max_items=max_items, split_size_bytes=split_size_bytes, writer=writer, batch_period=batch_period,
-            flush_period_s=flush_period_s, chunk_size=chunk_size, fsync=fsync, when_full=when_full,
-            ros_distro=ros_distro, item_bytes=48,
+                 **{t: SENSOR_DATA_QOS if directions[o] == "out" else COMMAND_QOS for t, o in option_topics.items()},
+                 **dict.fromkeys(texts, COMMAND_QOS)},
+            max_items=max_items, writing=writing, item_bytes=48,
             build={"signals": self.signals, "options": self.options, "every": every, "dt_ns": dt_ns, "namespace": namespace,
-                   "frame_id": frame_id, "max_queue_s": max_queue_s})
+                   "frame_id": frame_id, "max_queue_s": max_queue_s, "faults": faults})
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -582,6 +607,11 @@ class BagRecorder(QueuedBag):
             for k in np.flatnonzero(on):
                 self._put((_OUT, int(t[k]), float(rows[k, 0]), float(rows[k, 1]), float(rows[k, 2])))
 
+    def fault_command(self, t_ns: int, text: str) -> None:
+        """A fault command that acted at ``t_ns`` (the command as given), with ``faults`` on."""
+        if self._origin is not None and self.faults_topic is not None:
+            self._put((_TEXT, self.faults_topic, t_ns, text))
+
     # --- the writer's side ------------------------------------------------------------------
 
     def _count(self, item: tuple[Any, ...]) -> int:
@@ -589,7 +619,7 @@ class BagRecorder(QueuedBag):
             return len(item[3]) * self._per_output
         return 1 if item[0] == _IN else self._per_output
 
-    def _write(self, item: tuple[float, ...]) -> None:
+    def _write(self, item: tuple[Any, ...]) -> None:
         w = self._bag
         if item[0] == _OUT:
             _, t, p, i, x = item
@@ -600,6 +630,9 @@ class BagRecorder(QueuedBag):
                 w.write_float64(self._i_topic, t, i)
             if self._x_topic is not None:
                 w.write_float64(self._x_topic, t, x)
+        elif item[0] == _TEXT:
+            _, topic, t, text = item
+            w.write(topic, int(t), {"data": text})
         else:
             _, k, t, v = item
             k, t = int(k), int(t)

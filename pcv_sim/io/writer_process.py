@@ -296,7 +296,7 @@ def main(argv: list[str]) -> int:
     c = ring.counters
     try:
         module, name, kwargs = _read_spec(control)
-        rec = getattr(importlib.import_module(module), name)(**kwargs, writer="inline")
+        rec = getattr(importlib.import_module(module), name)(**kwargs)      # its WriterSettings: inline
     except Exception as exc:      # whatever stops the bag from opening is what the node reports
         ring.set_error(str(exc) if isinstance(exc, BagError) else f"{type(exc).__name__}: {exc}")
         c[_STATE] = FAILED

@@ -63,7 +63,7 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
@@ -161,9 +161,7 @@ class EmulatorNode(DeviceNode):
             handler = partial(self._on_option, name)
             self._inputs.append((self.create_subscription(Float64, name, handler, COMMAND_QOS,
                                                           event_callbacks=inp(name)), handler))
-        if s.faults_enabled:                # any node on the domain could break the bench
-            self._inputs.append((self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS,
-                                                          event_callbacks=inp(FAULTS)), self._on_fault))
+        self.subscribe_faults()
         if self.external_clock:
             self._inputs.append((self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
                                                           event_callbacks=inp(CLOCK)), self._on_clock))
@@ -225,9 +223,10 @@ class EmulatorNode(DeviceNode):
         s, dev = self.settings, self.device
         recorder: BagRecorder | None = self.open_recorder(partial(
             BagRecorder, signals=s.record_signals, options=(*dev.option_inputs, *dev.option_outputs),
-            every=s.record_every(dev.dt), dt_ns=dev.dt_ns, frame_id=s.frame_id))
+            every=s.record_every(dev.dt), dt_ns=dev.dt_ns, frame_id=s.frame_id, faults=s.faults_enabled))
         if recorder is not None:
             self.set_recorder(recorder, 1)      # every step: inputs stamped exactly, outputs decimated inside
+            dev.on_fault_command = lambda step, text: recorder.fault_command(dev.stamp_ns(step), text)
         return recorder
 
     def _start_recording(self) -> None:
@@ -271,12 +270,11 @@ class EmulatorNode(DeviceNode):
     def _on_supply(self, msg: FluidPressure, info: Any = None) -> None:
         self._input(SUPPLY_PRESSURE, msg.fluid_pressure, info)
 
-    def _on_fault(self, msg: String, info: Any = None) -> None:
-        """A fault command (faults.enabled), logged with its publisher; it acts as an input taken now."""
+    def _take_fault(self, text: str, info: Any) -> None:
+        """Checked by the device now, acting as an input taken now."""
         dev = self.device
-        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
         at = self.acting_step(dev.timing, FAULTS, dev.steps + 1, dev.origin_ns, info)
-        reason = dev.submit_fault(msg.data, at)
+        reason = dev.submit_fault(text, at)
         if reason is not None:
             self.log_rejection(FAULTS, FAULTS, reason, "nothing changed")
         else:

@@ -47,6 +47,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSPolicyKind, QoSProfile
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
 
 from pcv_sim.device.device import Device
 from pcv_sim.device.diagnostics import PeriodDiagnostics, Status
@@ -63,8 +64,8 @@ from pcv_sim.device.parameters import (
 )
 from pcv_sim.device.settings import SettingsSchema
 from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus
-from pcv_sim.io.topics import CLOCK
+from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus, WriterSettings
+from pcv_sim.io.topics import CLOCK, FAULTS
 from pcv_sim.node.polling import Waiter, drain, linger_for_rosout
 from pcv_sim.simulation.clock import (
     NO_CLOCK_YET,
@@ -373,6 +374,22 @@ class DeviceNode(Node):
             return timing.step(name, first)
         r_ns = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
         return timing.step(name, first, received_ns=r_ns, origin_ns=origin_ns, elapsed=time.monotonic() - sched.t0)
+
+    def subscribe_faults(self) -> None:
+        """The `faults` topic, with faults.enabled only: any node on the domain could break the bench."""
+        if self.settings.faults_enabled:
+            sub = self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS,
+                                           event_callbacks=self.input_events(FAULTS))
+            self._inputs.append((sub, self._on_fault))
+
+    def _on_fault(self, msg: String, info: Any = None) -> None:
+        """A fault command, logged with its publisher; the device's part (`_take_fault`) checks it and
+        lets it act as an input taken now would."""
+        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
+        self._take_fault(msg.data, info)
+
+    def _take_fault(self, text: str, info: Any) -> None:
+        raise NotImplementedError
 
     def publisher_of(self, topic: str, info: Any) -> str:
         """The node that published a message on `topic` (`publisher_name`)."""
@@ -790,10 +807,10 @@ class DeviceNode(Node):
             return None
         try:
             return make(os.path.expanduser(s.record_directory), name=s.record_name or None,
-                        namespace=self.get_namespace(),
-                        split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
-                        writer="process",     # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
-                        when_full="wait" if self.simulated else "drop")    # simulated time may outrun the writer
+                        namespace=self.get_namespace(), writing=WriterSettings(
+                            split_size_bytes=round(s.record_split_size_mb * 1e6) if s.record_split_size_mb else None,
+                            writer="process",  # the disk work off the loop's interpreter lock (pcv_sim.io.writer_process)
+                            when_full="wait" if self.simulated else "drop"))   # simulated time may outrun the writer
         except BagError as err:
             raise ParameterError(f"record.directory / record.name: cannot record: {err}") from None
 

@@ -21,8 +21,9 @@ period is one `lockstep/sample` (every signal of the rig, and the scenario's `se
 controller's `measured` as a callable gets it) and one `lockstep/command` back (the duties and the
 flags, stamped with the sample it answers); the other topics are taken every FULL_POLL s.
 
-`RigClient` makes its own node, or works on a node it is given (`node=`: the
-`steering_controller` node, with its parameters and its own inputs added by `add_input`).
+`RigClient` is a `DeviceClient` (the fault topic, the reset service): it makes its own node, or
+works on a node it is given (`node=`: the `steering_controller` node, with its parameters and its
+own inputs added by `add_input`).
 """
 
 from __future__ import annotations
@@ -38,8 +39,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure, JointState
-from std_msgs.msg import Float64, String
-from std_srvs.srv import Trigger
+from std_msgs.msg import Float64
 
 from pcv_sim.io.topics import (
     CURRENT,
@@ -47,14 +47,12 @@ from pcv_sim.io.topics import (
     DIAGNOSTICS,
     DUTY_CYCLE,
     EXTERNAL_FORCE,
-    FAULTS,
     JOINT_STATES,
     PRESSURE,
-    RESET,
     cylinder_topic,
     valve_topic,
 )
-from pcv_sim.node.client import sample_qos
+from pcv_sim.node.client import DeviceClient, diagnostic_level, sample_qos, stamp_ns
 from pcv_sim.node.lockstep_channel import (
     COMMAND_TOPIC,
     DUTY_SUFFIX,
@@ -87,16 +85,15 @@ class _Partial:
     values: dict[str, float] = field(default_factory=dict)
 
 
-class RigClient:
+class RigClient(DeviceClient):
     """Talks to the rig node in `namespace` (its valves named `valves`) from its own node, or
     from `node` (then `namespace` and `context` are the node's)."""
 
     def __init__(self, namespace: str | None, valves: tuple[str, ...], *, context: Any = None,
                  node_name: str = "rig_controller", currents: bool = False, node: Any = None,
                  history: bool = True, channel: bool = False) -> None:
+        super().__init__(namespace, context=context, node_name=node_name, node=node)
         self.valves = valves
-        self._own_node = node is None
-        self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
         node = self.node
         #: keep every answered Period and every current received (a long-running node: False)
         self.history = history
@@ -108,11 +105,8 @@ class RigClient:
         self._commands: dict[tuple[str, ...], NamedVector] = {}
         self._samples: list[tuple[int, dict[str, float]]] = []      # channel: samples taken, not answered
         self._duty_msg = Float64()
-        self.fault_pub = node.create_publisher(String, FAULTS, cmd)
         self.force_pub = node.create_publisher(Float64, cylinder_topic(EXTERNAL_FORCE), cmd)
-        # Services on a node of their own, made at the first call and spun only while a call waits
-        # (spinning self.node would take the samples that `poll` takes): (node, client, executor).
-        self._srv: tuple[Any, Any, SingleThreadedExecutor] | None = None
+        self._srv: tuple[Any, SingleThreadedExecutor] | None = None     # the services' node (_service_node)
         qos = sample_qos(1000)
         self._subs: list[tuple[Any, Callable[..., None]]] = []
         last: tuple[Any, Callable[..., None]]
@@ -158,7 +152,7 @@ class RigClient:
         key = f"{valve}.pressure"
 
         def take(msg: FluidPressure, _info: Any) -> None:
-            self._put(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, key, msg.fluid_pressure)
+            self._put(stamp_ns(msg), key, msg.fluid_pressure)
         return take
 
     def _current(self, valve: str) -> Callable[[Any, Any], None]:
@@ -173,7 +167,7 @@ class RigClient:
         return take
 
     def _joint(self, msg: JointState, _info: Any) -> None:
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_ns(msg)
         for name, arr in (("position", msg.position), ("velocity", msg.velocity), ("effort", msg.effort)):
             if len(arr):
                 self._put(stamp, f"{CYLINDER}.{name}", float(arr[0]))
@@ -194,8 +188,8 @@ class RigClient:
                     seen.append((stamp, i))
 
     def _diagnostic(self, msg: DiagnosticArray, _info: Any) -> None:
-        self.diagnostics.append({st.name: (st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level),
-                                           st.message, {kv.key: kv.value for kv in st.values}) for st in msg.status})
+        self.diagnostics.append({st.name: (diagnostic_level(st), st.message, {kv.key: kv.value for kv in st.values})
+                                 for st in msg.status})
 
     def poll(self) -> int:
         """Take every pending message; returns how many."""
@@ -310,37 +304,27 @@ class RigClient:
             msg.data = d
             self.duty_pubs[v].publish(msg)
 
-    def send_fault(self, text: str) -> None:
-        self.fault_pub.publish(String(data=text))
-
     def send_external_force(self, newton: float) -> None:
         self.force_pub.publish(Float64(data=newton))
 
-    def reset(self, timeout: float = 10.0) -> Any:
-        """Call the rig's `reset` service; its response (TimeoutError if none within `timeout` s)."""
-        end = time.monotonic() + timeout
+    def _service_node(self) -> tuple[Any, Any]:
+        """A node of its own for the service clients, made at the first call and spun only while a
+        call waits (spinning self.node would take the samples that `poll` takes)."""
         if self._srv is None:
             node = rclpy.create_node(f"{self.node.get_name()}_services", namespace=self.node.get_namespace(),
                                      context=self.node.context)
             executor = SingleThreadedExecutor(context=node.context)
             executor.add_node(node)
-            self._srv = (node, node.create_client(Trigger, RESET), executor)
-        _, client, executor = self._srv
-        if not client.wait_for_service(timeout_sec=timeout):
-            raise TimeoutError(f"no reset service within {timeout} s")
-        future = client.call_async(Trigger.Request())
-        executor.spin_until_future_complete(future, timeout_sec=max(0.0, end - time.monotonic()))
-        if not future.done():
-            raise TimeoutError(f"reset: no response within {timeout} s")
-        return future.result()
+            self._srv = (node, executor)
+        return self._srv
 
     def close(self) -> None:
         if self._srv is not None:
-            self._srv[2].shutdown()
+            self._srv[1].shutdown()
             self._srv[0].destroy_node()
             self._srv = None
-        if self._own_node:
-            self.node.destroy_node()
+        self._clients.clear()
+        super().close()
 
 
 def _ignore(_msg: Any) -> None:

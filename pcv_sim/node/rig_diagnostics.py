@@ -6,7 +6,9 @@ DiagnosticArray. Names `<node full name>: <valve>` and `<node full name>: rig`, 
 node's full name (REP 107 style, as the emulator's).
 
     <valve>  WARN while its watchdog has fired, while a fault is active on it or on one of its
-             signals, or when its duty commands were refused in the period.
+             signals, or when its duty commands or its options' inputs were refused in the period;
+             with the valve options on, their signals (`ambient_temperature_k`, `coil_temperature_k`,
+             `coil_resistance_ohm`, `core_position_m`... as the emulator's) and input counts.
     rig      ERROR when the model ran away (non-finite: nothing is published any more) or the
              recording failed; WARN while any fault is active, any watchdog has fired, fault or
              external force commands were refused in the period, (real time) steps were skipped in
@@ -22,18 +24,22 @@ from typing import Any
 
 from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Status, recording_status
 from pcv_sim.io.recorder import RecorderStatus
+from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.rig.rig import Rig
 from pcv_sim.simulation.clock import RealTimeSchedule
 
 __all__ = ["RigCounts", "RigDiagnostics"]
+
+_OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
 
 
 @dataclass
 class RigCounts:
     """What the node counts of its inputs (all of them; the log is rate-limited)."""
 
-    accepted: dict[str, int] = field(default_factory=dict)     # valve -> valid duty commands
-    rejected: dict[str, int] = field(default_factory=dict)     # valve -> refused duty commands
+    #: valve -> valid duty commands, and <valve>.<option input> -> valid temperatures
+    accepted: dict[str, int] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)     # the same, refused
     faults_accepted: int = 0
     faults_rejected: int = 0
     force_accepted: int = 0                                    # cylinder/external_force
@@ -53,7 +59,9 @@ class RigDiagnostics(PeriodDiagnostics):
               last: dict[str, float], recorder: RecorderStatus | None = None) -> list[Status]:
         """`last`: the last published (measured) sample, signal -> SI value. Never the rig's sample()
         here: computing outputs moves the coil solve's Newton start, and a run must not depend on
-        when the wall-clock diagnostics came. `recorder`: the recording's status (record.enabled)."""
+        when the wall-clock diagnostics came. The valve options' outputs are in `last` too
+        (`<valve>.coil_temperature`...), their inputs read from the rig (what is in force). `recorder`:
+        the recording's status (record.enabled)."""
         self._recorder = recorder
         totals = {f"rejected.{v}": n for v, n in counts.rejected.items()}
         totals["rejected.faults"] = counts.faults_rejected
@@ -75,6 +83,10 @@ class RigDiagnostics(PeriodDiagnostics):
             problems.append(f"fault(s) active: {', '.join(faults)}")
         if new.get(f"rejected.{name}"):
             problems.append(f"{new[f'rejected.{name}']} duty command(s) rejected")
+        options = [o.partition(".")[2] for o in rig.option_inputs if o.startswith(f"{name}.")]
+        for option in options:
+            if new.get(f"rejected.{name}.{option}"):
+                problems.append(f"{new[f'rejected.{name}.{option}']} {option} input(s) rejected")
         slot = rig.params.valve(name)
         values: dict[str, Any] = {
             "chamber": slot.chamber,
@@ -90,6 +102,14 @@ class RigDiagnostics(PeriodDiagnostics):
                                  ("spool_position_m", "spool_position", ".4e")):
             v = y.get(f"{name}.{signal}")
             values[key] = format(v, fmt) if v is not None and not math.isnan(v) else ""
+        for option in options:                          # the valve options' inputs in force, K
+            values[f"{option}_k"] = f"{rig.temperature(name, option):.2f}"
+            values[f"accepted.{option}"] = counts.accepted.get(f"{name}.{option}", 0)
+            values[f"rejected.{option}"] = counts.rejected.get(f"{name}.{option}", 0)
+        for signal in rig.option_outputs:               # and their outputs, as last published
+            if signal.startswith(f"{name}.") and (v := y.get(signal)) is not None:
+                option = signal.partition(".")[2]
+                values[f"{option}_{_OPTION_UNITS[option].lower()}"] = f"{v:.6g}"
         return self._status(name, WARN if problems else OK, problems, "ok", values)
 
     def _rig(self, rig: Rig, counts: RigCounts, new: dict[str, int], time_mode: str, lockstep: bool,
@@ -97,7 +117,7 @@ class RigDiagnostics(PeriodDiagnostics):
              factor: float) -> Status:
         faults = [f"{kind}@{target}" for (target, kind) in rig.faults]
         fired = [v for v in rig.valve_names if rig.watchdog_fired[v]]
-        rejected = sum(counts.rejected.values())
+        rejected = sum(counts.rejected[v] for v in rig.valve_names)
         problems = []
         if faults:
             problems.append(f"fault(s) active: {', '.join(faults)}")
@@ -115,7 +135,7 @@ class RigDiagnostics(PeriodDiagnostics):
             "control_period_s": f"{rig.params.timing.control_period:g}",
             "faults_active": ", ".join(faults),
             "watchdog_fired": ", ".join(fired),
-            "rejected_inputs": rejected + counts.faults_rejected + counts.force_rejected,
+            "rejected_inputs": sum(counts.rejected.values()) + counts.faults_rejected + counts.force_rejected,
             "rejected.duty_cycle": rejected,
             "rejected.faults": counts.faults_rejected,
             "accepted.faults": counts.faults_accepted,

@@ -12,6 +12,8 @@ names are relative (`pcv_sim.io.topics`); each valve keeps the emulator's interf
     out  cylinder/pressure_a|b   sensor_msgs/FluidPressure   Pa, the chamber (= its valve's pressure)
     in   faults                  std_msgs/String             {fault: coil_open, valve: left} (YAML)
     in   cylinder/external_force std_msgs/Float64            N on the rod, + extending (toward +x)   reliable, depth 10
+    in   <valve>/ambient_temperature, oil_temperature   std_msgs/Float64, K   (the valve options', when on:
+    out  <valve>/coil_temperature (K), coil_resistance (ohm), core_position (m)   io.topics.OPTION_INTERFACE)
     srv  reset                   std_srvs/Trigger            the rig back to rest; model time goes on
     out  /diagnostics            one status per valve and one for the rig, every diagnostics_period
     out  /clock                  rosgraph_msgs/Clock (simulated time only: one clock for the whole rig)
@@ -72,7 +74,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
-from std_msgs.msg import Float64, Header, String
+from std_msgs.msg import Float64, Header
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
@@ -116,6 +118,7 @@ from pcv_sim.simulation.clock import (
     ExternalClock,
 )
 from pcv_sim.simulation.duty import check_duty
+from pcv_sim.simulation.stepper import check_temperature
 
 __all__ = ["NODE_NAME", "RigNode"]
 
@@ -176,8 +179,14 @@ class RigNode(DeviceNode):
             sub = self.create_subscription(JointState, COMMAND_TOPIC, self._on_command, COMMAND_QOS, raw=True,
                                            event_callbacks=self.input_events(COMMAND_TOPIC))
             self._inputs.append((sub, self._on_command))
-        if s.faults_enabled:                                # any node on the domain could break the bench
-            subscription(String, FAULTS, self._on_fault)
+        self.subscribe_faults()
+        for name in rig.option_inputs:                      # the valve options' temperatures (K)
+            valve, _, role = name.partition(".")
+            subscription(Float64, valve_topic(valve, role), partial(self._on_option, valve, role))
+            self.counts.accepted[name] = self.counts.rejected[name] = 0
+        #: The valve options' outputs (`Rig.option_outputs`), published with each sample as the emulator does.
+        self._option_pubs = [publisher(Float64, valve_topic(*name.split(".", 1))) for name in rig.option_outputs]
+        self._last_options: list[float] = []
         self._pub_joint = publisher(JointState, cylinder_topic(JOINT_STATES))
         #: (publisher, index of the valve's pressure in the samples, its message) per chamber
         self._chamber_pubs = [(publisher(FluidPressure, chamber_topic(v.chamber)),
@@ -256,11 +265,36 @@ class RigNode(DeviceNode):
         self.counts.accepted[valve] += 1
         self._when(valve, info, partial(rig.set_duty, valve, duty))
 
-    def _on_fault(self, msg: String, info: Any = None) -> None:
-        rig = self.rig
-        self.get_logger().info(f"fault command {msg.data!r} from {self.publisher_of(FAULTS, info)}")
+    def _on_option(self, valve: str, name: str, msg: Float64, info: Any = None) -> None:
+        """A valve option's temperature (K), checked as the emulator checks it; it acts as the duties do
+        (`Rig.set_temperature`, which may still refuse it then: an oil too cold for the step)."""
+        key, topic = f"{valve}.{name}", valve_topic(valve, name)
         try:
-            cmd = parse_fault_command(msg.data, valves=rig.valve_names, signals=rig.signals)
+            value = check_temperature(name.replace("_", " "), msg.data)
+        except CommandError as err:
+            self._refuse_option(key, topic, str(err))
+            return
+        self.counts.accepted[key] += 1
+
+        def apply() -> None:
+            try:
+                self.rig.set_temperature(valve, name, value)
+            except CommandError as err:
+                self.counts.accepted[key] -= 1
+                self._refuse_option(key, topic, str(err))
+
+        self._when(key, info, apply)
+
+    def _refuse_option(self, key: str, topic: str, reason: str) -> None:
+        self.counts.rejected[key] += 1
+        self.counts.last_rejection = f"{topic}: {reason}"
+        self.log_rejection(key, topic, reason)
+
+    def _take_fault(self, text: str, info: Any) -> None:
+        """Checked with the rig's fault table now; it acts as the inputs do (and is recorded then)."""
+        rig = self.rig
+        try:
+            cmd = parse_fault_command(text, valves=rig.valve_names, signals=rig.signals)
         except FaultError as err:
             self._refuse_fault(str(err))
             return
@@ -277,7 +311,7 @@ class RigNode(DeviceNode):
                 self.counts.faults_accepted -= 1
                 self._refuse_fault(str(err))
             else:
-                self._record_text("faults", msg.data)
+                self._record_text("faults", text)
 
         self._when(_FAULTS_KEY, info, apply)
 
@@ -302,6 +336,7 @@ class RigNode(DeviceNode):
             self._publish_clock()
         true = rig.sample()
         self._last_sample = rig.sensors.measure(rig.time, true).tolist()
+        self._last_options = rig.option_sample
         self._shown = rig.steps
         if self.hook is not None:
             self.hook.sampled(true, self._last_sample)
@@ -359,6 +394,10 @@ class RigNode(DeviceNode):
             joint.effort = [eff] if isfinite(eff) else []
             joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
             self._pub_joint.publish(joint)
+        for pub, value in zip(self._option_pubs, self._last_options):
+            if isfinite(value) and pub.get_subscription_count():
+                msg_f.data = value
+                pub.publish(msg_f)
         self.counts.samples_published += published
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
@@ -369,7 +408,9 @@ class RigNode(DeviceNode):
         time_mode = "external_clock" if self.external_clock else self.settings.time_mode
         return self._diag.build(now, rig=rig, counts=self.counts, time_mode=time_mode, lockstep=self.settings.lockstep,
                                 schedule=self._schedule, failure=rig.fault, waiting_for=waiting,
-                                last=dict(zip(rig.signals, self._last_sample)), recorder=recorder)
+                                last=dict(zip((*rig.signals, *rig.option_outputs), (*self._last_sample,
+                                                                                     *self._last_options))),
+                                recorder=recorder)
 
     def _forward_log(self) -> None:
         """What the rig did that a user must hear about (watchdog, faults), once per event."""
@@ -496,7 +537,8 @@ class RigNode(DeviceNode):
         """The bag recorder asked for by record.* (None when off); ParameterError if it cannot start."""
         rig = self.rig
         recorder: RigRecorder | None = self.open_recorder(partial(
-            RigRecorder, valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals))
+            RigRecorder, valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals,
+            options=(*rig.option_inputs, *rig.option_outputs)))
         if recorder is not None:
             rig.on_input = self._record_input
         return recorder
@@ -519,7 +561,7 @@ class RigNode(DeviceNode):
             rec.start(t_ns, rig.input_values())
             self.recording_started(rec, f"to {rec.path}: every valve under its namespace, the cylinder, faults and "
                                         "events (outputs every control period, inputs on change)")
-        rec.sample(t_ns, self._last_sample, rig.load_volumes())
+        rec.sample(t_ns, self._last_sample, rig.load_volumes(), self._last_options)
         log = rig.log
         while self._rec_logged < len(log):
             t, text = log[self._rec_logged]

@@ -15,13 +15,13 @@ import math
 import os
 import struct
 from collections.abc import Iterable, Mapping
-from typing import Any, Final, Literal
+from typing import Any, Final
 
 import numpy as np
 
 from pcv_sim.errors import BagError
 from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, FLUID_PRESSURE, SENSOR_DATA_QOS, Qos, cdr
-from pcv_sim.io.recorder import ROLE_QOS, QueuedBag, Writer, bag_name
+from pcv_sim.io.recorder import ROLE_QOS, STRING, WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_name
 from pcv_sim.io.topics import (
     CURRENT,
     CYLINDER,
@@ -30,6 +30,7 @@ from pcv_sim.io.topics import (
     INPUT_ROLES,
     JOINT_STATES,
     LOAD_FLOW,
+    OPTION_INTERFACE,
     PRESSURE,
     ROLE_TYPES,
     ROLES,
@@ -82,7 +83,6 @@ class RigBagLayout:
 
 _IN: Final = 0       # queue item (_IN, topic, t_ns, value)
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
-STRING: Final = "std_msgs/msg/String"
 _TEXT: Final = 2     # queue item (_TEXT, topic, t_ns, text)
 _STAMP_PACK: Final = struct.Struct("<iI")
 _JOINT_PACK: Final = struct.Struct("<d")
@@ -102,6 +102,10 @@ class RigRecorder(QueuedBag):
         <ns>/<valve>/pressure, current, spool_position        the samples as published (measured)
         <ns>/cylinder/joint_states, pressure_a|b              the samples as published
         <ns>/cylinder/external_force                          input, on change
+        <ns>/<valve>/ambient_temperature, oil_temperature      the valve options' inputs (K), on change,
+                                                             stamped at the step they act from
+        <ns>/<valve>/coil_temperature, coil_resistance,       the valve options' outputs (K, ohm, m)
+                     core_position                            with every sample, as published
         <ns>/faults                                           the fault commands, at the step they acted
         <ns>/rig/events                                       the rig's log: faults, clears, watchdog, reset
 
@@ -118,7 +122,11 @@ class RigRecorder(QueuedBag):
             anything else (on its own load volume: no chamber topic).
         signals: The rig's signal names (``<valve>.pressure`` ..., ``cylinder.position`` ...), the
             order of the measured values given to :meth:`sample`.
+        options: The valve options' signals the rig has (``<valve>.<name>``, `Rig.option_inputs` and
+            `Rig.option_outputs`; :data:`pcv_sim.io.topics.OPTION_INTERFACE`): inputs recorded on
+            change, outputs with every sample, in this order after the inputs.
         max_items: Queue bound (items: one per sample, input change or text).
+        writing: How the bag is written (:class:`pcv_sim.io.recorder.WriterSettings`).
         Others: as :class:`BagRecorder`.
     """
 
@@ -128,22 +136,17 @@ class RigRecorder(QueuedBag):
         *,
         valves: Iterable[tuple[str, str]],
         signals: Iterable[str],
+        options: Iterable[str] = (),
         name: str | None = None,
         namespace: str = "/",
-        split_size_bytes: int | None = None,
-        writer: Writer = "thread",
-        batch_period: float = 0.02,
         max_items: int = 100_000,
-        flush_period_s: float = 0.9,
-        chunk_size: int = 1 << 20,
-        fsync: bool = True,
-        when_full: Literal["drop", "wait"] = "drop",
-        ros_distro: str | None = None,
+        writing: WriterSettings = WRITER_DEFAULTS,
     ) -> None:
         if name is None:
             name = bag_name(namespace, prefix="rig")
         self.valves = tuple(valves)
         self.signals = tuple(signals)
+        self.options = tuple(options)
         layout = RigBagLayout(namespace)
         topics: dict[str, str] = {}
         qos: dict[str, Qos] = {}
@@ -178,6 +181,19 @@ class RigRecorder(QueuedBag):
         self._joint = add(layout.joint_states, JOINT_STATE, SENSOR_DATA_QOS)
         self._joint_i = tuple(self.signals.index(f"{CYLINDER}.{q}") for q in CYLINDER_SIGNALS)
         self._input_topic[EXTERNAL_FORCE] = add(layout.cylinder(EXTERNAL_FORCE_ROLE), FLOAT64, COMMAND_QOS)
+        directions = {e.name: e.direction for e in OPTION_INTERFACE}
+        #: the options' output topics, in the order of the option values given to `sample`
+        self._option_out: list[str] = []
+        for option in self.options:
+            valve, _, role = option.partition(".")
+            if valve not in dict(self.valves) or role not in directions:
+                msg = (f"record option signal {option!r}: accepted are <valve>.<name> for a valve of the rig and a "
+                       f"name of {', '.join(directions)}")
+                raise BagError(msg)
+            if directions[role] == "in":
+                self._input_topic[option] = add(layout.valve(valve, role), FLOAT64, COMMAND_QOS)
+            else:
+                self._option_out.append(add(layout.valve(valve, role), FLOAT64, SENSOR_DATA_QOS))
         self.faults_topic = add(layout.faults, STRING, COMMAND_QOS)
         self.events_topic = add(layout.events, STRING, COMMAND_QOS)
         self.topics = dict(topics)
@@ -185,12 +201,12 @@ class RigRecorder(QueuedBag):
         self.started = False
         self._volumes: tuple[int, list[float]] | None = None    # (t_ns, load volumes) at the last sample
         self._joint_cdr: tuple[bytes, int, tuple[int, int, int]] | None = None
-        self._per_row = 3 * len(self.valves) + len(self._chambers) + 1
+        self._per_row = 3 * len(self.valves) + len(self._chambers) + 1 + len(self._option_out)
         super().__init__(
-            directory, name, topics=topics, qos=qos, max_items=max_items, split_size_bytes=split_size_bytes,
-            writer=writer, batch_period=batch_period, flush_period_s=flush_period_s, chunk_size=chunk_size,
-            fsync=fsync, when_full=when_full, ros_distro=ros_distro, item_bytes=9 * len(self.signals) + 48,
-            build={"valves": self.valves, "signals": self.signals, "namespace": namespace, "max_items": max_items})
+            directory, name, topics=topics, qos=qos, max_items=max_items, writing=writing,
+            item_bytes=9 * (len(self.signals) + len(self._option_out)) + 48,
+            build={"valves": self.valves, "signals": self.signals, "options": self.options, "namespace": namespace,
+                   "max_items": max_items})
 
     # --- the model loop's side ----------------------------------------------------------------
 
@@ -214,10 +230,12 @@ class RigRecorder(QueuedBag):
         self._last[name] = value
         self._put((_IN, topic, t_ns, value))
 
-    def sample(self, t_ns: int, measured: Iterable[float], load_volumes: Iterable[float]) -> None:
-        """The sample published at ``t_ns`` (measured, in the order of `signals`; NaN: dropped) and
-        the valves' load volumes then (m^3, in the order of `valves`): the mean load flow of the
-        period since the last sample is written (on change), stamped at its start."""
+    def sample(self, t_ns: int, measured: Iterable[float], load_volumes: Iterable[float],
+               options: Iterable[float] = ()) -> None:
+        """The sample published at ``t_ns`` (measured, in the order of `signals`; NaN: dropped), the
+        valves' load volumes then (m^3, in the order of `valves`): the mean load flow of the period
+        since the last sample is written (on change), stamped at its start; and the options' outputs
+        (in the order of the output names in `options`)."""
         if not self.started:
             return
         volumes = [float(v) for v in load_volumes]
@@ -227,7 +245,7 @@ class RigRecorder(QueuedBag):
             for (v, _), a, b in zip(self.valves, before, volumes):
                 self.input(t0, f"{v}.{LOAD_FLOW}", (b - a) * 1e9 / (t_ns - t0))
         self._volumes = (t_ns, volumes)
-        self._put((_ROW, t_ns, tuple(measured)))
+        self._put((_ROW, t_ns, tuple(measured), tuple(options)))
 
     def restart_flows(self) -> None:
         """The load volumes jumped (a reset): no mean flow for the period up to the next sample."""
@@ -295,6 +313,12 @@ class RigRecorder(QueuedBag):
                     ok = np.isfinite(v)          # a dropped sample: no message (never a NaN measurement)
                     if np.any(ok):
                         w.write_samples(t[ok], {topic: v[ok]}, frame_id=frame)
+        if self._option_out:
+            o = np.array([r[3] for r in rows], dtype=np.float64).reshape(len(rows), len(self._option_out))
+            for j, topic in enumerate(self._option_out):
+                ok = np.isfinite(o[:, j])
+                if np.any(ok):
+                    w.write_samples(t[ok], {topic: o[ok, j]}, frame_id="")
         jp, jv, je = self._joint_i
         template, at_stamp, at_values = self._joint_template()
         pack = _JOINT_PACK.pack_into

@@ -6,11 +6,12 @@ Each valve's load port is one cylinder chamber: the valve's pressure state feeds
 `rig.time_step` (0.1 ms) with the valves' integrator (Heun for the simplified model), so the
 load flow is never a step late.
 
-Inputs follow the emulator's rules (`pcv_sim.device.valve`): a duty command is validated on
-arrival (`CommandError` naming what is accepted; the last valid one stays) and acts from the
-present step on, i.e. at the first step at or after its reception; the watchdog runs in model
-time (`pcv_sim.device.inputs.Watchdog`, the emulator's): `watchdog_timeout` s after a valve's last
-valid command took effect its duty falls to `safe_duty`, and the next valid command resumes. The
+Inputs, fault commands and watchdogs are every device's (`pcv_sim.device.device`, the
+emulator's too): an input (`submit`: `<valve>.duty_cycle`, `cylinder.external_force`, a valve
+option's `<valve>.<temperature>`) is checked on arrival (refused with what is accepted, counted;
+the last valid one stays) and acts from its step; `set_duty` and the other setters act from the
+present step on; the watchdog runs in model time: `watchdog_timeout` s after a valve's last valid
+command took effect its duty falls to `safe_duty`, and the next valid command resumes. The
 rig starts with each valve at rest at its `initial_duty`, its watchdog waiting for a first command
 (no controller yet: it does not fire), and the piston at `initial_position`, at rest.
 
@@ -27,15 +28,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, NoReturn
 
 import numpy as np
 
-from pcv_sim.device.device import MODEL_FAILURES, Device
-from pcv_sim.device.faults import CYLINDER, Fault, valve_fault_parameters
-from pcv_sim.device.inputs import NEVER, InputQueue, WatchdogState
+from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
+from pcv_sim.device.faults import CYLINDER
+from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.io.topics import OPTION_INTERFACE
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
@@ -135,16 +138,18 @@ TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped"
 
 
 class Rig(Device):
-    """N valves + one cylinder at one fixed step (see the module docstring)."""
+    """N valves + one cylinder at one fixed step (a `Device` of valves and a plant; see the module
+    docstring). Its queue holds inputs (`submit`), fault commands (`submit_fault`) and actions
+    (`schedule`)."""
 
-    queue: InputQueue[Callable[[], None]]      # scheduled inputs: actions run at their step
+    params: RigParams
 
     def __init__(self, params: RigParams, *, seed: int = 0) -> None:
         valves = params.valves
         super().__init__(params.timing.time_step, [v.name for v in valves],
-                         round(params.timing.watchdog_timeout / params.timing.time_step))
+                         round(params.timing.watchdog_timeout / params.timing.time_step),
+                         safe_duty=params.timing.safe_duty)
         self.params = params
-        self.valve_names = tuple(v.name for v in valves)
         kind = valves[0].params.simulation.model
         self.kind = kind
         systems = [valve_system(v.params, kind, v.name) for v in valves]
@@ -180,6 +185,16 @@ class Rig(Device):
         self._option_inputs = [(plant.index("input", f"{v.name}.{name}"), value) for v in valves
                                for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
                                                       kernel.option_inputs(v.params), strict=True)]
+        #: The valve options' signals the valves have (`<valve>.<name>`, io.topics.OPTION_INTERFACE):
+        #: inputs (temperatures, K: `set_temperature`) and outputs, sampled with `signals` (their true
+        #: values at the last `sample()`: `option_sample`).
+        self.option_inputs = tuple(f"{v.name}.{name}" for v in valves
+                                   for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):])
+        self.option_outputs = tuple(f"{n}.{e.name}" for n in self.valve_names for e in OPTION_INTERFACE
+                                    if e.direction == "out" and f"{n}.{e.name}" in plant.outputs)
+        self._option_in_i = [plant.index("input", name) for name in self.option_inputs]
+        self._option_out_i = np.array([plant.index("output", name) for name in self.option_outputs], dtype=np.int64)
+        self.option_sample: list[float] = []
         #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
         self._exact_spool = [self.sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:-1]]
         for k, v in enumerate(valves):
@@ -194,7 +209,6 @@ class Rig(Device):
         self._healthy = [s.p.copy() for s in systems[:-1]]        # and the temperatures set since
         self._healthy_cylinder = systems[-1].p.copy()
         self._supply0 = [v.params.circuit.supply_pressure for v in valves]
-        self._safe = params.timing.safe_duty
         self.sensors = Sensors(self.signals, params.timing.control_period, seed)
         #: Called whenever an input of the model (a duty in force, a supply pressure, the external
         #: force) changes, with the step it acts from (a recorder's hook); None: nobody listens.
@@ -207,6 +221,14 @@ class Rig(Device):
         self._feed_steps: list[int] = []
         self._feed_v = np.zeros((0, 0))
         self._feed_next = 0
+        self._declare_inputs({
+            **{f"{v.name}.duty_cycle": InputKind(partial(check_duty, duty_range=v.params.command.duty_range),
+                                                 partial(self._take_command, v.name)) for v in valves},
+            EXTERNAL_FORCE: InputKind(check_external_force, self._put_external_force),
+            **{f"{v.name}.{name}": InputKind(partial(check_temperature, f"{v.name}: {name.replace('_', ' ')}"),
+                                             partial(self.set_temperature, v.name, name))
+               for v in valves for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):]
+               if name in TEMPERATURE_INPUTS}})
         self.reset()
         # Compile (or load from the cache) the composite's functions now, not in the first run
         # (whose speed would then count the compile): each one the lockstep and the node call.
@@ -250,17 +272,17 @@ class Rig(Device):
             sim.u[i_flow], sim.u[i_volume] = 0.0, volume
         for i, value in self._option_inputs:
             sim.u[i] = value
-        for watchdog in self.watchdogs.values():
-            watchdog.restart()
+        self._restart_watchdogs()
         self.clear_fault()
-        self.faults: dict[tuple[str, str], Fault] = {}
+        self.faults = {}
         self.sensors.reset()
         if keep_time:
             self.log.append((self.time, "reset: valves at rest at their initial duty, piston at rest at its initial "
                                         "position, faults cleared"))
         else:
-            self.rejected: list[tuple[float, str]] = []
-            self.log: list[tuple[float, str]] = []
+            self.rejected = []
+            self.log = []
+            self.counts.clear()
             self.queue.clear()
             self._set_feed({})
         self._inputs_changed()
@@ -275,6 +297,8 @@ class Rig(Device):
             hook(steps, f"{name}.duty_cycle", float(u[self._duty_i[k]]))
             hook(steps, f"{name}.supply_pressure", float(u[self._supply_i[k]]))
         hook(steps, EXTERNAL_FORCE, float(u[self._force_i]))
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            hook(steps, name, float(u[i]))
 
     def input_values(self) -> dict[str, float]:
         """The inputs in force now, by the names `on_input` uses (SI)."""
@@ -284,6 +308,8 @@ class Rig(Device):
             out[f"{name}.duty_cycle"] = float(u[self._duty_i[k]])
             out[f"{name}.supply_pressure"] = float(u[self._supply_i[k]])
         out[EXTERNAL_FORCE] = float(u[self._force_i])
+        for name, i in zip(self.option_inputs, self._option_in_i):
+            out[name] = float(u[i])
         return out
 
     @property
@@ -308,6 +334,8 @@ class Rig(Device):
         with the inputs in force from now on. A new array."""
         y = self.sim.outputs()
         self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
+        if len(self._option_out_i):
+            self.option_sample = y[self._option_out_i].tolist()
         return np.asarray(y[self._signal_i])
 
     def load_volumes(self) -> list[float]:
@@ -326,35 +354,41 @@ class Rig(Device):
         if slot is None:
             self.valve_names.index(valve)              # ValueError naming it, as for any unknown valve
         assert slot is not None
-        (lo, hi), i = slot
+        lo, hi = slot[0]
         if type(duty) is float and lo <= duty <= hi:   # the common case: what check_duty would return
             d = duty
         else:
             try:
                 d = check_duty(duty, (lo, hi))
             except CommandError as err:
-                self.rejected.append((self.time, f"{valve}: {err}"))
+                self._reject(f"{valve}.duty_cycle", str(err))
                 raise
-        self.commands[valve] = d
-        self.duties[valve] = d
+        self._take_command(valve, d)
+
+    def duty_range(self, valve: str) -> tuple[float, ...]:
+        return self._duty_slot[valve][0]
+
+    def _put_duty(self, valve: str, duty: float) -> None:
         sim = self.sim
-        sim.u[i] = d
+        sim.u[self._duty_slot[valve][1]] = duty
         if self.on_input is not None:
-            self.on_input(sim.steps, f"{valve}.duty_cycle", d)
-        if self.watchdogs[valve].command(sim.steps):
-            self.log.append((self.time, f"{valve}: watchdog cleared by a valid command"))
+            self.on_input(sim.steps, f"{valve}.duty_cycle", duty)
+
+    def _waiting_duty(self, valve: str) -> float:
+        return self.params.valve(valve).initial_duty
+
+    @property
+    def has_cylinder(self) -> bool:
+        return True
 
     def set_external_force(self, force: Any) -> None:
         """The external force on the rod (N, + toward +x: extending) from the present step on."""
-        f = check_external_force(force)
-        self.sim.u[self._force_i] = f
-        if self.on_input is not None:
-            self.on_input(self.sim.steps, EXTERNAL_FORCE, f)
+        self._put_external_force(check_external_force(force))
 
-    def _fault_targets(self, fault: Fault) -> str | None:
-        if fault.on_cylinder:
-            return None if fault.target == CYLINDER else f"is {CYLINDER}"
-        return None if fault.target in self.valve_names else f"are the valves {', '.join(self.valve_names)}"
+    def _put_external_force(self, force: float) -> None:
+        self.sim.u[self._force_i] = force
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, EXTERNAL_FORCE, force)
 
     def temperature(self, valve: str, name: str) -> float:
         """A valve option's temperature input in force (K; see `set_temperature`)."""
@@ -385,17 +419,10 @@ class Rig(Device):
                 self.sim.P[off + kernel.V_RATE] = rate
                 self.sim.refresh_rates()
         self.sim.u[self.plant.index("input", f"{valve}.{name}")] = value
+        if self.on_input is not None:
+            self.on_input(self.sim.steps, f"{valve}.{name}", value)
 
-    def _note(self, text: str) -> None:
-        self.log.append((self.time, text))
-
-    def _apply_physical_faults(self, fault: Fault) -> None:
-        if fault.on_cylinder:
-            self._apply_cylinder_faults()
-        else:
-            self._apply_valve_faults(self.valve_names.index(fault.target))
-
-    def _apply_cylinder_faults(self) -> None:
+    def _apply_plant_faults(self) -> None:
         """The cylinder's parameter vector: healthy, then every active fault on it."""
         p = self._healthy_cylinder.copy()
         for (target, kind), f in self.faults.items():
@@ -412,17 +439,20 @@ class Rig(Device):
                 self.sim.x[self._state_off[-2] + 1] = 0.0      # seized where it is: no velocity
         self.sim.set_parameters(len(self.valve_names), p)
 
-    def _apply_valve_faults(self, k: int) -> None:
-        """The valve's parameter vector and supply: healthy, then every active fault on it."""
-        name = self.valve_names[k]
-        p, supply, stuck = valve_fault_parameters(
-            self._healthy[k], self._supply0[k], (f for (target, _), f in self.faults.items() if target == name))
-        if stuck:   # seized where it is: no velocity (the continuity's A v term stops with it)
+    def _healthy_parameters(self, valve: str) -> np.ndarray:
+        return self._healthy[self.valve_names.index(valve)]
+
+    def _supply_in_force(self, valve: str) -> float:
+        return self._supply0[self.valve_names.index(valve)]
+
+    def _put_valve(self, valve: str, parameters: np.ndarray, supply: float, stuck: bool) -> None:
+        k = self.valve_names.index(valve)
+        if stuck:
             self.sim.x[self._state_off[k] + 2] = 0.0
-        self.sim.set_parameters(k, p)
+        self.sim.set_parameters(k, parameters)
         self.sim.u[self._supply_i[k]] = supply
         if self.on_input is not None:
-            self.on_input(self.sim.steps, f"{name}.supply_pressure", supply)
+            self.on_input(self.sim.steps, f"{valve}.supply_pressure", supply)
 
     def schedule(self, t: float, action: Callable[[], None]) -> int:
         """Run `action` (e.g. `lambda: rig.inject(f)`) at the first step at or after time t (s); returns
@@ -571,15 +601,10 @@ class Rig(Device):
         raise RigError(reason)
 
     def _due(self) -> None:
+        """What falls due at the present step, in the devices' order: queued inputs and actions,
+        fed inputs, then the watchdogs."""
+        self._apply_due_inputs()
         steps = self.sim.steps
-        while (action := self.queue.pop_due(steps)) is not None:
-            action()
         while self._feed_next < len(self._feed_steps) and self._feed_steps[self._feed_next] <= steps:
             self._feed_row(self._feed_next, steps)
-        for k, name in enumerate(self.valve_names):
-            if self.watchdogs[name].check(steps):
-                self.duties[name] = self._safe
-                self.sim.u[self._duty_i[k]] = self._safe
-                if self.on_input is not None:
-                    self.on_input(steps, f"{name}.duty_cycle", self._safe)
-                self.log.append((self.time, f"{name}: watchdog fired, duty -> {self._safe:g}"))
+        self._check_watchdogs()

@@ -406,3 +406,18 @@ def test_margins_are_shown_in_engineering_units(write_campaign, tmp_path, capsys
     assert "2.5 mm" in html and "180 bar" in html
     rows = read_rows(tmp_path / "out" / "results.csv")
     assert float(rows[0]["tracks.limit"]) == 2.5e-3
+
+
+def test_chunks_fall_in_size_to_single_variants_at_the_end():
+    """Each variant once, in order, in chunks of at most 8 that only shrink, the last 2 per worker
+    single variants: no worker waits for another's last chunk longer than one variant."""
+    from pcv_sim.campaign.executors import chunks
+
+    for n, workers in ((40, 2), (1000, 16), (3, 2), (0, 2), (17, 1)):
+        parts = chunks(list(range(100, 100 + n)), workers)
+        assert [k for c in parts for k in c] == list(range(100, 100 + n))
+        sizes = [len(c) for c in parts]
+        assert all(1 <= s <= 8 for s in sizes) and sizes == sorted(sizes, reverse=True)
+        tail = min(n, 2 * workers)
+        assert sizes[len(sizes) - tail:] == [1] * tail
+        assert n < 40 or sizes[0] == 8

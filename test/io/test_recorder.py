@@ -17,7 +17,7 @@ import pytest
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, bag_name, check_signals
+from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, WriterSettings, bag_name, check_signals
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 
@@ -44,7 +44,7 @@ def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> Non
 
 @pytest.mark.parametrize("writer", ["process", "thread", "inline"])
 def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=10, writer=writer, frame_id="load_port")
+    rec = BagRecorder(tmp_path, name="b", every=10, frame_id="load_port", writing=WriterSettings(writer=writer))
     record(rec, 1000, {100: {"duty": 0.7}, 250: {"q": 1e-5}, 400: {"duty": 0.3, "ps": 150e5}, 401: {"duty": 0.3}})
     st = rec.close()
     assert (st.state, st.dropped, st.queued, st.error) == ("closed", 0, 0, "")
@@ -93,7 +93,7 @@ def test_output_grid_is_anchored_at_the_start_and_survives_gaps(tmp_path: Path) 
 
 
 def test_split_files(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, split_size_bytes=20_000, chunk_size=16_384)
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(split_size_bytes=20_000, chunk_size=16_384))
     record(rec, 6000, {})
     st = rec.close()
     bag = read_bag(tmp_path / "b")
@@ -107,7 +107,7 @@ def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path) -> None:
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
         BagRecorder(tmp_path, name="b")
     assert list((tmp_path / "b").iterdir()) == []
-    BagRecorder(tmp_path, name="c", writer="inline").close()
+    BagRecorder(tmp_path, name="c", writing=WriterSettings(writer="inline")).close()
     with pytest.raises(BagError, match="exists already"):
         BagRecorder(tmp_path, name="c")
     assert read_bag(tmp_path / "c").closed_cleanly
@@ -128,7 +128,6 @@ def test_timestamped_default_name(tmp_path: Path) -> None:
     ({"every": 0}, "every 0: accepted is an integer >= 1"),
     ({"every": 2.5}, "every 2.5"),
     ({"dt_ns": 0}, "dt_ns 0"),
-    ({"batch_period": 0.0}, "batch_period"),
     ({"max_queue_s": math.inf}, "max_queue_s"),
     ({"name": "../x"}, "plain directory name"),
     ({"name": ".."}, "plain directory name"),
@@ -139,13 +138,25 @@ def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str) -> None
     assert not (tmp_path / "b").exists()
 
 
+@pytest.mark.parametrize("kwargs, match", [
+    ({"batch_period": 0.0}, r"batch_period 0.0 s: accepted is 0 < batch_period <= 0.1"),
+    ({"batch_period": math.nan}, r"batch_period nan s"),
+    ({"writer": "disk"}, r"writer 'disk': accepted are 'process', 'thread' and 'inline'"),
+])
+def test_writer_settings_are_checked_when_made(kwargs: dict, match: str) -> None:
+    """Every recorder's writing in one object, refused with what is accepted before any bag exists."""
+    with pytest.raises(BagError, match=match):
+        WriterSettings(**kwargs)
+
+
 def test_check_signals_orders_and_accepts_aliases() -> None:
     assert check_signals(["position", "duty", "pressure", "duty_cycle"]) == ("duty_cycle", "pressure", "spool_position")
     assert check_signals(RECORDABLE) == RECORDABLE
 
 
 def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"], batch_period=0.1)
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"],
+                      writing=WriterSettings(batch_period=0.1))
     rec._max_items = 10
     rec.start(T0, signals(0))                              # 2 items: duty, outputs
     for k in range(1, 21):                                 # the writer thread sleeps 0.1 s first
@@ -159,7 +170,7 @@ def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("writer", ["thread", "inline"])
 def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writer=writer)
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writing=WriterSettings(writer=writer))
     record(rec, 10, {})
     rec.close()                                             # drain what came before
     rec._closed = False
@@ -200,7 +211,8 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
 
 
 def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], batch_period=0.005, when_full="wait")
+    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"],
+                      writing=WriterSettings(batch_period=0.005, when_full="wait"))
     rec._max_items = 50
     record(rec, 2000, {})
     st = rec.close()
@@ -209,7 +221,7 @@ def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
 
 def test_when_full_is_checked(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
-        BagRecorder(tmp_path, name="b", when_full="block")  # type: ignore[arg-type]
+        BagRecorder(tmp_path, name="b", writing=WriterSettings(when_full="block"))  # type: ignore[arg-type]
 
 
 def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path) -> None:
@@ -239,3 +251,38 @@ def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_pat
         with open(next((tmp_path / name).glob("*.mcap")), "rb") as f:
             got[name] = sorted((c.topic, m.log_time, bytes(m.data)) for _s, c, m in make_reader(f).iter_messages())
     assert len(got["blocks"]) > 3 * 600 and got["blocks"] == got["single"]
+
+
+@pytest.mark.parametrize("faults", [True, False])
+def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_path: Path, faults: bool) -> None:
+    """As the rig's bag: `faults` (std_msgs/String) holds each command that acted, as given, at its
+    step (`ValveDevice.on_fault_command`); one refused when due is not in it; without `faults` the
+    bag has no such topic. Read back with the mcap reader (CDR decoded here)."""
+    import struct
+
+    from mcap.reader import make_reader
+
+    rec = BagRecorder(tmp_path, name="b", faults=faults, writing=WriterSettings(writer="inline"))
+    dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
+    dev.on_fault_command = lambda step, text: rec.fault_command(dev.stamp_ns(step), text)
+    rec.start(dev.stamp_ns(), dev.signals())
+    assert dev.submit_fault("{fault: coil_open}", at_step=100) is None
+    assert dev.submit_fault("{clear: bias, signal: pressure}", at_step=150) is None    # not active when due
+    assert dev.submit_fault("{clear: coil_open}", at_step=200) is None
+    dev.run(300)
+    assert dev.counts.rejected["faults"] == 1
+    st = rec.close()
+    assert st.dropped == 0 and st.error == ""
+    texts, topics = [], set()
+    [mcap_file] = (tmp_path / "b").glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            topics.add(channel.topic)
+            if channel.topic == "/faults":
+                assert schema.name == "std_msgs/msg/String"
+                (n,) = struct.unpack_from("<I", message.data, 4)
+                texts.append((message.log_time, message.data[8:8 + n - 1].decode()))
+    if faults:
+        assert texts == [(100 * dev.dt_ns, "{fault: coil_open}"), (200 * dev.dt_ns, "{clear: coil_open}")]
+    else:
+        assert "/faults" not in topics and "/pressure" in topics

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import BagRecorder
+from pcv_sim.io.recorder import BagRecorder, WriterSettings
 from pcv_sim.io.writer_process import HIGH_WATER, LOW_WATER
 from pcv_sim.rig.bag import RigRecorder
 
@@ -53,7 +53,7 @@ def messages(bag: Path) -> list[tuple[str, int, bytes]]:
 
 def test_the_process_writes_the_messages_a_thread_writes(tmp_path: Path) -> None:
     for writer in ("process", "thread"):
-        rec = BagRecorder(tmp_path, name=writer, every=1, writer=writer, frame_id="load_port")
+        rec = BagRecorder(tmp_path, name=writer, every=1, frame_id="load_port", writing=WriterSettings(writer=writer))
         feed(rec, 0, 6000)
         st = rec.close()
         assert (st.state, st.dropped, st.queued, st.messages) == ("closed", 0, 0, 4 + 3 * 6001), st
@@ -66,7 +66,7 @@ def test_the_rig_recorder_runs_in_the_process_too(tmp_path: Path) -> None:
           "signals": ["left.pressure", "left.current", "left.spool_position",
                       "cylinder.position", "cylinder.velocity", "cylinder.effort"]}
     for writer in ("process", "inline"):
-        rec = RigRecorder(tmp_path, name=writer, writer=writer, **kw)
+        rec = RigRecorder(tmp_path, name=writer, **kw, writing=WriterSettings(writer=writer))
         rec.start(T0, {"left.duty_cycle": 0.5, "left.supply_pressure": 200e5, "cylinder.external_force": 0.0})
         for k in range(1, 500):
             rec.sample(T0 + k * 10 * DT, [1e6 + k, 0.5, 1e-4, 0.01 * k, 0.1, 5.0], [1e-6 * k])
@@ -77,7 +77,7 @@ def test_the_rig_recorder_runs_in_the_process_too(tmp_path: Path) -> None:
 
 
 def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     feed(rec, 0, 1000)
     assert rec._proc is not None
     rec._proc.proc.kill()
@@ -93,7 +93,8 @@ def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path
 
 
 def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", when_full="wait", max_queue_s=0.01)
+    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=0.01,
+                      writing=WriterSettings(writer="process", when_full="wait"))
     assert rec._proc is not None
     rec._proc.proc.send_signal(signal.SIGSTOP)            # a writer that stopped taking
     try:
@@ -109,7 +110,7 @@ def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path) -> None:
 
 def test_an_error_opening_the_bag_in_the_process_is_the_constructor_s(tmp_path: Path) -> None:
     with pytest.raises(BagError, match=r"the bag writer process could not start: .*ros_distro"):
-        BagRecorder(tmp_path, name="b", writer="process", ros_distro="no such distro!")
+        BagRecorder(tmp_path, name="b", writing=WriterSettings(writer="process", ros_distro="no such distro!"))
 
 
 def test_a_node_killed_by_sigkill_leaves_a_finalized_bag_with_every_batch_it_handed_over(tmp_path: Path) -> None:
@@ -118,8 +119,8 @@ def test_a_node_killed_by_sigkill_leaves_a_finalized_bag_with_every_batch_it_han
         import os, signal, sys, time
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_writer_process import feed
-        from pcv_sim.io.recorder import BagRecorder
-        rec = BagRecorder({str(tmp_path)!r}, name="b", every=1, writer="process")
+        from pcv_sim.io.recorder import BagRecorder, WriterSettings
+        rec = BagRecorder({str(tmp_path)!r}, name="b", every=1, writing=WriterSettings(writer="process"))
         feed(rec, 0, 5000)
         time.sleep(rec.batch_period)
         rec.status()                       # hands over the batch in progress
@@ -149,7 +150,7 @@ def _alive(pid: int) -> bool:
 
 def test_the_writer_process_ignores_sigint(tmp_path: Path) -> None:
     """A Ctrl-C reaches the node, which closes the bag after its last samples; the writer waits for it."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     feed(rec, 0, 100)
     assert rec._proc is not None
     os.kill(rec._proc.proc.pid, signal.SIGINT)
@@ -184,7 +185,7 @@ def test_the_writer_shares_the_node_s_scheduling_group_and_writes_only_on_idle_c
     """A session of its own would be an autogroup of its own, weighing as much as the node's whole
     group; in the node's session its writing thread runs under SCHED_IDLE (any thread that wants
     the CPU preempts it), its main thread (close, a filling ring) at normal priority."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     try:
         assert rec._proc is not None
         pid = rec._proc.proc.pid
@@ -206,7 +207,7 @@ def test_under_cpu_load_the_ring_keeps_every_batch_until_close(tmp_path: Path, c
     """Two CPU burners in this session: the idle writer falls behind (how far depends on how often
     a core idles between the burners' slices: not asserted), the ring holds what the loop handed
     over, and closing (at normal priority) writes all of it."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process")
+    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     feed(rec, 0, 20_000)                                   # 2 s of 10 kHz samples, ~1 MB in the ring
     time.sleep(rec.batch_period)
@@ -228,7 +229,7 @@ def test_a_ring_filled_past_half_is_written_by_the_normal_priority_thread_under_
     the process's main thread (normal priority) writes it down to LOW_WATER, so a long busy spell
     costs no data while the ring has room. Nothing is dropped, all is written. (Which thread wrote
     is not asserted: the idle one gets CPU whenever a core idles between the burners' slices.)"""
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", max_queue_s=3.0)
+    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=3.0, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     ring = rec._proc.ring
     feed(rec, 0, 0)
@@ -248,7 +249,7 @@ def test_a_ring_filled_past_half_is_written_by_the_normal_priority_thread_under_
 def test_a_full_ring_drops_whole_batches_and_counts_every_message(tmp_path: Path) -> None:
     """A writer that takes nothing (stopped): batches that do not fit are counted as dropped, the
     ones that fit are written at close: bag + dropped = everything recorded."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writer="process", max_queue_s=0.05)
+    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=0.05, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     rec._proc.proc.send_signal(signal.SIGSTOP)
     try:

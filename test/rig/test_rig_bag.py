@@ -11,6 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from pcv_sim.cli import main
+from pcv_sim.io.recorder import WriterSettings
 from pcv_sim.params import load_params
 from pcv_sim.replay import ReplayError, load_recording, replay
 from pcv_sim.rig.bag import RigRecorder
@@ -27,7 +28,7 @@ def duties(t):
 def rig_bag(rig, tmp_path):
     """0.3 s of the rig, recorded at the 1 ms control period; returns (bag path, samples)."""
     rec = RigRecorder(tmp_path, name="b", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, namespace=NS, writer="inline")
+                      signals=rig.signals, namespace=NS, writing=WriterSettings(writer="inline"))
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     samples = []
     for k in range(301):
@@ -103,7 +104,7 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     from pcv_sim.rig.bag import JOINT_STATE
 
     rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, writer="inline")
+                      signals=rig.signals, writing=WriterSettings(writer="inline"))
     y = rig.sample()
     rec.start(0, rig.input_values())
     rec.sample(0, y, rig.load_volumes())
@@ -125,3 +126,58 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     (_, j0), (_, j1) = got["/cylinder/joint_states"]
     assert list(j0.velocity) == [y[rig.signals.index("cylinder.velocity")]] and list(j1.velocity) == []
     assert list(j1.position) == [y[rig.signals.index("cylinder.position")]] and j1.header.stamp.nanosec == 1_000_000
+
+
+def test_the_valve_options_are_recorded_under_their_valve_and_read_back_by_the_mcap_reader(options_rig, tmp_path):
+    """A valve's options in a rig bag as in the emulator's (io.topics.OPTION_INTERFACE): the
+    temperatures it takes on change, stamped at the step they act from; the coil's temperature and
+    resistance with every sample, at its stamp; read back with the mcap reader (CDR decoded here)."""
+    import struct
+
+    from mcap.reader import make_reader
+
+    from pcv_sim.errors import BagError
+    from pcv_sim.rig import Rig, load_rig
+    from pcv_sim.units import kelvin
+
+    rig = Rig(load_rig(options_rig))
+    assert rig.option_inputs == ("probe.ambient_temperature", "probe.oil_temperature")
+    assert rig.option_outputs == ("probe.coil_temperature", "probe.coil_resistance")
+    valves = [(v.name, v.chamber) for v in rig.params.valves]
+    with pytest.raises(BagError, match=r"record option signal 'middle.coil_temperature': accepted are <valve>.<name>"):
+        RigRecorder(tmp_path, name="x", valves=valves[:1], signals=rig.signals, options=["middle.coil_temperature"],
+                    writing=WriterSettings(writer="inline"))
+    rec = RigRecorder(tmp_path, name="o", valves=valves, signals=rig.signals, namespace=NS,
+                      options=(*rig.option_inputs, *rig.option_outputs), writing=WriterSettings(writer="inline"))
+    rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
+    rig.set_duty("probe", 0.9)                  # the coil heats
+    start = rig.input_values()
+    sampled = []
+    for k in range(101):
+        rig.advance_to(k * 10)
+        y = rig.sample()
+        if k == 0:
+            rec.start(0, rig.input_values())
+        rec.sample(rig.steps * DT_NS, y, rig.load_volumes(), rig.option_sample)
+        sampled.append((rig.steps * DT_NS, *rig.option_sample))
+        if k == 50:
+            rig.set_temperature("probe", "oil_temperature", kelvin(50.0))
+    st = rec.close()
+    assert st.dropped == 0 and st.error == ""
+
+    [mcap_file] = (tmp_path / "o").glob("*.mcap")
+    got: dict[str, list[tuple[int, float]]] = {}
+    types = {}
+    with open(mcap_file, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            types[channel.topic] = schema.name
+            if schema.name == "std_msgs/msg/Float64":
+                got.setdefault(channel.topic, []).append((message.log_time, struct.unpack_from("<d", message.data, 4)[0]))
+    for name in ("ambient_temperature", "oil_temperature", "coil_temperature", "coil_resistance"):
+        assert types[f"{NS}/probe/{name}"] == "std_msgs/msg/Float64", name
+        assert f"{NS}/left/{name}" not in types                       # the paper's valves have none
+    assert got[f"{NS}/probe/coil_temperature"] == [(t, c) for t, c, _ in sampled]
+    assert got[f"{NS}/probe/coil_resistance"] == [(t, r) for t, _, r in sampled]
+    assert sampled[-1][1] > sampled[0][1]                              # K: the coil warmed at 90 % duty
+    assert got[f"{NS}/probe/oil_temperature"] == [(0, start["probe.oil_temperature"]), (500 * DT_NS, kelvin(50.0))]
+    assert got[f"{NS}/probe/ambient_temperature"] == [(0, start["probe.ambient_temperature"])]
