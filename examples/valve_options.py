@@ -12,6 +12,10 @@
   fall-rate limit (2 /s): without it the spool stops on its end stop and the core flies on by a
   few micrometres (the gap); the solenoid brings it back when the duty returns. Inside the stroke
   they never part (docs/model.md R35: Sec. 3.2's undershoot is not reproduced).
+
+The same three on the rig (two valves on the steering cylinder, under a controller) are scenario
+files beside this one: cold_start.yaml, coil_heating.yaml, coil_heating_closed_loop.yaml,
+fast_release.yaml and fast_release_limited.yaml (`pcv-sim scenario run FILE --report out/`).
 """
 
 from __future__ import annotations
