@@ -303,3 +303,25 @@ def test_values_with_units_are_read_in_si(tmp_path: Path, default_mapping: dict)
     with pytest.raises(ParameterError, match=r"circuit\.supply_pressure: unit 'mm' in '200 mm' \(mm is a unit of "
                                              r"length\); accepted for a pressure are Pa, kPa, MPa, bar"):
         load_params(path)
+
+
+def test_the_yaml_files_read_through_libyaml_as_through_pyyaml():
+    """read_yaml parses with libyaml where pyyaml has it: every YAML file of the repository (valve,
+    rig, emulator, scenarios, campaigns) gives the data pyyaml's own SafeLoader gives; a duplicate
+    key and a broken document are refused in pyyaml's words, line and column."""
+    from pcv_sim.params import read_yaml, yaml_load_unique
+
+    repo = Path(__file__).resolve().parents[1]
+    files = [*repo.glob("config/*.yaml"), *repo.glob("examples/**/*.yaml"), *repo.glob("launch/**/*.yaml")]
+    assert len(files) >= 10
+    for f in files:
+        want = yaml.load(f.read_text(encoding="utf-8"), Loader=yaml.SafeLoader)
+        assert read_yaml(f, "file") == want and read_yaml(f, "file", unique=True) == want, f
+    with pytest.raises(ParameterError, match=r"x: duplicate key 'a' at line 3 \(first at line 1\)"):
+        yaml_load_unique("a: 1\nb: {c: 2}\na: 3\n", "x")
+    bad = "a: 1\nb: c: 2\n"
+    with pytest.raises(yaml.YAMLError) as pure:
+        yaml.safe_load(bad)
+    with pytest.raises(ParameterError) as ours:
+        yaml_load_unique(bad, "x")
+    assert str(ours.value) == f"x: not valid YAML: {pure.value}"

@@ -24,9 +24,9 @@ Measurements (SI): `left.pressure` (Pa), `cylinder.position` (m), `cylinder.velo
 `setpoint` (m), ... A missing key is a dropped sample: the controller holds its last value.
 
 The rig's lockstep calls it in the array form as well (`lockstep_arrays`: the samples as a list,
-the duties and the flag into one; no dict built or parsed each period, a third of a 1 kHz
-period's Python). Both forms run one control law (`_law`) on one state, so they give the same
-numbers to the last bit and may alternate within a run.
+the duties and the flag into one, no dict built or parsed each period). Both forms run one
+control law (`_law`) on one state, so they give the same numbers to the last bit and may
+alternate within a run (the dict form while a sensor fault is active).
 """
 
 from __future__ import annotations

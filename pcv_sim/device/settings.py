@@ -5,7 +5,7 @@ validated by the one mechanism of `pcv_sim.params`: each node setting is a `Node
 declared once with `setting(default, unit, description, check, ...)`; a `SettingsSchema` over
 a settings dataclass derives what a node declares (its --help), checks a value by name and makes and
 changes the settings: every node's settings go through it (`SCHEMA` here, the rig node's in
-`pcv_sim.node.rig_settings`).
+`pcv_sim.rig.settings`).
 
 Model parameters appear as `model.<section>.<key>` (e.g. `model.spool.mass`), every scalar and
 vector field of the valve YAML; the matrix-valued curve fits (`solenoid.force`, `fits.*` tables)
@@ -73,7 +73,7 @@ RUNTIME_FIXED_MODEL = ("simulation.time_step",)
 
 # --- node settings ---------------------------------------------------------------------------
 # Checks in the pcv_sim.params style: value -> None when fine, else the text "what is accepted";
-# the rig node's settings (pcv_sim.node.rig_settings) use them too.
+# the rig node's settings (pcv_sim.rig.settings) use them too.
 
 
 _priority = int_range(0, 99, "an integer 0..99 (0 = normal scheduling)")

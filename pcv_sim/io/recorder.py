@@ -66,7 +66,7 @@ import pickle
 import re
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Literal, Self
@@ -355,6 +355,18 @@ class QueuedBag:
     def _count(self, item: tuple[Any, ...]) -> int:
         """Messages `item` makes."""
         raise NotImplementedError
+
+    def _guarded(self, write: Callable[[Any], None], what: Any, messages: int) -> None:
+        """`write(what)` unless writing failed already; its `messages` counted as dropped when it
+        cannot be written (the first failure is kept: `_fail`)."""
+        if self._error:
+            self._dropped += messages
+            return
+        try:
+            write(what)
+        except (BagError, OSError) as exc:
+            self._fail(exc)
+            self._dropped += messages
 
     def write_items(self, items: list[tuple[Any, ...]]) -> None:
         """Write items the loop side queued (the writer process's call)."""
@@ -652,14 +664,8 @@ class BagRecorder(QueuedBag):
             elif item[0] == _BLOCK:
                 _, t0, dt, rows = item
                 outputs.extend(zip(itertools.repeat(_OUT), range(t0, t0 + dt * len(rows), dt), *rows.T.tolist()))
-            elif self._error:
-                self._dropped += 1
             else:
-                try:
-                    self._write(item)
-                except (BagError, OSError) as exc:
-                    self._fail(exc)
-                    self._dropped += 1
+                self._guarded(self._write, item, 1)
         if not outputs:
             return
         if self._error:

@@ -25,7 +25,7 @@ DESCRIPTION = ("Steering rig: the valves of a rig YAML and the steering cylinder
 
 
 def _epilog() -> str:
-    from pcv_sim.node.rig_settings import RIG_PARAMETERS
+    from pcv_sim.rig.settings import RIG_PARAMETERS
 
     return parameter_help(RIG_PARAMETERS, "FILE",
                           "the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")

@@ -108,12 +108,12 @@ from pcv_sim.node.base import (
     DeviceNode,
 )
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
-from pcv_sim.node.rig_diagnostics import RigCounts, RigDiagnostics
-from pcv_sim.node.rig_settings import SCHEMA, RigNodeSettings
 from pcv_sim.rig import FaultError, Rig, RigError, load_rig
 from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
+from pcv_sim.rig.diagnostics import RigCounts, RigDiagnostics
 from pcv_sim.rig.params import RigParams
 from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
+from pcv_sim.rig.settings import SCHEMA, RigNodeSettings
 from pcv_sim.simulation.clock import (
     ExternalClock,
 )
@@ -401,7 +401,7 @@ class RigNode(DeviceNode):
         self.counts.samples_published += published
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
-        """One status per valve and one for the rig (see pcv_sim.node.rig_diagnostics)."""
+        """One status per valve and one for the rig (see pcv_sim.rig.diagnostics)."""
         rig = self.rig
         waiting = tuple(v for v in rig.valve_names if v not in self._answered) \
             if self.simulated and self.settings.lockstep else ()

@@ -264,38 +264,27 @@ class RigRecorder(QueuedBag):
     def _write_batch(self, items: list[tuple[Any, ...]]) -> None:
         """Inputs and texts message by message; the samples per topic as arrays
         (``BagWriter.write_samples``), the joint states message by message."""
-        w = self._bag
         rows = []
         for item in items:
             if item[0] == _ROW:
                 rows.append(item)
-                continue
-            if self._error:
-                self._dropped += 1
-                continue
-            try:
-                if item[0] == _TEXT:
-                    _, topic, t, text = item
-                    w.write(topic, int(t), {"data": text})
-                else:
-                    _, topic, t, v = item
-                    if topic.endswith("/" + SUPPLY_PRESSURE):
-                        w.write_fluid_pressure(topic, int(t), v, 0.0, "load_port")
-                    else:
-                        w.write_float64(topic, int(t), v)
-            except (BagError, OSError) as exc:
-                self._fail(exc)
-                self._dropped += 1
-        if not rows:
-            return
-        if self._error:
-            self._dropped += len(rows) * self._per_row
-            return
-        try:
-            self._write_rows(rows)
-        except (BagError, OSError) as exc:
-            self._fail(exc)
-            self._dropped += len(rows) * self._per_row
+            else:
+                self._guarded(self._write_message, item, 1)
+        if rows:
+            self._guarded(self._write_rows, rows, len(rows) * self._per_row)
+
+    def _write_message(self, item: tuple[Any, ...]) -> None:
+        """An input or a text."""
+        w = self._bag
+        if item[0] == _TEXT:
+            _, topic, t, text = item
+            w.write(topic, int(t), {"data": text})
+        else:
+            _, topic, t, v = item
+            if topic.endswith("/" + SUPPLY_PRESSURE):
+                w.write_fluid_pressure(topic, int(t), v, 0.0, "load_port")
+            else:
+                w.write_float64(topic, int(t), v)
 
     def _write_rows(self, rows: list[tuple[Any, ...]]) -> None:
         w = self._bag

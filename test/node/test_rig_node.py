@@ -243,7 +243,7 @@ def test_bad_fault_commands_are_refused_saying_what_is_accepted(text, match):
 ])
 def test_rig_parameters_are_checked_by_name(name, value, match):
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.rig_settings import check_rig_value
+    from pcv_sim.rig.settings import check_rig_value
 
     with pytest.raises(ParameterError, match=match):
         check_rig_value(name, value)
@@ -251,8 +251,8 @@ def test_rig_parameters_are_checked_by_name(name, value, match):
 
 def test_settings_cross_check_the_rig_step_and_override_the_control_period():
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.rig_settings import RigNodeSettings
     from pcv_sim.rig import load_rig
+    from pcv_sim.rig.settings import RigNodeSettings
 
     rig = load_rig()
     assert RigNodeSettings(control_period=0.01).rig_params(rig).steps_per_period == 100
@@ -270,7 +270,7 @@ def test_the_rig_declares_every_setting_all_nodes_share_as_the_emulator_does():
 
     from pcv_sim.device.settings import NODE_PARAMETERS, CommonSettings
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.rig_settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value
+    from pcv_sim.rig.settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value
 
     common = [f.metadata["name"] or f.name for f in dataclasses.fields(CommonSettings)]
     rig, emulator = {p.name: p for p in RIG_PARAMETERS}, {p.name: p for p in NODE_PARAMETERS}

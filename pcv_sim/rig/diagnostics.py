@@ -1,4 +1,4 @@
-"""The rig node's health: one status per valve and one for the rig, without ROS.
+"""The rig node's health, without ROS and beside the rig: one status per valve and one for the rig.
 
 `RigDiagnostics.build` returns plain `Status` values (pcv_sim.device.diagnostics' type: level,
 message, string key values with SI units in the names); the node turns them into a
