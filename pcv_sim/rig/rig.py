@@ -186,12 +186,12 @@ class Rig(Device):
                                for name, value in zip(kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):],
                                                       kernel.option_inputs(v.params), strict=True)]
         #: The valve options' signals the valves have (`<valve>.<name>`, io.topics.OPTION_INTERFACE):
-        #: inputs (temperatures, K: `set_temperature`) and outputs, sampled with `signals` (their true
-        #: values at the last `sample()`: `option_sample`).
+        #: inputs (temperatures, K: `set_temperature`) and outputs, which are among `signals` (their
+        #: true values at the last `sample()`: `option_sample`).
         self.option_inputs = tuple(f"{v.name}.{name}" for v in valves
                                    for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):])
-        self.option_outputs = tuple(f"{n}.{e.name}" for n in self.valve_names for e in OPTION_INTERFACE
-                                    if e.direction == "out" and f"{n}.{e.name}" in plant.outputs)
+        outputs = {e.name for e in OPTION_INTERFACE if e.direction == "out"}
+        self.option_outputs = tuple(s for s in self.signals if s.partition(".")[2] in outputs)
         self._option_in_i = [plant.index("input", name) for name in self.option_inputs]
         self._option_out_i = np.array([plant.index("output", name) for name in self.option_outputs], dtype=np.int64)
         self.option_sample: list[float] = []
