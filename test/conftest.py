@@ -107,22 +107,34 @@ def compiled_kernels():
     Rig(load_rig())          # compiles (or loads) what the rig node and the lockstep call
 
 
-@pytest.fixture
-def options_rig(tmp_path):
+def write_options_rig(directory, thermal_resistance=1.0, heat_capacity=1.0):
     """The shipped rig plus a valve `probe` on its own load volume with the options of docs/model.md
     R33, R34 that bring inputs: a lumped coil (ambient temperature in; coil temperature and resistance
-    out; a 1 s thermal time constant, so a short run sees it warm) and an oil temperature input; no
-    watchdog. Returns the rig YAML's path."""
+    out; by default a 1 s thermal time constant, so a short run sees it warm) and an oil temperature
+    input; no watchdog. Written into `directory`; returns the rig YAML's path."""
     import yaml
 
     valve = yaml.safe_load((REPO / 'config' / 'valve.yaml').read_text())
-    valve['solenoid'].update(coil_temperature='lumped', coil_thermal_resistance=1.0, coil_heat_capacity=1.0)
+    valve['solenoid'].update(coil_temperature='lumped', coil_thermal_resistance=thermal_resistance,
+                             coil_heat_capacity=heat_capacity)
     valve['fluid']['temperature'] = 'input'
-    (tmp_path / 'probe.yaml').write_text(yaml.safe_dump(valve))
+    (directory / 'probe.yaml').write_text(yaml.safe_dump(valve))
     rig = yaml.safe_load((REPO / 'config' / 'rig.yaml').read_text())
     for slot in rig['valves'].values():
         slot['config'] = str(REPO / 'config' / 'valve.yaml')
     rig['rig']['watchdog_timeout'] = 0.0
-    rig['valves']['probe'] = {'config': str(tmp_path / 'probe.yaml'), 'chamber': 'none', 'initial_duty': 0.0}
-    (tmp_path / 'rig.yaml').write_text(yaml.safe_dump(rig))
-    return tmp_path / 'rig.yaml'
+    rig['valves']['probe'] = {'config': str(directory / 'probe.yaml'), 'chamber': 'none', 'initial_duty': 0.0}
+    (directory / 'rig.yaml').write_text(yaml.safe_dump(rig))
+    return directory / 'rig.yaml'
+
+
+@pytest.fixture(scope='session')
+def options_rig_writer():
+    """`write_options_rig`, for fixtures of other scopes."""
+    return write_options_rig
+
+
+@pytest.fixture
+def options_rig(tmp_path):
+    """`write_options_rig` in the test's own directory."""
+    return write_options_rig(tmp_path)

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from pcv_sim.errors import CommandError
 from pcv_sim.params import load_params
@@ -20,21 +19,12 @@ R_TH, C_TH = 1.0, 1.0        # K/W, J/K: a coil with a 1 s thermal time constant
 
 
 @pytest.fixture(scope="module")
-def probe_rig(tmp_path_factory):
-    """The shipped rig plus a valve `probe` on its own load volume with both temperature inputs;
-    no watchdog (the runs command a duty once and hold it)."""
+def probe_rig(tmp_path_factory, options_rig_writer):
+    """The shipped rig plus a valve `probe` on its own load volume with both temperature inputs
+    (test/conftest.py `write_options_rig`); no watchdog (the runs command a duty once and hold it)."""
     d = tmp_path_factory.mktemp("rig")
-    valve = yaml.safe_load((REPO / "config" / "valve.yaml").read_text())
-    valve["solenoid"].update(coil_temperature="lumped", coil_thermal_resistance=R_TH, coil_heat_capacity=C_TH)
-    valve["fluid"]["temperature"] = "input"
-    (d / "probe.yaml").write_text(yaml.safe_dump(valve))
-    rig = yaml.safe_load((REPO / "config" / "rig.yaml").read_text())
-    for slot in rig["valves"].values():
-        slot["config"] = str(REPO / "config" / "valve.yaml")
-    rig["rig"]["watchdog_timeout"] = 0.0
-    rig["valves"]["probe"] = {"config": str(d / "probe.yaml"), "chamber": "none", "initial_duty": 0.0}
-    (d / "rig.yaml").write_text(yaml.safe_dump(rig))
-    return d / "rig.yaml", load_rig(d / "rig.yaml"), load_params(d / "probe.yaml")
+    path = options_rig_writer(d, R_TH, C_TH)
+    return path, load_rig(path), load_params(d / "probe.yaml")
 
 
 def _scenario(rig_path, timeline, duration):
