@@ -22,7 +22,7 @@ from pcv_sim.campaign.spec import Campaign
 from pcv_sim.campaign.variants import Variant, Variants
 from pcv_sim.errors import PcvSimError
 from pcv_sim.rig.assertions import outcome_kind
-from pcv_sim.rig.batch import batchable, run_lockstep_batch
+from pcv_sim.rig.batch import batchable, compiled_before, run_lockstep_batch
 from pcv_sim.rig.lockstep import Controller, RigRun
 from pcv_sim.rig.rig import Rig
 from pcv_sim.rig.scenario import (
@@ -37,7 +37,7 @@ from pcv_sim.rig.scenario import (
     schedule_timeline,
 )
 
-__all__ = ["ERROR", "FAILED", "PASSED", "Worker", "margin", "run_chunk", "worker_for"]
+__all__ = ["AUTO_BATCH", "ERROR", "FAILED", "PASSED", "Worker", "batch_size", "margin", "run_chunk", "worker_for"]
 
 PASSED, FAILED, ERROR = "passed", "failed", "error"
 
@@ -146,10 +146,11 @@ class Worker:
         row["_kinds"] = kinds               # the unit kind of each value, limit and margin (not a column)
         return row, result
 
-    def run_recorded(self, k: int) -> tuple[dict[str, Any], ScenarioResult | None, Scenario | None]:
-        """Variant k's row, its scenario result (None: it did not run) and its scenario."""
+    def run_recorded(self, k: int, place: int = 0) -> tuple[dict[str, Any], ScenarioResult | None, Scenario | None]:
+        """Variant k's row, its scenario result (None: it did not run) and its scenario (on the
+        rig kept at `place`)."""
         t0 = time.perf_counter()
-        row, timing, built = self._build(k, 0)
+        row, timing, built = self._build(k, place)
         if built is None:
             return row, None, None
         scenario, controller, rig = built
@@ -160,34 +161,35 @@ class Worker:
         except Exception as err:       # the user's controller: any exception is its failure, not ours
             result = err
         timing.update(setup_s=t1 - t0, run_s=time.perf_counter() - t1)
-        row, res = self._finish(row, timing, scenario, result, 0)
+        row, res = self._finish(row, timing, scenario, result, place)
         return row, res, scenario
 
-    def run_batch(self, indices: Sequence[int]) -> list[dict[str, Any]]:
+    def run_batch(self, indices: Sequence[int], *, compiled_only: bool = False) -> list[dict[str, Any]]:
         """The rows of the variants `indices` run as one batch (`pcv_sim.rig.batch`: their rigs
         stepped in one compiled call per control period): the same rows as `run` of each, bit for
         bit. Variants that cannot share a batch (not built, another rig structure, a controller
-        without the lockstep's array form) run alone."""
+        without the lockstep's array form) run alone; with `compiled_only` all run alone unless
+        the batch's compiled code is at hand (`compiled_before`)."""
         t0 = time.perf_counter()
         built = [self._build(k, place) for place, k in enumerate(indices)]
-        members = [j for j, (_, _, b) in enumerate(built) if b is not None and _array_form(b[1])]
-        rows: dict[int, dict[str, Any]] = {j: built[j][0] for j, (_, _, b) in enumerate(built) if b is None}
-        rigs: list[Rig] = []
-        for j in members:
-            parts = built[j][2]
-            assert parts is not None
-            scenario, _, rig = parts
-            rig.reset()
-            schedule_timeline(rig, scenario)
-            rigs.append(rig)
-        if len(members) > 1 and batchable(rigs) is None and len({built[j][2][0].duration for j in members}) == 1:
+        rows: dict[int, dict[str, Any]] = {j: row for j, (row, _, parts) in enumerate(built) if parts is None}
+        members: list[int] = []
+        ready: list[tuple[Scenario, Controller | None, Rig]] = []
+        for j, (_, _, parts) in enumerate(built):
+            if parts is not None and _array_form(parts[1]):
+                members.append(j)
+                ready.append(parts)
+        rigs = [rig for _, _, rig in ready]
+        if len(members) > 1 and len({scenario.duration for scenario, _, _ in ready}) == 1 \
+                and batchable(rigs) is None and (not compiled_only or compiled_before(rigs[0], len(rigs))):
+            for scenario, _, rig in ready:
+                rig.reset()
+                schedule_timeline(rig, scenario)
             t1 = time.perf_counter()
-            parts_of = [built[j][2] for j in members]
-            runs = run_lockstep_batch(rigs, [p[1] for p in parts_of], parts_of[0][0].duration,
-                                      setpoints=[p[0].setpoint_function() for p in parts_of])
+            runs = run_lockstep_batch(rigs, [controller for _, controller, _ in ready], ready[0][0].duration,
+                                      setpoints=[scenario.setpoint_function() for scenario, _, _ in ready])
             run_s = (time.perf_counter() - t1) / len(members)
-            for j, parts, run, rig in zip(members, parts_of, runs, rigs, strict=True):
-                scenario = parts[0]
+            for j, (scenario, _, rig), run in zip(members, ready, runs, strict=True):
                 result: ScenarioResult | Exception
                 if isinstance(run, RigRun):
                     result = scenario_result(scenario, run)
@@ -200,27 +202,10 @@ class Worker:
                 row, timing, _ = built[j]
                 timing.update(setup_s=(t1 - t0) / len(indices), run_s=run_s)
                 rows[j] = self._finish(row, timing, scenario, result, j)[0]
-        for j in range(len(indices)):           # what did not run in the batch runs alone
+        for j, k in enumerate(indices):           # what did not run in the batch runs alone
             if j not in rows:
-                rows[j] = self.run(indices[j]) if j == 0 else self._alone(indices[j], j)
+                rows[j] = self.run_recorded(k, j)[0]
         return [rows[j] for j in range(len(indices))]
-
-    def _alone(self, k: int, place: int) -> dict[str, Any]:
-        """Variant k alone on the rig kept at `place` (as `run`, which uses place 0)."""
-        t0 = time.perf_counter()
-        row, timing, built = self._build(k, place)
-        if built is None:
-            return row
-        scenario, controller, rig = built
-        t1 = time.perf_counter()
-        result: ScenarioResult | Exception
-        try:
-            result = run_scenario(scenario, controller, rig=rig)
-        except Exception as err:       # the user's controller: any exception is its failure, not ours
-            result = err
-        timing.update(setup_s=t1 - t0, run_s=time.perf_counter() - t1)
-        return self._finish(row, timing, scenario, result, place)[0]
-
 
 def _array_form(controller: Controller | None) -> bool:
     """Whether the controller offers the lockstep's array form (what a batch calls)."""
@@ -241,15 +226,30 @@ def worker_for(campaign: Campaign) -> Worker:
     return w
 
 
+#: The batch `batch=0` (auto) runs, when its compiled code is at hand (`compiled_before`): two
+#: variants in one call cost 0.6x each in the compiled part (BENCHMARKS.md, "A batch axis").
+AUTO_BATCH = 2
+
+
+def batch_size(batch: int) -> int:
+    """How many variants one batch holds for a `batch` setting (0: auto, `AUTO_BATCH`)."""
+    if batch < 0:
+        raise ValueError(f"batch {batch}: accepted is 0 (auto), 1 (each variant alone) or more")
+    return AUTO_BATCH if batch == 0 else batch
+
+
 def run_chunk(campaign: Campaign, indices: Iterable[int], batch: int = 1) -> list[dict[str, Any]]:
     """Rows of the variants `indices` (the task a local or a Dask worker runs), `batch` at a time
-    in one batch (`Worker.run_batch`; 1: each alone). The same rows either way."""
+    in one batch (`Worker.run_batch`; 1: each alone; 0: `AUTO_BATCH` when this process has its
+    compiled code at hand (loaded or in the kernel cache), else each alone: a first compile costs
+    minutes, more than a batch saves in most campaigns). The same rows in every case."""
     w = worker_for(campaign)
     todo = list(indices)
-    if batch <= 1:
+    size = batch_size(batch)
+    if size <= 1:
         return [w.run(k) for k in todo]
     rows: list[dict[str, Any]] = []
-    for i in range(0, len(todo), batch):
-        group = todo[i:i + batch]
-        rows += w.run_batch(group) if len(group) > 1 else [w.run(group[0])]
+    for i in range(0, len(todo), size):
+        group = todo[i:i + size]
+        rows += w.run_batch(group, compiled_only=batch == 0) if len(group) > 1 else [w.run(group[0])]
     return rows

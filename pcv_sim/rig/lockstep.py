@@ -211,19 +211,22 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                 r = rig._feed_next
                 due = min(horizon, queue.next_step, fs[r] if r < len(fs) else NEVER)
                 end = min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
-            if batched:
-                # One period per round: in the batch (got: its norm) or alone (None); the batch
-                # may have bound the simulator's arrays to its own (or given them back) meanwhile.
-                got = yield max(end, k)
+            if batched and end <= k:
+                # Not in the batch: this period alone. (The batch may have bound the simulator's
+                # arrays to its own, or given them back, while this run waited: u read again.)
+                got = yield k
                 u = sim.u
-                end = min(end, k + 1)
             if end > k:
                 start = k
                 now = sim.steps
                 feed_i, feed_v = rig._feed_i, rig._feed_v
+                assert array_step is not None
                 for k in range(start, end):
                     at = k0 + k * per
                     y = true[k]
+                    if batched:             # each period in the batch (got: its norm) or alone (None)
+                        got = yield end
+                        u = sim.u
                     if got is None:
                         try:
                             norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
