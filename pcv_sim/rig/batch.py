@@ -176,12 +176,14 @@ class RigBatch:
 
 
 def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | None], duration: float, *,
-                       setpoints: Sequence[Callable[[float], float] | None] | None = None
-                       ) -> list[RigRun | BaseException]:
+                       setpoints: Sequence[Callable[[float], float] | None] | None = None,
+                       counts: dict[str, int] | None = None) -> list[RigRun | BaseException]:
     """Each rig's `run_lockstep(rig, controllers[c], duration, setpoint=setpoints[c])`, the copies
     stepped together (see the module docstring): per rig its run, or the exception its run
     raised (a model that ran away, a controller that raised): that copy stops, the others go on.
-    BatchError when the rigs do not share one structure."""
+    BatchError when the rigs do not share one structure. `counts`, when given, gets the control
+    periods taken `together` (in one call), `alone` (each copy alone) and of those `retaken`
+    (alone again after the batch's call ran away)."""
     batch = RigBatch(rigs)
     copies = len(rigs)
     sps = list(setpoints) if setpoints is not None else [None] * copies
@@ -205,6 +207,7 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
     feed_i, feed_v = np.zeros(0, dtype=np.int64), np.zeros((0, 0))
     stale: list[int] = []               # places of copies whose run ended, not yet mirroring a live one
     bound = False                       # every live copy's state in the batch
+    together = alone = retaken = 0
 
     def ended(c: int, run: RigRun | BaseException) -> None:
         runs[c] = run
@@ -241,15 +244,19 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
                     norm = math.nan
                 if math.isfinite(norm):
                     got = norm
+                    together += 1
                 else:
+                    retaken += 1
                     # Every copy takes this period again alone, from the state before it: one that
                     # runs away fails there as it would alone.
                     S[:] = before
                     stale = [c for c in range(copies) if runs[c] is not None]
-            if got is None and bound:
-                for c in live:
-                    batch.unbind(c)
-                bound = False
+            if got is None:
+                alone += 1
+                if bound:
+                    for c in live:
+                        batch.unbind(c)
+                    bound = False
             for c in list(live):
                 try:
                     asks[c] = periods[c].send(got)
@@ -263,4 +270,6 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
             batch.unbind(c)
         for gen in periods:
             gen.close()
+        if counts is not None:
+            counts.update(together=together, alone=alone, retaken=retaken)
     return [r if r is not None else PcvSimError("the batch stopped before this copy's run ended") for r in runs]
