@@ -180,11 +180,11 @@ class Worker:
                 members.append(j)
                 ready.append(parts)
         rigs = [rig for _, _, rig in ready]
+        for scenario, _, rig in ready:
+            rig.reset()
+            schedule_timeline(rig, scenario)
         if len(members) > 1 and len({scenario.duration for scenario, _, _ in ready}) == 1 \
                 and batchable(rigs) is None and (not compiled_only or compiled_before(rigs[0], len(rigs))):
-            for scenario, _, rig in ready:
-                rig.reset()
-                schedule_timeline(rig, scenario)
             t1 = time.perf_counter()
             runs = run_lockstep_batch(rigs, [controller for _, controller, _ in ready], ready[0][0].duration,
                                       setpoints=[scenario.setpoint_function() for scenario, _, _ in ready])

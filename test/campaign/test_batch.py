@@ -26,7 +26,7 @@ def run(path, out, *extra):
 
 def batches_seen(monkeypatch):
     """Each batch the campaign ran: (copies, the periods taken together / alone / taken again)."""
-    import pcv_sim.campaign.runner as runner
+    from pcv_sim.campaign import runner
 
     seen = []
     real = runner.run_lockstep_batch
