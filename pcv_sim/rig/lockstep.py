@@ -25,6 +25,9 @@ in that order (NaN for the setpoint when the run has none); `step` writes the du
 valves `commanded` and then the values of `flags`, in those orders, into the list `out`. Each
 is then taken as the dict form's would be (a refused duty counted, the last valid one kept).
 It saves building and parsing two dicts each period; None keeps the dict form.
+
+`lockstep_periods` is the same run as a generator, which a batch of rigs (`pcv_sim.rig.batch`)
+drives one control period at a time; alone it never pauses (`run_lockstep`).
 """
 
 from __future__ import annotations
