@@ -28,6 +28,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import threading
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -49,11 +51,21 @@ class BatchError(PcvSimError, ValueError):
     """Rigs that cannot share a batch (another structure), said with what differs."""
 
 
+#: `_structure` per rig (by its plant, which is the rig's for its life): generating the plant's
+#: source costs about a millisecond, a batch of a 2 s scenario saves a few per variant.
+_STRUCTURES: weakref.WeakKeyDictionary[Composite, tuple[Any, ...]] = weakref.WeakKeyDictionary()
+
+
 def _structure(rig: Rig) -> tuple[Any, ...]:
-    """What must be equal for rigs to share a batch's compiled code and its lockstep."""
-    sim = rig.sim
-    return (generate_source(rig.plant), sim.integrator, sim.dt, rig.params.steps_per_period, rig.signals,
-            tuple(rig._signal_i.tolist()), tuple(sim._FL.tolist()))
+    """What must be equal for rigs to share a batch's compiled code and its lockstep (the plant's
+    source first)."""
+    found = _STRUCTURES.get(rig.plant)
+    if found is None:
+        sim = rig.sim
+        found = _STRUCTURES[rig.plant] = (generate_source(rig.plant), sim.integrator, sim.dt,
+                                          rig.params.steps_per_period, rig.signals, tuple(rig._signal_i.tolist()),
+                                          tuple(sim._FL.tolist()))
+    return found
 
 
 def batchable(rigs: Sequence[Rig]) -> str | None:
@@ -91,10 +103,10 @@ def compiled_before(rig: Rig, copies: int) -> bool:
     """Whether the compiled code of a batch of `copies` rigs of `rig`'s structure is loaded in
     this process or in the kernel cache on disk (numba's index of its sampling entry point): a
     batch then costs no compile (minutes: BENCHMARKS.md), which is what decides whether it wins."""
-    key = (generate_source(rig.plant), copies, rig.sim.integrator)
+    key = (_structure(rig)[0], copies, rig.sim.integrator)
     if _READY.get(key):
         return True
-    if any(k[:3] == key for k in _SIMULATORS):
+    if any(k[:3] == key for k in _simulators()):
         _READY[key] = True
         return True
     digest = hashlib.sha1(generate_source(batch_plant(rig.plant, copies)).encode()).hexdigest()[:16]
@@ -107,8 +119,41 @@ def compiled_before(rig: Rig, copies: int) -> bool:
 #: The arrays of a `Simulator` that are views of its arena, by their place in `ARENA`.
 _BOUND = {"x": "x", "u": "u", "P": "P", "W": "W", "Y": "Y", "U": "U", "E": "_E", "A": "_A", "B": "_B"}
 
-#: Batch simulators by (the copy's plant source, copies, integrator, step): one compile each.
-_SIMULATORS: dict[tuple[str, int, str, float], Simulator] = {}
+#: Batch simulators by (the copy's plant source, copies, integrator, step), per thread (a Dask
+#: worker may run batches on several): one compile each, a batch's arrays never shared.
+_KEPT = threading.local()
+
+
+def _simulators() -> dict[tuple[str, int, str, float],
+                          tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray]]:
+    kept = getattr(_KEPT, "simulators", None)
+    if kept is None:
+        kept = _KEPT.simulators = {}
+    return kept
+
+
+def _simulator(rig: Rig, copies: int) -> tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray]:
+    """The batch's simulator for `copies` rigs like `rig`; per copy the place in its arena of
+    each element of the copy's own arena, and the copy's arrays as views of it (`Simulator`
+    attribute -> view); the outputs the batch samples (each copy's signals, in copy order)."""
+    sim = Simulator(batch_plant(rig.plant, copies), rig.sim.dt, rig.sim.integrator)
+    one = arena_layout(rig.plant)
+    many = arena_layout(sim.plant)
+    indices: list[np.ndarray] = []
+    views: list[dict[str, np.ndarray]] = []
+    for c in range(copies):
+        index, own = [], {}
+        for name in ARENA:
+            a, b = one[name]
+            start = many[name][0] + c * (b - a)
+            index.append(np.arange(start, start + b - a))
+            if name in _BOUND:
+                own[_BOUND[name]] = sim._S[start:start + b - a]
+        indices.append(np.concatenate(index))
+        views.append(own)
+    ny = len(rig.plant.outputs)
+    select = np.concatenate([rig._signal_i + c * ny for c in range(copies)]).astype(np.int64)
+    return sim, indices, views, select
 
 
 class RigBatch:
@@ -121,33 +166,16 @@ class RigBatch:
         self.rigs = list(rigs)
         first = rigs[0].sim
         copies = len(rigs)
-        key = (generate_source(rigs[0].plant), copies, first.integrator, first.dt)
-        sim = _SIMULATORS.get(key)
-        if sim is None:
-            if len(_SIMULATORS) >= 4:
-                _SIMULATORS.pop(next(iter(_SIMULATORS)))
-            sim = _SIMULATORS[key] = Simulator(batch_plant(rigs[0].plant, copies), first.dt, first.integrator)
-        self.sim = sim
+        key = (_structure(rigs[0])[0], copies, first.integrator, first.dt)
+        kept = _simulators()
+        made = kept.get(key)
+        if made is None:
+            if len(kept) >= 4:
+                kept.pop(next(iter(kept)))
+            made = kept[key] = _simulator(rigs[0], copies)
+        self.sim, self._index, self._views, self.select = made
         # Each copy's tables (its valves' curve fits), one after the other as the systems are.
-        sim._Fa[:] = np.concatenate([r.sim._Fa for r in rigs])
-        one = arena_layout(rigs[0].plant)
-        many = arena_layout(sim.plant)
-        #: per copy: the place in the batch's arena of each element of the copy's own arena
-        self._index: list[np.ndarray] = []
-        #: per copy: its arrays as views of the batch's arena (attribute of `Simulator` -> view)
-        self._views: list[dict[str, np.ndarray]] = []
-        for c in range(copies):
-            index, views = [], {}
-            for name in ARENA:
-                a, b = one[name]
-                start = many[name][0] + c * (b - a)
-                index.append(np.arange(start, start + b - a))
-                if name in _BOUND:
-                    views[_BOUND[name]] = sim._S[start:start + b - a]
-            self._index.append(np.concatenate(index))
-            self._views.append(views)
-        ny = len(rigs[0].plant.outputs)
-        self.select = np.concatenate([r._signal_i + c * ny for c, r in enumerate(rigs)]).astype(np.int64)
+        self.sim._Fa[:] = np.concatenate([r.sim._Fa for r in rigs])
         self.bound = [False] * copies
 
     def bind(self, c: int) -> None:
