@@ -97,3 +97,11 @@ class Fragile(PositionController):
     table = (tmp_path / "batched" / "results.csv").read_text()
     assert table == (tmp_path / "alone" / "results.csv").read_text()
     assert "ZeroDivisionError" in table.splitlines()[2] and len(seen) == 2
+
+
+def test_a_negative_batch_exits_2_naming_what_is_accepted(write_campaign, tmp_path, capsys):
+    path = write_campaign({"sweep": {"parameters": {"scenario.timeline[0].force": [0.0, 100.0]}}})
+    assert run(path, tmp_path / "out", "--batch", "-1") == 2
+    err = capsys.readouterr().err
+    assert "--batch -1" in err and "0: auto" in err
+    assert not (tmp_path / "out").exists()

@@ -154,3 +154,14 @@ def test_rigs_of_another_structure_do_not_share_a_batch(rig_params):
     assert "control period" in batchable(rigs)
     with pytest.raises(BatchError, match="cannot share a batch: rig 1 has another control period"):
         run_lockstep_batch(rigs, [None, None], 0.01)
+
+
+def test_a_batch_knows_whether_its_compiled_code_is_at_hand(rig_params):
+    """What the campaign's default (`--batch 0`) decides by: a batch that ran in this process is at
+    hand; one of 7 copies of this rig never compiled is not (a compile: minutes)."""
+    from pcv_sim.rig.batch import compiled_before
+
+    rigs = [Rig(rig_params), Rig(rig_params)]
+    run_lockstep_batch(rigs, [PositionController(), PositionController()], 0.01)
+    assert compiled_before(rigs[0], 2)
+    assert not compiled_before(rigs[0], 7)
