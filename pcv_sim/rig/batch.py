@@ -104,11 +104,10 @@ def compiled_before(rig: Rig, copies: int) -> bool:
     this process or in the kernel cache on disk (numba's index of its sampling entry point): a
     batch then costs no compile (minutes: BENCHMARKS.md), which is what decides whether it wins."""
     key = (_structure(rig)[0], copies, rig.sim.integrator)
-    if _READY.get(key):
-        return True
     if any(k[:3] == key for k in _simulators()):
         _READY[key] = True
-        return True
+    if key in _READY:
+        return _READY[key]
     digest = hashlib.sha1(generate_source(batch_plant(rig.plant, copies)).encode()).hexdigest()[:16]
     pattern = f"pcv_sim_kernel_{digest}.sim_advance_sample_{rig.sim.integrator}-*.nbi"
     found = enabled() and any((cache_root() / "numba" / source_digest()).rglob(pattern))
