@@ -21,6 +21,7 @@ caller counts the set-up apart from the run.
 
 from __future__ import annotations
 
+import importlib
 import multiprocessing
 import signal
 import time
@@ -131,6 +132,13 @@ def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: O
     with client:
         threads = client.nthreads()
         n = max(1, sum(threads.values()))
+        if indices:
+            # Every worker imports the package at once, in a task of a standard-library function
+            # (which the scheduler unpickles without importing anything): a broadcast replicates the
+            # scattered campaign from one worker to the next, each unpickling it, so the imports it
+            # pulls in would run one worker after another.
+            dask_api.wait([client.submit(importlib.import_module, __name__, workers=[addr], allow_other_workers=False,
+                                         pure=False) for addr in threads])
         shared = client.scatter(campaign, broadcast=True)
         if indices:
             # One warm-up per worker, pinned to it: each loads what the first variant needs
