@@ -202,10 +202,12 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
+    import pcv_sim
     from pcv_sim.rig.rig import Rig
     from pcv_sim.rig.scenario import load_scenario, run_scenario
 
-    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count()}
+    # which build ran: a worktree on PYTHONPATH for a before/after pair
+    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count(), "package": str(Path(pcv_sim.__file__).parent)}
     tmp = Path(tempfile.mkdtemp(prefix="campaign_speed_"))
     try:
         scen = _scenario(tmp)
@@ -295,7 +297,8 @@ def main() -> None:
         print(json.dumps(out, indent=1))
         return
     o = out["overhead"]
-    print(f"load average before {out['load_before']}, after {out['load_after']}; {out['cpus']} CPUs")
+    print(f"load average before {out['load_before']}, after {out['load_after']}; {out['cpus']} CPUs; "
+          f"package {out['package']}")
     print(f"per variant of a 2 s scenario, one worker (K = {o['k']}): own run on a kept rig "
           f"{o['own_kept_rig_s'] * 1e3:.1f} ms, own load + new rig + run {o['own_load_and_new_rig_s'] * 1e3:.1f} ms; "
           f"campaign sweep {o['campaign_sweep_s'] * 1e3:.1f} ms ({o['sweep_vs_own_kept']:.3f}x the kept-rig run), "
