@@ -1,6 +1,7 @@
 """Benchmark: campaigns, per variant and in all, against the scenario's own in-process run.
 
-    .venv-kilted/bin/python bench/campaign_speed.py [--k 20] [--scaling 100] [--big 1000] [--repeats 5] [--no-dask] [--json]
+    .venv-kilted/bin/python bench/campaign_speed.py [--k 20] [--scaling 100] [--big 1000] [--repeats 5] [--no-dask]
+                                                    [--batch B] [--json]
 
 The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthened to 2 s.
 1. Overhead per variant, one worker, this process: K runs of the scenario's own in-process run
@@ -28,6 +29,9 @@ The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthen
    its run) is reported apart; then `--repeats` alternated pairs of Dask and 2 local workers,
    summarised as in 3 (the CPU of the cluster's processes and this one).
 5. `--big` variants of a Monte Carlo on every core: the wall time (set-up and run).
+Every campaign of 1-5 runs its variants alone (`--batch 1`, the default here) or B at a time in one
+batch (`--batch B`: `pcv_sim.rig.batch`; its compiled code is loaded, or compiled, before the first
+figure); run it both ways, alternated, to see what the batch saves.
 The machine's load average is printed with the figures: on a shared machine it changes them.
 """
 
@@ -70,13 +74,17 @@ def _mc(samples: int, seed: int = 1) -> dict:
         "valves.fluid.bulk_modulus": {"distribution": "uniform", "tolerance": "10%", "tied": True}}}}
 
 
+#: `--batch`: variants per batch in every campaign of the bench (1: each alone).
+_BATCH = [1]
+
+
 def _timed_campaign(path: Path, out: Path, **kwargs) -> tuple[float, list[dict], dict]:
     """Wall time, the per-variant timings and the summary (its setup_time_s and run_time_s)."""
     from pcv_sim.campaign.run import run_campaign
 
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    result = run_campaign(path, out, report=False, **kwargs)
+    result = run_campaign(path, out, report=False, batch=_BATCH[0], **kwargs)
     wall = time.perf_counter() - t0
     with (out / "timings.csv").open() as f:
         return wall, list(csv.DictReader(f)), result.summary
@@ -199,15 +207,18 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5,
                     help="alternated pairs for 1 vs 2 workers and for Dask vs local (medians and ranges)")
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--batch", type=int, default=1, metavar="B", help="variants per batch in every campaign (1: alone)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    _BATCH[0] = args.batch
 
     import pcv_sim
     from pcv_sim.rig.rig import Rig
     from pcv_sim.rig.scenario import load_scenario, run_scenario
 
     # which build ran: a worktree on PYTHONPATH for a before/after pair
-    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count(), "package": str(Path(pcv_sim.__file__).parent)}
+    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count(), "package": str(Path(pcv_sim.__file__).parent),
+                 "batch": args.batch}
     tmp = Path(tempfile.mkdtemp(prefix="campaign_speed_"))
     try:
         scen = _scenario(tmp)
@@ -219,6 +230,7 @@ def main() -> None:
         rig = Rig(sc.rig, seed=sc.seed)
         run_scenario(sc, rig=rig)                 # kernels loaded, caches warm
         _timed_campaign(sweep, tmp / "warm", workers=1)
+        _timed_campaign(mc, tmp / "warm", workers=1)          # a batch's kernel loaded (or compiled) too
         own_kept, own_full, camp_sweep, camp_mc = [], [], [], []
         timings: list[dict] = []
         for _ in range(2):
@@ -298,7 +310,7 @@ def main() -> None:
         return
     o = out["overhead"]
     print(f"load average before {out['load_before']}, after {out['load_after']}; {out['cpus']} CPUs; "
-          f"package {out['package']}")
+          f"package {out['package']}, batch {out['batch']}")
     print(f"per variant of a 2 s scenario, one worker (K = {o['k']}): own run on a kept rig "
           f"{o['own_kept_rig_s'] * 1e3:.1f} ms, own load + new rig + run {o['own_load_and_new_rig_s'] * 1e3:.1f} ms; "
           f"campaign sweep {o['campaign_sweep_s'] * 1e3:.1f} ms ({o['sweep_vs_own_kept']:.3f}x the kept-rig run), "
