@@ -1180,25 +1180,39 @@ class Device:
             self._due()
             while sim.steps < step:
                 s = sim.steps
-                stop = min(step, s + per - s % per, self._next_due())
+                due = self._next_due()
+                stop = min(step, s + per - s % per, due)
                 if recorder is not None and (not traced or self._ramping()):
                     stop = min(stop, s + every - s % every)
                 if traced and stop - s > 1:
                     # A recorder of every step takes the steps before `stop` as one block of outputs
                     # (inputs unchanged within it): one compiled call for the stretch.
                     self._traced_block(stop - 1)
-                try:
-                    self._advance(stop - sim.steps)
-                except MODEL_FAILURES as err:
-                    self._fail(f"model step failed ({type(err).__name__}: {err})")
-                self._check_finite()
-                # A sample at step k shows the state at k and the inputs in force from k on: inputs
-                # and a watchdog timeout due at k act before it (right-continuous, as replay does).
-                self._due()
                 sampled = stop % per == 0
                 recorded = recorder is not None and stop % every == 0
-                if sampled or recorded:
-                    values = self.sample()
+                values = None
+                try:
+                    if (sampled or recorded) and due > stop:
+                        # Nothing falls due at `stop`: the steps and its outputs in one compiled call
+                        # (the same numbers as advance, then sample).
+                        values = np.empty(len(self._signal_i))
+                        if not math.isfinite(sim.advance_sample(stop - sim.steps, self._signal_i, values)):
+                            self._check_finite()
+                        if self._limited:
+                            self._ramp()
+                        self._outputs_taken(sim.Y)
+                    else:
+                        self._advance(stop - sim.steps)
+                        self._check_finite()
+                except MODEL_FAILURES as err:
+                    self._fail(f"model step failed ({type(err).__name__}: {err})")
+                if values is None:
+                    # A sample at step k shows the state at k and the inputs in force from k on: inputs
+                    # and a watchdog timeout due at k act before it (right-continuous, as replay does).
+                    self._due()
+                    if sampled or recorded:
+                        values = self.sample()
+                if values is not None:
                     self._check_limits(values)      # nothing a valve cannot produce leaves the device
                     self.shown = stop
                     if sampled:
@@ -1298,11 +1312,16 @@ class Device:
         """The true values of `signals` now (SI: Pa, A, m per valve, the plant's), with the inputs in
         force from now on. A new array."""
         y = self.sim.outputs()
+        self._outputs_taken(y)
+        return y.copy() if self._all_outputs else y[self._signal_i]
+
+    def _outputs_taken(self, y: np.ndarray) -> None:
+        """What a sample's outputs `y` (every output) tell besides the signals: the load volumes,
+        the options' outputs."""
         if self._wired_volumes:
             self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
         if len(self._option_out_i):
             self.option_sample = y[self._option_out_i].tolist()
-        return y.copy() if self._all_outputs else y[self._signal_i]
 
     def present_sample(self) -> Sample:
         """The sample at the present step (with the inputs in force from it on); it counts as shown."""

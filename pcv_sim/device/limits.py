@@ -39,10 +39,6 @@ class PhysicalLimits:
         return cls(-PA_PER_BAR, 2.0 * max(MAX_SUPPLY_PRESSURE, params.circuit.supply_pressure),
                    2.0 * sol.supply_voltage / sol.coil_resistance)
 
-    def holds(self, pressure: float, current: float) -> bool:
-        """(pressure, current) is a valve's (False for NaN)."""
-        return self.pressure_min <= pressure <= self.pressure_max and -self.current_max <= current <= self.current_max
-
     def problem(self, pressure: float, current: float) -> str | None:
         """Why (pressure, current) is no valve's, or None."""
         if not self.pressure_min <= pressure <= self.pressure_max:

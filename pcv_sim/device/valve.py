@@ -148,8 +148,8 @@ class ValveDevice(Device):
 
     def _in_words(self, s: DeviceSample) -> Sample:
         v = s.values
-        return Sample(s.step, float(v[0]), float(v[1]), float(v[2]), float(self.sim.u[self._duty_i[0]]),
-                      self.duties[VALVE], tuple(float(x) for x in v[3:]))
+        p, i, x, *options = v.tolist()
+        return Sample(s.step, p, i, x, float(self.sim.u[self._duty_i[0]]), self.duties[VALVE], tuple(options))
 
     def measure_valve(self, sample: Sample) -> tuple[float, float, float]:
         """What the sensors show of `sample` (`measure`; MEASURED, sensor faults applied; NaN: no

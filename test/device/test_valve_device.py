@@ -204,26 +204,14 @@ def test_a_finite_runaway_is_a_fault_before_any_sample_shows_it():
     assert all(-1e5 <= r['pressure'] <= 800e5 and abs(r['current']) < 5.0 for r in recorded)
 
 
-def test_physical_limits():
-    from pcv_sim.device.valve import PhysicalLimits
-
-    lim = PhysicalLimits.of(PARAMS)
-    assert (lim.pressure_min, lim.pressure_max) == (-1e5, 800e5)         # -1 bar .. 2 x 400 bar
-    assert lim.current_max == pytest.approx(2 * 12.0 / 5.6)
-    assert lim.problem(122e5, 1.5) is None
-    assert 'pressure 1.2e+282 bar outside the physical range -1 .. 800 bar' in lim.problem(1.2e287, 1.0)
-    assert 'pressure -2 bar' in lim.problem(-2e5, 1.0)
-    assert "coil current 9 A beyond the coil's possible +-4.29 A" in lim.problem(100e5, 9.0)
-    assert lim.problem(100e5, math.nan) is not None
-
-
 def test_a_model_exception_is_a_fault_not_a_crash(monkeypatch):
     dev = device()
 
     def broken(n):
         raise ArithmeticError('no coil current solves Eq. 2')
 
-    monkeypatch.setattr(dev.sim, 'advance', broken)   # the device's stepping call
+    monkeypatch.setattr(dev.sim, 'advance', broken)   # the device's stepping calls
+    monkeypatch.setattr(dev.sim, 'advance_sample', lambda n, *args: broken(n))
     assert dev.run(20) == []
     assert dev.fault.startswith('model step failed (ArithmeticError: no coil current solves Eq. 2) before t = 0 s')
     assert dev.steps == 20
