@@ -155,8 +155,9 @@ def run_dask(campaign: Campaign, indices: Sequence[int], address: str, on_row: O
         if on_ready is not None:
             on_ready()
         # The campaign goes inline in every task (~15 kB, ~0.3 ms to unpickle): a task that
-        # depends on a scattered future took ~30 ms more (14 tasks on a localhost cluster:
-        # 0.4-1.1 s against 0.05-0.17 s inline). One map: one graph for the scheduler to read.
+        # depends on a scattered future took ~30 ms more on a loaded machine (14 tasks on a
+        # localhost cluster: 0.4-1.1 s against 0.05-0.17 s inline). One map: one graph for the
+        # scheduler to read.
         parts = chunks(indices, n, least=batch_size(batch))
         futures = client.map(run_chunk, [campaign] * len(parts), parts, [batch] * len(parts), pure=False)
         try:
