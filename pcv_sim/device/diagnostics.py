@@ -156,7 +156,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
             "watchdog_fired_stamp_ns": (dev.stamp_ns(dev.watchdog_fired_step)
                                         if dev.watchdog_fired_step is not None else ""),
             "load_flow_m3s": f"{dev.load_flow:g}",
-            "supply_pressure_pa": f"{dev.stepper.supply_pressure:g}",
+            "supply_pressure_pa": f"{dev.input_values()['supply_pressure']:g}",
             "last_rejection": dev.counts.last_rejection,
             "faults_active": ", ".join(f"{k}@{t}" for t, k in dev.faults),
         }
@@ -174,7 +174,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         values: dict[str, Any] = {
             "model": "fault" if dev.fault else "ok",
             "fault_reason": dev.fault or "",
-            "integrator": dev.stepper.integrator,
+            "integrator": dev.sim.integrator,
             "pressure_pa": f"{last.pressure:.1f}" if last else "",
             "pressure_bar": f"{bar(last.pressure):.3f}" if last else "",
             "current_a": f"{last.current:.5f}" if last else "",

@@ -166,7 +166,7 @@ class EmulatorNode(DeviceNode):
                 if self.external_clock else "real time")
         self.get_logger().info(
             f"{mode}, samples at {s.publish_rate:g} Hz, "
-            f"model step {dt * 1e3:g} ms ({self.device.stepper.integrator}), watchdog "
+            f"model step {dt * 1e3:g} ms ({self.device.sim.integrator}), watchdog "
             f"{s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config {s.valve_config or 'shipped default'}, "
             f"fault topic {'on (faults.enabled)' if s.faults_enabled else 'off (faults.enabled: false)'}")
 
@@ -373,7 +373,7 @@ class EmulatorNode(DeviceNode):
     def _begin(self, origin_ns: int) -> None:
         self.device.origin_ns = origin_ns
         self._start_recording()
-        self._publish([self.device.sample()])
+        self._publish([self.device.valve_sample()])
 
     def _compute(self, n: int) -> None:
         self._publish(self._run_steps(n))
