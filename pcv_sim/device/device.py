@@ -268,6 +268,8 @@ class Device:
         self.record_every = 1
         #: The last step whose sample or record left (`run_to`, `present_sample`; -1: none yet).
         self.shown = -1
+        #: The last sample handed out (diagnostics), or None.
+        self.last_sample: Sample | None = None
         self.sample_every = _positive_int(sample_every, "sample_every")
         #: Whether `install(prepare())` is a fresh start's rest (the rig: initial duties, the plant at
         #: its start) or the rest at the present operating point (the emulator: the duty in force).
@@ -1207,6 +1209,8 @@ class Device:
                         recorder(self.stamp_ns(stop), self._record_values(sim.Y))
         except ModelFault:
             self._idle_to(step)
+        if out:
+            self.last_sample = out[-1]
         return out
 
     def _traced_block(self, last: int) -> None:
@@ -1310,7 +1314,8 @@ class Device:
     def present_sample(self) -> Sample:
         """The sample at the present step (with the inputs in force from it on); it counts as shown."""
         self.shown = self.sim.steps
-        return Sample(self.sim.steps, self.sample())
+        self.last_sample = Sample(self.sim.steps, self.sample())
+        return self.last_sample
 
     def measure(self, sample: Sample) -> np.ndarray:
         """What the sensors show of `sample` (sensor faults applied; NaN: no value, not to be

@@ -64,8 +64,7 @@ class ValveDevice(Device):
         if isinstance(record_every, bool) or not isinstance(record_every, int) or record_every < 1:
             raise ValueError(f"record_every {record_every!r}: accepted is an integer >= 1")
         self.record_every = record_every
-        #: The last sample shown (diagnostics), the device at rest before any.
-        self.last_good: Sample | None = self.valve_sample()
+        self.last_sample = DeviceSample(self.steps, self.sample())     # the device at rest before any
 
     def _valve_specs_of(self, params: ValveParams) -> tuple[ValveSpec, ...]:
         return (ValveSpec(VALVE, params),)
@@ -114,6 +113,11 @@ class ValveDevice(Device):
         return self._supply[0]
 
     @property
+    def last_good(self) -> Sample | None:
+        """The last sample handed out (diagnostics; the device at rest before any), in the valve's words."""
+        return None if self.last_sample is None else self._in_words(self.last_sample)
+
+    @property
     def physical_limits(self) -> PhysicalLimits:
         return self.limits[VALVE]
 
@@ -128,8 +132,6 @@ class ValveDevice(Device):
         while self.steps < end:
             stop = min(end, self.steps + per - self.steps % per)
             out += [self._in_words(s) for s in self.run_to(stop)]
-        if out:
-            self.last_good = out[-1]
         return out
 
     def valve_sample(self) -> Sample:
