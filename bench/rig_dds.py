@@ -141,10 +141,10 @@ def node_parts(context, n: int = 2000) -> dict[str, float]:
     """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
     from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
 
-    node = RigNode(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
-    rig = node.rig
+    node = rig_node(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
+    rig = node.device
     node._publish_samples()          # a sample to publish again and again below
     try:
         def timed(fn) -> float:

@@ -33,12 +33,12 @@ class _Stop:
 def one(context, duration: float, record: str) -> dict[str, float]:
     from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
 
     params = [Parameter("time_mode", value="real"), Parameter("diagnostics_period", value=100.0)]
     if record:
         params += [Parameter("record.enabled", value=True), Parameter("record.directory", value=record)]
-    node = RigNode(argv=["rig"], context=context, parameter_overrides=params)
+    node = rig_node(argv=["rig"], context=context, parameter_overrides=params)
     stop = _Stop()
     timer = threading.Timer(duration, lambda: setattr(stop, "requested", True))
     cpu0, wall0 = time.process_time(), time.monotonic()
@@ -49,7 +49,7 @@ def one(context, duration: float, record: str) -> dict[str, float]:
         sched = node._schedule
         assert sched is not None
         st = node.recorder.status() if node.recorder is not None else None
-        return {"steps": node.rig.steps, "late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
+        return {"steps": node.device.steps, "late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
                 "max_lag_ms": sched.max_lag * 1e3, "messages": st.messages if st else 0,
                 "dropped": st.dropped if st else 0,
                 "cpu_percent": 100 * (time.process_time() - cpu0) / (time.monotonic() - wall0)}

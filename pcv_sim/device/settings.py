@@ -121,6 +121,7 @@ class CommonSettings:
         "bool", name="faults.enabled", read_only=True)
     seed: int = setting(0, "-", "seed of the sensor-noise faults (a run repeats bit for bit)", _seed, "int",
                         read_only=True)
+    frame_id: str = setting("load_port", "-", "header.frame_id of the valves' pressure samples", any_value, "str")
     record_directory: str = setting(
         ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
         name="record.directory", read_only=True)
@@ -185,7 +186,6 @@ class NodeSettings(CommonSettings):
     diagnostics_max_lag: float = setting(
         0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
         "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
-    frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", any_value, "str")
     allow_unknown_parameters: bool = setting(
         False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
         "file) stops the node at start (exit 2); true: warn and ignore it", any_value, "bool", read_only=True)

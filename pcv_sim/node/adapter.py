@@ -53,16 +53,12 @@ queues samples (pcv_sim.io.writer_process). Its state is in the diagnostics (`re
 
 from __future__ import annotations
 
-import math
 import time
 from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import FluidPressure
-from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import DiagnosticsBuilder, Status
@@ -73,26 +69,11 @@ from pcv_sim.device.settings import (
     model_parameters,
     params_with,
 )
-from pcv_sim.device.valve import VALVE, Recorder, Sample, ValveDevice, WatchdogState
+from pcv_sim.device.valve import MEASURED, Recorder, Sample, ValveDevice
 from pcv_sim.io.recorder import BagRecorder, RecorderStatus
-from pcv_sim.io.topics import (
-    CURRENT,
-    DIAGNOSTICS,
-    DUTY_CYCLE,
-    FAULTS,
-    LOAD_FLOW,
-    PRESSURE,
-    RESET,
-    SPOOL_POSITION,
-    SUPPLY_PRESSURE,
-)
-from pcv_sim.node.base import (
-    COMMAND_HINT,
-    COMMAND_QOS,
-    DIAGNOSTICS_QOS,
-    SAMPLE_HINT,
-    DeviceNode,
-)
+from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
+from pcv_sim.node.base import DIAGNOSTICS_QOS, SAMPLE_HINT, DeviceNode
+from pcv_sim.node.samples import SamplePublisher
 from pcv_sim.params import ValveParams, load_params
 
 __all__ = ["EmulatorNode"]
@@ -110,7 +91,6 @@ class EmulatorNode(DeviceNode):
 
     unknown_hint = _UNKNOWN_HINT
     schema = SCHEMA
-    lockstep_keys = (VALVE,)
 
     def __init__(self, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, argv=argv, **kwargs)
@@ -124,42 +104,23 @@ class EmulatorNode(DeviceNode):
                                   sample_every=s.sample_every(dt), seed=s.seed)
         self.samples_published = 0
         self._last_published: tuple[Any, ...] | None = None   # `_send`'s arguments: step, measured values
-        self._watchdog_logged = 0                    # firings logged (one line per firing, not per step)
 
-        out, sensor = self._output_events, qos_profile_sensor_data
-        self._pub_pressure = self.create_publisher(FluidPressure, PRESSURE, sensor, event_callbacks=out(PRESSURE))
-        self._pub_current = self.create_publisher(Float64, CURRENT, sensor, event_callbacks=out(CURRENT))
-        self._pub_spool = self.create_publisher(Float64, SPOOL_POSITION, sensor, event_callbacks=out(SPOOL_POSITION))
-        #: The valve options' outputs (ValveDevice.option_outputs), published with each sample.
-        self._option_pubs = [self.create_publisher(Float64, name, sensor, event_callbacks=out(name))
-                             for name in self.device.option_outputs]
-        self._msg_option = Float64()
+        sensor = qos_profile_sensor_data
+        #: The measured signals and the valve options' outputs (ValveDevice.option_outputs), published with each sample.
+        self.signal_names = (*MEASURED, *self.device.option_outputs)
+        self._samples = SamplePublisher(output_topics(self.signal_names), self.signal_names, s.frame_id,
+                                        lambda t, topic: self.create_publisher(
+                                            t, topic, sensor, event_callbacks=self.output_events(topic, SAMPLE_HINT)))
         self._pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS,
-                                               event_callbacks=out(DIAGNOSTICS))
+                                               event_callbacks=self.output_events(DIAGNOSTICS))
         self.publish_clock("run this emulator with use_sim_time:=true (time_mode real) to follow the other "
                            "clock, or simulate several valves in one process (the multi-valve rig)")
-        inp = self.input_events
-        self._inputs += [
-            (self.create_subscription(Float64, DUTY_CYCLE, self._on_duty, COMMAND_QOS,
-                                      event_callbacks=inp(DUTY_CYCLE)), self._on_duty),
-            (self.create_subscription(Float64, LOAD_FLOW, self._on_load_flow, COMMAND_QOS,
-                                      event_callbacks=inp(LOAD_FLOW)), self._on_load_flow),
-            (self.create_subscription(FluidPressure, SUPPLY_PRESSURE, self._on_supply, COMMAND_QOS,
-                                      event_callbacks=inp(SUPPLY_PRESSURE)), self._on_supply),
-        ]
-        for name in self.device.option_inputs:      # the valve options' inputs (K)
-            handler = partial(self._on_option, name)
-            self._inputs.append((self.create_subscription(Float64, name, handler, COMMAND_QOS,
-                                                          event_callbacks=inp(name)), handler))
+        self.subscribe_inputs(input_topics(tuple(self.device.inputs), self.device.valve_names))
         self.subscribe_faults()
         self.follow_clock()
         self.collect_event_handlers()
         self.create_service(Trigger, RESET, self._on_reset)
         self._deferred_callbacks += (self._on_reset,)      # rest states are computed off the loop
-        self._msg_pressure = FluidPressure()
-        self._msg_pressure.header.frame_id = s.frame_id
-        self._msg_current = Float64()
-        self._msg_spool = Float64()
         self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic())
         self.recorder = self._make_recorder()
         mode = ("simulated time" if self.simulated else "time from an external /clock (use_sim_time)"
@@ -196,7 +157,7 @@ class EmulatorNode(DeviceNode):
         dev.set_safe_duty(settings.safe_duty)
         dev.sample_every = settings.sample_every(dev.dt)
         dev.sensors.period = dev.sample_every * dev.dt      # a delay fault counts samples
-        self._msg_pressure.header.frame_id = settings.frame_id
+        self._samples.set_frame_id(settings.frame_id)
 
     def _install(self, prepared: Any) -> None:
         stepper, names = prepared
@@ -236,38 +197,6 @@ class EmulatorNode(DeviceNode):
 
     # --- inputs ------------------------------------------------------------------------------
 
-    def _input(self, name: str, value: float, info: Any) -> None:
-        dev = self.device
-        at = self.acting_step(dev.timing, name, dev.steps + 1, dev.origin_ns, info)
-        reason = dev.submit(name, value, at)
-        if reason is not None:
-            self.log_rejection(name, name, reason)
-        else:
-            dev.timing.took(name, at)
-
-    def _on_duty(self, msg: Float64, info: Any = None) -> None:
-        self._answered.add(VALVE)                   # valid or not: the lockstep's answer
-        self._input(DUTY_CYCLE, msg.data, info)
-
-    def _on_option(self, name: str, msg: Float64, info: Any = None) -> None:
-        self._input(name, msg.data, info)
-
-    def _on_load_flow(self, msg: Float64, info: Any = None) -> None:
-        self._input(LOAD_FLOW, msg.data, info)
-
-    def _on_supply(self, msg: FluidPressure, info: Any = None) -> None:
-        self._input(SUPPLY_PRESSURE, msg.fluid_pressure, info)
-
-    def _take_fault(self, text: str, info: Any) -> None:
-        """Checked by the device now, acting as an input taken now."""
-        dev = self.device
-        at = self.acting_step(dev.timing, FAULTS, dev.steps + 1, dev.origin_ns, info)
-        reason = dev.submit_fault(text, at)
-        if reason is not None:
-            self.log_rejection(FAULTS, FAULTS, reason, "nothing changed")
-        else:
-            dev.timing.took(FAULTS, at)
-
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Worker thread: the rest state at the present operating point, on trial; the loop installs it."""
         try:
@@ -288,26 +217,10 @@ class EmulatorNode(DeviceNode):
 
     # --- outputs -----------------------------------------------------------------------------
 
-    def _stamp(self, ns: int) -> Any:
-        stamp = self._msg_pressure.header.stamp
-        stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
-        return stamp
-
     def _run_steps(self, n: int) -> list[Sample]:
         """Run n model steps; log what the device did that a user must hear about (once per event)."""
-        dev = self.device
-        was_fired = dev.watchdog_state == WatchdogState.FIRED
-        samples = dev.run(n)
-        if dev.watchdog_fired != self._watchdog_logged:
-            self._watchdog_logged = dev.watchdog_fired
-            t = self.settings.watchdog_timeout
-            self.get_logger().warning(
-                f"watchdog: no valid duty_cycle command for {t:g} s (model time): the duty fell to safe_duty "
-                f"{dev.safe_duty:g}. Send the duty at least every {t:g} s (a controller does; by hand: ros2 topic pub "
-                f"-r 10 duty_cycle std_msgs/msg/Float64 '{{data: 0.7}}'), or raise watchdog_timeout (0 = off). "
-                "The next valid command resumes.")
-        elif was_fired and dev.watchdog_state != WatchdogState.FIRED:
-            self.get_logger().info(f"watchdog: duty commands resumed, duty {dev.duty_command_in_force:g}")
+        samples = self.device.run(n)
+        self.forward_log()
         return samples
 
     def _publish(self, samples: list[Sample]) -> None:
@@ -319,28 +232,15 @@ class EmulatorNode(DeviceNode):
             self._publish_clock()
         measure = self.device.measure if self.settings.faults_enabled else None
         for s in samples:
-            measured = (s.step, *measure(s)) if measure is not None else (s.step, s.pressure, s.current,
-                                                                            s.spool_position)
-            self._send(*measured, s.options)
-            self._last_published = (*measured, s.options)
+            measured = (s.step, (*(measure(s) if measure is not None else (s.pressure, s.current, s.spool_position)),
+                                 *s.options))
+            self._send(*measured)
+            self._last_published = measured
         self._shown = samples[-1].step
 
-    def _send(self, step: int, pressure: float, current: float, spool_position: float,
-              options: tuple[float, ...] = ()) -> None:
+    def _send(self, step: int, values: tuple[float, ...]) -> None:
         """One sample's messages; a value a sensor fault dropped (NaN) is not published."""
-        self._stamp(self.device.stamp_ns(step))
-        if math.isfinite(pressure):
-            self._msg_pressure.fluid_pressure = pressure
-            self._pub_pressure.publish(self._msg_pressure)
-        if math.isfinite(current):
-            self._msg_current.data = current
-            self._pub_current.publish(self._msg_current)
-        if math.isfinite(spool_position):
-            self._msg_spool.data = spool_position
-            self._pub_spool.publish(self._msg_spool)
-        for pub, value in zip(self._option_pubs, options):
-            self._msg_option.data = value
-            pub.publish(self._msg_option)
+        self._samples.publish(self.device.stamp_ns(step), values)
         self.samples_published += 1
 
     def _send_samples(self) -> None:
@@ -349,10 +249,6 @@ class EmulatorNode(DeviceNode):
 
     def _sample_period(self) -> int:
         return self.device.sample_every
-
-    def _output_events(self, topic: str) -> PublisherEventCallbacks:
-        samples = (PRESSURE, CURRENT, SPOOL_POSITION, *self.device.option_outputs)
-        return self.output_events(topic, SAMPLE_HINT if topic in samples else COMMAND_HINT)
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """The device's health, one status per concern (see pcv_sim.device.diagnostics)."""

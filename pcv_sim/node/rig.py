@@ -56,6 +56,14 @@ def _node(argv: list[str]) -> Any:
     return RigNode(argv=argv)
 
 
+def rig_node(**kwargs: Any) -> Any:
+    """The rig node in this process (`argv`, `context`, `namespace`, `parameter_overrides`... as for an
+    rclpy Node); the caller runs and destroys it."""
+    from pcv_sim.node.rig_node import RigNode
+
+    return RigNode(**kwargs)
+
+
 def main(args: list[str] | None = None) -> int:
     """Console entry point `rig`. Returns 0 after SIGINT/SIGTERM, 2 for invalid parameters."""
     return main_process(lambda argv, stop: run_node("rig", argv, stop, description=DESCRIPTION, epilog=_epilog,

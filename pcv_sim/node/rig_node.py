@@ -64,7 +64,6 @@ one valve. The state is in the rig status of the diagnostics (`recording*` keys)
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from functools import partial
@@ -72,31 +71,13 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import FluidPressure, JointState
-from std_msgs.msg import Float64, Header
+from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.diagnostics import Status
-from pcv_sim.device.faults import parse_fault_command
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.io.topics import (
-    CURRENT,
-    CYLINDER,
-    DIAGNOSTICS,
-    DUTY_CYCLE,
-    FAULTS,
-    JOINT_STATES,
-    PRESSURE,
-    RESET,
-    SPOOL_POSITION,
-    chamber_topic,
-    cylinder_topic,
-    valve_topic,
-)
-from pcv_sim.io.topics import (
-    EXTERNAL_FORCE as EXTERNAL_FORCE_ROLE,
-)
+from pcv_sim.io.topics import DIAGNOSTICS, DUTY_CYCLE, RESET, input_topics, output_topics, valve_topic
 from pcv_sim.node.base import (
     COMMAND_HINT,
     COMMAND_QOS,
@@ -105,20 +86,16 @@ from pcv_sim.node.base import (
     DeviceNode,
 )
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
-from pcv_sim.rig import FaultError, Rig, RigError, load_rig
-from pcv_sim.rig.bag import JOINT_NAME, RigRecorder
-from pcv_sim.rig.diagnostics import RigCounts, RigDiagnostics
+from pcv_sim.node.samples import SamplePublisher
+from pcv_sim.rig import Rig, RigError, load_rig
+from pcv_sim.rig.bag import RigRecorder
+from pcv_sim.rig.diagnostics import RigDiagnostics
 from pcv_sim.rig.params import RigParams
-from pcv_sim.rig.rig import EXTERNAL_FORCE, check_external_force
 from pcv_sim.rig.settings import SCHEMA, RigNodeSettings
-from pcv_sim.simulation.duty import check_duty
-from pcv_sim.simulation.stepper import check_temperature
 
 __all__ = ["NODE_NAME", "RigNode"]
 
 NODE_NAME = "rig"
-_FAULTS_KEY = "faults"          # the reject-log key of the faults topic
-EXTERNAL_FORCE_TOPIC = cylinder_topic(EXTERNAL_FORCE_ROLE)
 
 
 class RigNode(DeviceNode):
@@ -142,60 +119,31 @@ class RigNode(DeviceNode):
         self.simulated = s.time_mode == "simulated"
         self.per: int = rig_params.steps_per_period
         self.dt_ns = rig.dt_ns
-        self.counts = RigCounts(accepted=dict.fromkeys(rig.valve_names, 0), rejected=dict.fromkeys(rig.valve_names, 0))
-        self.lockstep_keys = rig.valve_names
-        self._logged = 0                                    # rig.log entries forwarded to the logger
+        self.resets = 0
+        self.samples_published = 0
         self._last_sample: list[float] = []                 # measured, as last published (diagnostics)
+        self._last_options: list[float] = []                # the options' outputs, true, as last sampled (the bag)
         #: values sent in the lockstep sample after the rig's signals (a scenario's `setpoint`)
         self.sample_extras: dict[str, float] = {}
         self._channel: NamedVector | None = None            # the lockstep sample's writer, for its names
 
         sensor = qos_profile_sensor_data
-        self._valve_pubs = []
+
         def publisher(msg_type: Any, topic: str, qos: Any = sensor, hint: str = SAMPLE_HINT) -> Any:
             return self.create_publisher(msg_type, topic, qos, event_callbacks=self.output_events(topic, hint))
 
-        def subscription(msg_type: Any, topic: str, handler: Callable[..., None], qos: Any = COMMAND_QOS) -> None:
-            sub = self.create_subscription(msg_type, topic, handler, qos, event_callbacks=self.input_events(topic))
-            self._inputs.append((sub, handler))
-
-        self._publisher = publisher
-        self._subscription = subscription
-        for name in rig.valve_names:
-            # by name: a valve's options bring more signals after its own three (`rig_signals`)
-            self._valve_pubs.append((publisher(FluidPressure, valve_topic(name, PRESSURE)),
-                                     publisher(Float64, valve_topic(name, CURRENT)),
-                                     publisher(Float64, valve_topic(name, SPOOL_POSITION)),
-                                     tuple(rig.signals.index(f"{name}.{q}") for q in (PRESSURE, CURRENT, SPOOL_POSITION))))
-            subscription(Float64, valve_topic(name, DUTY_CYCLE), partial(self._on_duty, name))
-        self._pub_sample = None
-        if self.simulated and s.lockstep:
-            # The lockstep channel (pcv_sim.node.lockstep_channel): a period in one message each way.
-            self._pub_sample = publisher(JointState, SAMPLE_TOPIC, COMMAND_QOS, COMMAND_HINT)
-            sub = self.create_subscription(JointState, COMMAND_TOPIC, self._on_command, COMMAND_QOS, raw=True,
-                                           event_callbacks=self.input_events(COMMAND_TOPIC))
-            self._inputs.append((sub, self._on_command))
+        self._samples = SamplePublisher(output_topics(rig.signals, {v.name: v.chamber for v in rig_params.valves
+                                                                    if v.chamber in ("a", "b")}),
+                                        rig.signals, s.frame_id, publisher)
+        channel = self.simulated and s.lockstep
+        # The lockstep channel (pcv_sim.node.lockstep_channel): a period in one message each way.
+        self._pub_sample = publisher(JointState, SAMPLE_TOPIC, COMMAND_QOS, COMMAND_HINT) if channel else None
+        self.subscribe_inputs(input_topics(tuple(rig.inputs), rig.valve_names),
+                              self._on_command if channel else None)
         self.subscribe_faults()
-        for name in rig.option_inputs:                      # the valve options' temperatures (K)
-            valve, _, role = name.partition(".")
-            subscription(Float64, valve_topic(valve, role), partial(self._on_option, valve, role))
-            self.counts.accepted[name] = self.counts.rejected[name] = 0
-        #: The valve options' outputs (`Rig.option_outputs`), published with each sample as the emulator does.
-        self._option_pubs = [publisher(Float64, valve_topic(*name.split(".", 1))) for name in rig.option_outputs]
-        self._last_options: list[float] = []
-        self._pub_joint = publisher(JointState, cylinder_topic(JOINT_STATES))
-        #: (publisher, index of the valve's pressure in the samples, its message) per chamber
-        self._chamber_pubs = [(publisher(FluidPressure, chamber_topic(v.chamber)),
-                               rig.signals.index(f"{v.name}.pressure"),
-                               FluidPressure(header=Header(frame_id=f"chamber_{v.chamber}")))
-                              for v in rig_params.valves if v.chamber in ("a", "b")]
-        self._msg_pressure = FluidPressure(header=Header(frame_id="load_port"))
-        self._msg_float = Float64()
-        self._msg_joint = JointState(header=Header(frame_id=CYLINDER), name=[JOINT_NAME])
         self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
         self.publish_clock("stop the other simulation, or run this rig with time_mode real")
         self._n_signals = len(rig.signals)
-        self._cyl_i = [rig.signals.index(f"{CYLINDER}.{q}") for q in ("position", "velocity", "effort")]
         self._diag = RigDiagnostics(self.get_fully_qualified_name(), time.monotonic())
         mode = (f"simulated time, {'lockstep' if s.lockstep else f'free running (factor {s.real_time_factor:g})'}"
                 if self.simulated else "real time")
@@ -214,19 +162,6 @@ class RigNode(DeviceNode):
 
     # --- inputs --------------------------------------------------------------------------------
 
-    def _when(self, key: str, info: Any, action: Callable[[], None]) -> None:
-        """Run `action` at the step an input taken now acts from (`InputTiming`), scheduled in the rig:
-        never a step whose sample was shown (in lockstep the step after the sample the controller
-        answers, as `run_lockstep`); in real time the first step stamped at or after its DDS reception."""
-        rig = self.rig
-        at = self.acting_step(rig.timing, key, max(rig.steps, self._shown + 1), rig.origin_ns, info)
-        rig.timing.took(key, at)
-        rig.schedule_step(at, action)
-
-    def _on_duty(self, valve: str, msg: Float64, info: Any = None) -> None:
-        self._answered.add(valve)
-        self._take_duty(valve, msg.data, info)
-
     def _on_command(self, raw: bytes, info: Any = None) -> None:
         """A lockstep command: the answer to the sample it is stamped with, for every valve at once (a
         valve it leaves out keeps its duty, as with a callable); its flags go to the hook. An answer to
@@ -236,83 +171,16 @@ class RigNode(DeviceNode):
             stamp, names, values = decode(raw)
             duties, flags = split_command(names, values, rig.valve_names)
         except CommandError as err:
-            self.counts.last_rejection = f"{COMMAND_TOPIC}: {err}"
+            rig.counts.last_rejection = f"{COMMAND_TOPIC}: {err}"
             self.log_rejection(COMMAND_TOPIC, COMMAND_TOPIC, str(err), "the sample stays unanswered")
             return
         if stamp != rig.stamp_ns(self._shown) or len(self._answered) == len(rig.valve_names):
             return
         self._answered.update(rig.valve_names)
         for valve, duty in duties.items():
-            self._take_duty(valve, duty, info)
+            self.take_input(f"{valve}.{DUTY_CYCLE}", valve_topic(valve, DUTY_CYCLE), duty, info)
         if flags and self.hook is not None:
             self.hook.flags_at(stamp, flags)
-
-    def _take_duty(self, valve: str, value: float, info: Any) -> None:
-        rig = self.rig
-        try:
-            duty = check_duty(value, rig.params.valve(valve).params.command.duty_range)
-        except CommandError as err:
-            self.counts.rejected[valve] += 1
-            self.counts.last_rejection = f"{valve}/{DUTY_CYCLE}: {err}"
-            self.log_rejection(valve, f"{valve}/{DUTY_CYCLE}", str(err))
-            return
-        self.counts.accepted[valve] += 1
-        self._when(valve, info, partial(rig.set_duty, valve, duty))
-
-    def _on_option(self, valve: str, name: str, msg: Float64, info: Any = None) -> None:
-        """A valve option's temperature (K), checked as the emulator checks it; it acts as the duties do
-        (`Rig.set_temperature`, which may still refuse it then: an oil too cold for the step)."""
-        key, topic = f"{valve}.{name}", valve_topic(valve, name)
-        try:
-            value = check_temperature(name.replace("_", " "), msg.data)
-        except CommandError as err:
-            self._refuse_option(key, topic, str(err))
-            return
-        self.counts.accepted[key] += 1
-
-        def apply() -> None:
-            try:
-                self.rig.set_temperature(valve, name, value)
-            except CommandError as err:
-                self.counts.accepted[key] -= 1
-                self._refuse_option(key, topic, str(err))
-
-        self._when(key, info, apply)
-
-    def _refuse_option(self, key: str, topic: str, reason: str) -> None:
-        self.counts.rejected[key] += 1
-        self.counts.last_rejection = f"{topic}: {reason}"
-        self.log_rejection(key, topic, reason)
-
-    def _take_fault(self, text: str, info: Any) -> None:
-        """Checked with the rig's fault table now; it acts as the inputs do (and is recorded then)."""
-        rig = self.rig
-        try:
-            cmd = parse_fault_command(text, valves=rig.valve_names, signals=rig.signals)
-        except FaultError as err:
-            self._refuse_fault(str(err))
-            return
-        self.counts.faults_accepted += 1
-
-        def apply() -> None:
-            try:
-                if cmd.clear:
-                    rig.clear(cmd.target, cmd.kind)
-                else:
-                    assert cmd.fault is not None     # a command that is not a clear carries its fault
-                    rig.inject(cmd.fault)
-            except FaultError as err:            # e.g. clearing a fault that is not active
-                self.counts.faults_accepted -= 1
-                self._refuse_fault(str(err))
-            else:
-                self._record_text("faults", text)
-
-        self._when(_FAULTS_KEY, info, apply)
-
-    def _refuse_fault(self, reason: str) -> None:
-        self.counts.faults_rejected += 1
-        self.counts.last_rejection = f"{FAULTS}: {reason}"
-        self.log_rejection(_FAULTS_KEY, FAULTS, reason, "nothing changed")
 
     def add_input(self, msg_type: Any, topic: str, handler: Callable[..., None], qos: Any) -> Any:
         """One more input taken with the node's own (`handler(msg, info)`, after the duties and faults)."""
@@ -352,47 +220,8 @@ class RigNode(DeviceNode):
                     or channel.names[self._n_signals:] != tuple(extras):
                 channel = self._channel = NamedVector((*self.rig.signals, *extras))
             self._pub_sample.publish(channel.encode(stamp, (*y, *extras.values()) if extras else y))
-        sec, nsec = divmod(stamp, 1_000_000_000)
-        isfinite = math.isfinite
-        published = 0
-        msg_p, msg_f = self._msg_pressure, self._msg_float
-        msg_p.header.stamp.sec, msg_p.header.stamp.nanosec = sec, nsec
-        for pub_p, pub_i, pub_x, (jp, ji, jx) in self._valve_pubs:
-            p, i, x = y[jp], y[ji], y[jx]
-            if isfinite(p):
-                published += 1
-                if pub_p.get_subscription_count():
-                    msg_p.fluid_pressure = p
-                    pub_p.publish(msg_p)
-            if isfinite(i):
-                published += 1
-                if pub_i.get_subscription_count():
-                    msg_f.data = i
-                    pub_i.publish(msg_f)
-            if isfinite(x):
-                published += 1
-                if pub_x.get_subscription_count():
-                    msg_f.data = x
-                    pub_x.publish(msg_f)
-        for pub, j, msg in self._chamber_pubs:
-            if isfinite(y[j]) and pub.get_subscription_count():
-                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
-                msg.fluid_pressure = y[j]
-                pub.publish(msg)
-        if self._pub_joint.get_subscription_count():
-            # A dropped signal is left out of the message (JointState allows empty arrays per field).
-            joint = self._msg_joint
-            pos, vel, eff = (y[j] for j in self._cyl_i)
-            joint.position = [pos] if isfinite(pos) else []
-            joint.velocity = [vel] if isfinite(vel) else []
-            joint.effort = [eff] if isfinite(eff) else []
-            joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nsec
-            self._pub_joint.publish(joint)
-        for pub, value in zip(self._option_pubs, self._last_options):
-            if isfinite(value) and pub.get_subscription_count():
-                msg_f.data = value
-                pub.publish(msg_f)
-        self.counts.samples_published += published
+        self._samples.publish(stamp, y)
+        self.samples_published += 1
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
         """One status per valve and one for the rig (see pcv_sim.rig.diagnostics)."""
@@ -400,24 +229,12 @@ class RigNode(DeviceNode):
         waiting = tuple(v for v in rig.valve_names if v not in self._answered) \
             if self.simulated and self.settings.lockstep else ()
         time_mode = "external_clock" if self.external_clock else self.settings.time_mode
-        return self._diag.build(now, rig=rig, counts=self.counts, time_mode=time_mode, lockstep=self.settings.lockstep,
+        return self._diag.build(now, rig=rig, resets=self.resets, samples_published=self.samples_published,
+                                time_mode=time_mode, lockstep=self.settings.lockstep,
                                 schedule=self._schedule, failure=rig.fault, waiting_for=waiting,
                                 last=dict(zip((*rig.signals, *rig.option_outputs), (*self._last_sample,
                                                                                      *self._last_options))),
                                 recorder=recorder)
-
-    def _forward_log(self) -> None:
-        """What the rig did that a user must hear about (watchdog, faults), once per event."""
-        log = self.rig.log
-        while self._logged < len(log):
-            t, text = log[self._logged]
-            self._logged += 1
-            if "watchdog fired" in text:
-                self.get_logger().warning(f"t = {t:.4f} s: {text}: send each valve's duty at least every "
-                                          f"{self.rig.params.timing.watchdog_timeout:g} s; the next valid command "
-                                          "resumes")
-            else:
-                self.get_logger().info(f"t = {t:.4f} s: {text}")
 
     # --- stepping ------------------------------------------------------------------------------
 
@@ -437,7 +254,7 @@ class RigNode(DeviceNode):
             self.get_logger().error(f"{err}: the rig stopped; restart it")
             return False
         finally:
-            self._forward_log()
+            self.forward_log()
         return True
 
     # --- loops ---------------------------------------------------------------------------------
@@ -447,7 +264,6 @@ class RigNode(DeviceNode):
     def _setup_more_interface(self) -> None:
         """The endpoints beside the samples and the duty and fault commands: `cylinder/external_force`,
         the `reset` service, /clock in (use_sim_time), the recorder (record.enabled)."""
-        self._subscription(Float64, EXTERNAL_FORCE_TOPIC, self._on_external_force)
         self.follow_clock()
         if self.external_clock:
             self.get_logger().info("time from an external /clock (use_sim_time): model time 0 is the first /clock "
@@ -455,18 +271,6 @@ class RigNode(DeviceNode):
         self.create_service(Trigger, RESET, self._on_reset)
         self._rec_logged = 0                                # rig.log entries written to the bag
         self.recorder = self._make_recorder()
-
-    def _on_external_force(self, msg: Float64, info: Any = None) -> None:
-        """N on the rod, + extending (toward +x); Rig.set_external_force's rules; acts as the inputs do."""
-        try:
-            force = check_external_force(msg.data)
-        except CommandError as err:
-            self.counts.force_rejected += 1
-            self.counts.last_rejection = f"{EXTERNAL_FORCE_TOPIC}: {err}"
-            self.log_rejection(EXTERNAL_FORCE_TOPIC, EXTERNAL_FORCE_TOPIC, str(err))
-            return
-        self.counts.force_accepted += 1
-        self._when(EXTERNAL_FORCE, info, partial(self.rig.set_external_force, force))
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The rig back to rest: valves at their initial duty, piston at its initial position and at
@@ -479,7 +283,10 @@ class RigNode(DeviceNode):
             self._reset_rig()
             response.message = f"reset: the rig is at rest at t = {self.rig.time:.4f} s"
         else:
-            self._when("reset", None, self._reset_rig)
+            rig = self.rig
+            at = self.acting_step(rig.timing, "reset", self.first_open_step(), rig.origin_ns, None)
+            rig.timing.took("reset", at)
+            rig.schedule_step(at, self._reset_rig)
             response.message = "reset: the rig goes back to rest at the next step"
         response.message += (" (valves at their initial duty, piston at its initial position, faults cleared; "
                              "model time goes on)")
@@ -489,12 +296,12 @@ class RigNode(DeviceNode):
     def _reset_rig(self) -> None:
         failure = self.rig.fault
         self.rig.reset(keep_time=True)
-        self.counts.resets += 1
+        self.resets += 1
         if self.recorder is not None:
             self.recorder.restart_flows()            # the piston jumped: no mean flow across the reset
         if failure is not None:
             self.get_logger().info(f"reset: the model runs again (it had stopped: {failure})")
-        self._forward_log()
+        self.forward_log()
 
     # --- the rig under the node base's loops ---------------------------------------------------
 
@@ -534,6 +341,7 @@ class RigNode(DeviceNode):
             options=(*rig.option_inputs, *rig.option_outputs)))
         if recorder is not None:
             rig.on_input = self._record_input
+            rig.on_fault_command = lambda step, text: recorder.text(recorder.faults_topic, rig.stamp_ns(step), text)
         return recorder
 
     def _record_input(self, step: int, name: str, value: float) -> None:
@@ -560,11 +368,3 @@ class RigNode(DeviceNode):
             t, text = log[self._rec_logged]
             self._rec_logged += 1
             rec.text(rec.events_topic, rig.stamp_ns(round(t / rig.dt)), text)
-
-    def _record_text(self, kind: str, text: str) -> None:
-        """A fault command (`kind` faults) at the step it acted."""
-        rec = self.recorder
-        if rec is not None:
-            rec.text(rec.faults_topic if kind == "faults" else rec.events_topic,
-                     self.rig.stamp_ns(), text)
-

@@ -225,7 +225,7 @@ class Rig(Device):
             **{f"{v.name}.duty_cycle": InputKind(partial(check_duty, duty_range=v.params.command.duty_range),
                                                  partial(self._take_command, v.name)) for v in valves},
             EXTERNAL_FORCE: InputKind(check_external_force, self._put_external_force),
-            **{f"{v.name}.{name}": InputKind(partial(check_temperature, f"{v.name}: {name.replace('_', ' ')}"),
+            **{f"{v.name}.{name}": InputKind(partial(check_temperature, name.replace('_', ' ')),
                                              partial(self.set_temperature, v.name, name))
                for v in valves for name in kernel.layout(v.params, kind).inputs[len(kernel.INPUTS):]
                if name in TEMPERATURE_INPUTS}})

@@ -212,32 +212,32 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     use_sim_time cannot be switched at run time."""
 
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Float64
     from std_srvs.srv import Trigger
 
     from pcv_sim.io import read_bag
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
     from pcv_sim.simulation.clock import RealTimeSchedule
 
-    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[
+    node = rig_node(argv=['rig'], context=ros.context, parameter_overrides=[
         Parameter('time_mode', value='real'), Parameter('record.enabled', value=True),
         Parameter('record.directory', value=str(ros.tmp_path)), Parameter('record.name', value='rt')])
     ns = node.get_namespace().rstrip('/')
     try:
-        rig = node.rig
+        rig = node.device
         assert not node.set_parameters([Parameter('use_sim_time', value=True)])[0].successful
         node._schedule = sched = RealTimeSchedule(rig.dt)
         sched.start(time.monotonic() - 0.0024)          # 2.4 ms of wall time since the start
         node._shown = 20
-        node._on_duty('left', Float64(data=0.8), {'received_timestamp': 1})    # long ago: at step 21
+        node.take_input('left.duty_cycle', 'left/duty_cycle', 0.8, {'received_timestamp': 1})   # long ago: at step 21
         response = node._on_reset(Trigger.Request(), Trigger.Response())
         assert response.success and 'at the next step' in response.message
         reset_at = rig.timing.last('reset')
         assert reset_at >= 24                            # not before its reception (~2.4 ms)
-        node._on_external_force(Float64(data=300.0), {'received_timestamp': 10**12})  # after it: it stays
+        node.take_input('cylinder.external_force', 'cylinder/external_force', 300.0,
+                        {'received_timestamp': 10**12})                               # after it: it stays
         rig.advance_to(reset_at + 10)
         assert rig.commands['left'] == 0.5 and rig.input_values()['cylinder.external_force'] == 300.0
-        assert 'reset' in rig.log[-1][1] and node.counts.resets == 1
+        assert 'reset' in rig.log[-1][1] and node.resets == 1
         rig.reset()
         node._schedule = None
 
