@@ -113,7 +113,7 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
     sched.start()
     dev.origin_ns = time.time_ns()
     if rec is not None:
-        rec.start(dev.stamp_ns(), dev.signals())
+        rec.start(dev.stamp_ns(), dev.record_values())
     duties = (0.3, 0.7)
     next_cmd, n_cmd = 0.7, 0
     cpu0 = time.process_time()

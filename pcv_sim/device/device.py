@@ -9,10 +9,32 @@ reaches a valve's model input (`_put_duty`), the duty a waiting watchdog holds (
 and how a physical fault changes its parameters. `ValveDevice` (pcv_sim.device.valve, the
 emulator: one valve, inputs `duty_cycle`, `load_flow`, `supply_pressure`) and `Rig`
 (pcv_sim.rig.rig, valves on the steering cylinder: `<valve>.duty_cycle`,
-`cylinder.external_force`) are devices; a node adapts any device the same way (model time
-anchored to a clock through `origin_ns`, inputs by `submit`/`submit_fault` at the step `timing`
-gives, nothing published while `fault` is set, `skip` when the loop fell behind or an external
-clock jumped).
+`cylinder.external_force`) are devices.
+
+The node-facing interface: a node adapts any device through these names alone, the same on every
+device (what differs between devices is data: the names in `input_names` and `signals`).
+
+- time: `dt`, `dt_ns`, `steps` (model time = steps * dt), `origin_ns` (the stamp of model time 0:
+  the node anchors it to its clock), `stamp_ns(step)`, `timing` (`InputTiming`: the step an input
+  received now acts from), `skip(n)` (model time passes without computing: a loop that fell
+  behind, an external clock that jumped);
+- inputs: `input_names` (what `submit` takes), `submit(name, value, at_step)` and
+  `submit_fault(text, at_step)` (checked now, acting from max(at_step, `first_open_step()`);
+  the reason of a refusal, or None), `counts` (`InputCounts`: accepted and refused per input name
+  and `FAULTS`, the last refusal's reason);
+- stepping: `run_to(step)` advances to `step` and hands back the `Sample`s due on the way (every
+  `sample_every`-th step; each `Sample.values` in the order of `signals`, true values, SI);
+  `present_sample()` is the sample at the present step (the first one a node shows); while
+  `fault` is set (the model ran away) nothing is computed or handed back, model time goes on;
+- outputs: `signals` (names of the sampled values), `measure(sample)` (what the sensors show of it:
+  sensor faults applied, NaN = no value, not to be published; once per sample, in order);
+- watchdogs and their settings: `valve_names`, `watchdogs`, `set_watchdog_timeout(s)`,
+  `set_safe_duty(duty)`, `safe_duty`;
+- restarts: `prepare(params=None)` reads the device and builds what `install(prepared)` swaps in
+  at a step boundary (the model back at rest; new parameters when given): prepare may run in
+  another thread than the stepping, install runs between two `run_to`; `reset()` is both at once;
+- diagnostics: `status()` (a `DeviceStatus`: commands, duties, watchdogs, faults, counts), `log`
+  ((model time, text): faults set and cleared, watchdogs firing and cleared, resets), `fault`.
 """
 
 from __future__ import annotations
@@ -20,7 +42,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,7 +63,7 @@ from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import FAULTS
 from pcv_sim.simulation.duty import check_duty
 
-__all__ = ["MODEL_FAILURES", "Device", "InputCounts", "InputKind"]
+__all__ = ["MODEL_FAILURES", "Device", "DeviceStatus", "InputCounts", "InputKind", "Sample"]
 
 #: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
 MODEL_FAILURES = (ArithmeticError, ValueError)
@@ -77,6 +99,31 @@ class InputCounts:
         self.last_rejection = ""
 
 
+class Sample(NamedTuple):
+    """A device's true outputs at model step `step` (stamp `stamp_ns(step)`): `values` in the order of
+    its `signals`, SI units."""
+
+    step: int
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
+class DeviceStatus:
+    """What diagnostics show of a device at one instant (model time `time`, s); per valve where keyed
+    by valve name."""
+
+    time: float
+    commands: dict[str, float]            # the last valid duty command
+    duties: dict[str, float]              # the duty in force (the safe duty once the watchdog fired)
+    watchdogs: dict[str, str]             # `WatchdogState`
+    watchdog_fired: dict[str, int]        # how often each watchdog fired
+    faults: tuple[str, ...]               # active injected faults, "kind@target"
+    fault: str | None                     # why the model stands still (it ran away), or None
+    accepted: dict[str, int]              # inputs accepted per input name (and FAULTS)
+    rejected: dict[str, int]              # refused
+    last_rejection: str
+
+
 class Device:
     """The common part of the devices (see the module docstring); `steps` is the subclass's model
     step counter (model time = steps * dt)."""
@@ -89,6 +136,10 @@ class Device:
     sensors: Sensors
     #: Queued: an input (name, value), a fault command (FAULTS, FaultCommand), or an action to run.
     queue: InputQueue[Any]
+    #: The names of a sample's values (`Sample.values`), in their order.
+    signals: tuple[str, ...]
+    #: Model steps between two samples `run_to` hands back.
+    sample_every: int
 
     def __init__(self, dt: float, valve_names: Sequence[str], watchdog_steps: int, *, safe_duty: float,
                  keep_rejections: bool = True) -> None:
@@ -118,6 +169,8 @@ class Device:
         self.keep_rejections = keep_rejections
         #: Called with (step, the command as given) when a fault command acted (a recorder's hook).
         self.on_fault_command: Callable[[int, str], None] | None = None
+        #: The last step whose sample `run_to` or `present_sample` handed out (-1: none yet).
+        self.shown = -1
 
     @property
     def time(self) -> float:
@@ -148,6 +201,53 @@ class Device:
         """Leave the fault state; the reason it had, or None."""
         was, self.fault, self.fault_step = self.fault, None, None
         return was
+
+    # --- stepping, outputs, restarts (the node-facing part the subclass supplies) ---------------
+
+    def run_to(self, step: int) -> list[Sample]:
+        """Advance to `step` (inputs, fault commands and watchdog deadlines acting at their steps;
+        those due at `step` itself act before its sample) and return the samples of the multiples
+        of `sample_every` passed on the way, the one at `step` included. A model that runs away
+        sets `fault` (no exception): the samples before it are returned, none after it."""
+        raise NotImplementedError
+
+    def present_sample(self) -> Sample:
+        """The sample at the present step (with the inputs in force from it on); it counts as shown."""
+        raise NotImplementedError
+
+    def measure(self, sample: Sample) -> np.ndarray:
+        """What the sensors show of `sample` (sensor faults applied; NaN: no value, not to be
+        published). Called once per sample, in order (a delay or noise fault keeps history)."""
+        sensors = self.sensors
+        if not sensors.active and not sensors.keeps_history:
+            return sample.values
+        return sensors.measure(sample.step * self.dt, sample.values)
+
+    def prepare(self, params: Any = None) -> Any:
+        """What `install` needs to put the model back at rest (with `params`, new parameters: the
+        device's own kind, e.g. a `ValveParams`); reads the device and changes nothing, so it may
+        run off the stepping thread. Raises (ValueError, ParameterError) for what cannot run."""
+        raise NotImplementedError
+
+    def install(self, prepared: Any) -> str:
+        """Swap in what `prepare` made, at a step boundary (between two `run_to`): the model at rest,
+        a fault cleared, model time going on. Returns what was done (for the log)."""
+        raise NotImplementedError
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """The inputs `submit` takes, by name."""
+        return tuple(self.inputs)
+
+    def status(self) -> DeviceStatus:
+        """Diagnostics' view of the device now (copies: it stays as it was when taken)."""
+        c = self.counts
+        return DeviceStatus(
+            self.time, dict(self.commands), dict(self.duties),
+            {name: w.state for name, w in self.watchdogs.items()},
+            {name: w.fired for name, w in self.watchdogs.items()},
+            tuple(f"{kind}@{target}" for target, kind in self.faults), self.fault,
+            dict(c.accepted), dict(c.rejected), c.last_rejection)
 
     # --- inputs ------------------------------------------------------------------------------
 

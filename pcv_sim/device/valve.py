@@ -34,6 +34,7 @@ from typing import Protocol
 import numpy as np
 
 from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
+from pcv_sim.device.device import Sample as DeviceSample
 from pcv_sim.device.inputs import Watchdog, WatchdogState
 from pcv_sim.device.sensors import Sensors
 from pcv_sim.errors import CommandError
@@ -168,6 +169,8 @@ class ValveDevice(Device):
         #: taken (K; none: the valve YAML's).
         self.option_inputs = tuple(n for n, _, is_input in self._option_signals if is_input)
         self.option_outputs = tuple(n for n, _, is_input in self._option_signals if not is_input)
+        #: A sample's values (`run_to`): the measured signals, then the options' outputs.
+        self.signals = (*MEASURED, *self.option_outputs)
         self._option_out_i = [i for _, i, is_input in self._option_signals if not is_input]
         self.option_values: dict[str, float] = {}
         duty = InputKind(lambda v: check_duty(v, self.params.command.duty_range),
@@ -298,7 +301,17 @@ class ValveDevice(Device):
         st.sim.set_parameters(0, parameters)
         st.set_supply_pressure(supply)
 
-    def measure(self, sample: Sample) -> tuple[float, float, float]:
+    def measure(self, sample: DeviceSample) -> np.ndarray:
+        """What the sensors show of `sample` (`Device.measure`; sensor faults act on MEASURED, the
+        options' outputs are shown as they are)."""
+        sensors = self.sensors
+        if not sensors.active and not sensors.keeps_history:
+            return sample.values
+        n = len(MEASURED)
+        y = sensors.measure(sample.step * self.dt, sample.values[:n])
+        return np.concatenate((y, sample.values[n:]))
+
+    def measure_valve(self, sample: Sample) -> tuple[float, float, float]:
         """What the sensors show of `sample` (MEASURED, sensor faults applied; NaN: no value, not to
         be published). Called once per sample, in order (a delay or noise fault keeps history)."""
         if not self.sensors.active and not self.sensors.keeps_history:
@@ -359,7 +372,7 @@ class ValveDevice(Device):
             if self.fault is None:
                 try:
                     sample = self.sample() if stop % self.sample_every == 0 else None
-                    signals = (self.signals() if self.recorder is not None and stop % self.record_every == 0
+                    signals = (self.record_values() if self.recorder is not None and stop % self.record_every == 0
                                else None)
                     # Nothing a valve cannot produce leaves the device: checked before it is shown.
                     shown = sample or signals
@@ -377,6 +390,23 @@ class ValveDevice(Device):
                 if signals is not None and self.recorder is not None:
                     self.recorder(self.stamp_ns(stop), signals)
         return out
+
+    def run_to(self, step: int) -> list[DeviceSample]:
+        """`Device.run_to`: `run` up to `step`, its samples as the device's `Sample`s (values in
+        the order of `signals`)."""
+        out = [self._values(s) for s in self.run(max(0, step - self.steps))]
+        if out:
+            self.shown = out[-1].step
+        return out
+
+    def present_sample(self) -> DeviceSample:
+        sample = self._values(self.sample())
+        self.shown = sample.step
+        return sample
+
+    @staticmethod
+    def _values(s: Sample) -> DeviceSample:
+        return DeviceSample(s.step, np.array((s.pressure, s.current, s.spool_position, *s.options)))
 
     def _traced(self) -> bool:
         """The recorder takes stretches of steps (`record_block(t0_ns, dt_ns, rows)`, rows of
@@ -414,8 +444,8 @@ class ValveDevice(Device):
         return Sample(self.steps, st.pressure, current, st.spool_position, st.duty, st.command,
                       tuple(float(y[i]) for i in self._option_out_i))
 
-    def signals(self) -> dict[str, float]:
-        """SIGNALS by name, and the OPTION_SIGNALS the valve's options bring."""
+    def record_values(self) -> dict[str, float]:
+        """What a recorder receives now: SIGNALS by name, and the OPTION_SIGNALS the valve's options bring."""
         st = self.stepper
         out = {
             "duty_command": st.command, "duty": st.duty, "load_flow": st.load_flow,

@@ -184,7 +184,7 @@ class EmulatorNode(DeviceNode):
         if rec is None:
             return
         dev = self.device
-        rec.start(dev.stamp_ns(), dev.signals())
+        rec.start(dev.stamp_ns(), dev.record_values())
         self.recording_started(rec, f"{', '.join((*rec.signals, *rec.options))} to {rec.path} (outputs every "
                                     f"{rec.every * dev.dt * 1e3:g} ms of model time, inputs on change)")
 
@@ -230,7 +230,7 @@ class EmulatorNode(DeviceNode):
             return
         if self._pub_clock is not None:
             self._publish_clock()
-        measure = self.device.measure if self.settings.faults_enabled else None
+        measure = self.device.measure_valve if self.settings.faults_enabled else None
         for s in samples:
             measured = (s.step, (*(measure(s) if measure is not None else (s.pressure, s.current, s.spool_position)),
                                  *s.options))

@@ -4,7 +4,7 @@ and a lockstep runner for a controller (`pcv_sim.rig.lockstep`)."""
 from pcv_sim.device.faults import SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.rig.lockstep import ControllerError, RigRun, run_lockstep
 from pcv_sim.rig.params import DEFAULT_RIG, RigParams, load_rig, rig_from_mapping
-from pcv_sim.rig.rig import Rig, RigError, RigStatus
+from pcv_sim.rig.rig import Rig, RigError
 
 __all__ = [
     "DEFAULT_RIG",
@@ -17,7 +17,6 @@ __all__ = [
     "RigError",
     "RigParams",
     "RigRun",
-    "RigStatus",
     "load_rig",
     "parse_fault",
     "rig_from_mapping",

@@ -27,13 +27,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from functools import partial
 from typing import Any, NoReturn
 
 import numpy as np
 
-from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind
+from pcv_sim.device.device import MODEL_FAILURES, Device, InputKind, Sample
 from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import NEVER, WatchdogState
 from pcv_sim.device.sensors import Sensors
@@ -60,7 +59,6 @@ __all__ = [
     "InputHook",
     "Rig",
     "RigError",
-    "RigStatus",
     "check_external_force",
     "rig_signals",
     "signal_kind",
@@ -120,18 +118,6 @@ class RigError(PcvSimError, RuntimeError):
     """The rig cannot go on: the model state ran away (non-finite), as the emulator's fault state."""
 
 
-@dataclass(frozen=True)
-class RigStatus:
-    """What diagnostics show of the rig at one instant (model time `time`, s)."""
-
-    time: float
-    commands: dict[str, float]            # the last valid duty command per valve
-    duties: dict[str, float]              # the duty in force (the safe duty after the watchdog)
-    watchdog_fired: dict[str, bool]
-    faults: tuple[str, ...]               # active faults, "kind@target"
-    rejected: int                         # commands refused since reset
-
-
 #: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
 TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
                       "oil_temperature": "fluid.temperature: input"}
@@ -175,6 +161,7 @@ class Rig(Device):
         self._own_volume = [(plant.index("input", f"{v.name}.load_flow"), plant.index("input", f"{v.name}.load_volume"),
                              v.params.circuit.load_volume) for v in valves if v.chamber not in ("a", "b")]
         self.signals = rig_signals(params)
+        self.sample_every = params.steps_per_period
         self._signal_i = np.array([plant.index("output", s) for s in self.signals])
         #: per valve: the output its load volume is wired from (the chamber's), or -1 (its own, constant)
         self._volume_i = [plant.index("output", f"cylinder.volume_{v.chamber}") if v.chamber in ("a", "b") else -1
@@ -282,6 +269,7 @@ class Rig(Device):
         else:
             self.rejected = []
             self.log = []
+            self.shown = -1
             self.counts.clear()
             self.queue.clear()
             self._set_feed({})
@@ -325,9 +313,6 @@ class Rig(Device):
         """Per valve: has its watchdog fired (and no command come since)."""
         return {name: w.state == WatchdogState.FIRED for name, w in self.watchdogs.items()}
 
-    def status(self) -> RigStatus:
-        return RigStatus(self.time, dict(self.commands), dict(self.duties), dict(self.watchdog_fired),
-                         tuple(f"{kind}@{target}" for target, kind in self.faults), len(self.rejected))
 
     def sample(self) -> np.ndarray:
         """The true values of `signals` now (SI: Pa, A, m per valve; m, m/s, N for the cylinder),
@@ -517,6 +502,62 @@ class Rig(Device):
                 if hook is not None:
                     hook(step, name, v)
         self._feed_next = r + 1
+
+    # --- the node-facing stepping and restarts (pcv_sim.device.device) --------------------------
+
+    def first_open_step(self) -> int:
+        """The present step, or the one after the last sample handed out (`run_to`, `present_sample`)."""
+        return max(self.sim.steps, self.shown + 1)
+
+    def run_to(self, step: int) -> list[Sample]:
+        """`Device.run_to`: `advance_to` each multiple of `sample_every` on the way (its `sample()`
+        taken there) and then `step`; a RigError ends it with `fault` set. While `fault` is set
+        model time passes without computing (inputs still act at their steps)."""
+        out: list[Sample] = []
+        per = self.sample_every
+        if self.fault is not None:
+            self._idle_to(step)
+            return out
+        try:
+            while self.sim.steps < step:
+                boundary = (self.sim.steps // per + 1) * per
+                if boundary > step:
+                    self.advance_to(step)
+                    break
+                self.advance_to(boundary)
+                out.append(Sample(boundary, self.sample()))
+        except RigError:
+            self._idle_to(step)
+        if out:
+            self.shown = out[-1].step
+        return out
+
+    def _idle_to(self, step: int) -> None:
+        """To `step` without computing (the fault state): what falls due acts at its step."""
+        sim = self.sim
+        while sim.steps < step:
+            sim.steps = min(step, self._next_due())
+            self._due()
+
+    def present_sample(self) -> Sample:
+        self.shown = self.sim.steps
+        return Sample(self.sim.steps, self.sample())
+
+    def prepare(self, params: RigParams | None = None) -> RigParams:
+        """The rig's rest state is its YAML's (solved once): nothing to compute. New parameters are
+        refused (ParameterError): the rig's physics is set at its start."""
+        if params is not None and params is not self.params:
+            raise ParameterError("the rig's parameters cannot change while it runs; restart it with the new rig YAML")
+        return self.params
+
+    def install(self, prepared: RigParams) -> str:
+        """`reset(keep_time=True)`: valves at rest at their initial duty, the piston at its initial
+        position, faults cleared, the watchdogs waiting; model time goes on."""
+        failure = self.fault
+        self.reset(keep_time=True)
+        what = (f"the rig is at rest at t = {self.time:.4f} s (valves at their initial duty, piston at its "
+                "initial position, faults cleared; model time goes on)")
+        return f"{what} (cleared fault: {failure})" if failure else what
 
     # --- stepping ------------------------------------------------------------------------------
 

@@ -171,3 +171,97 @@ def test_an_input_acts_from_the_first_step_not_shown(rig):
     rig.submit("left.duty_cycle", 0.6)
     rig.advance_to(10)
     assert rig.watchdogs["left"].command_step == 10 and rig.duties["left"] == 0.6
+
+
+# --- the node-facing interface: stepping, samples, restarts, status -----------------------------
+
+def _fresh(dev):
+    """A device of `dev`'s kind at its start (the rig: `dev` itself, reset)."""
+    if isinstance(dev, Rig):
+        dev.reset()
+        return dev
+    return _valve()
+
+
+def _reference(dev, step):
+    """The sample at `step` by each device's own stepping call (the rig's advance_to + sample, the
+    valve's run)."""
+    if isinstance(dev, Rig):
+        dev.advance_to(step)
+        return dev.sample()
+    s = dev.run(step - dev.steps)[-1]
+    return np.array((s.pressure, s.current, s.spool_position, *s.options))
+
+
+def test_run_to_hands_back_the_samples_due_in_the_order_of_signals(dev):
+    per = dev.sample_every
+    assert dev.submit(_duty_input(dev), 0.6, at_step=per // 2) is None
+    samples = dev.run_to(3 * per + per // 2)
+    assert [s.step for s in samples] == [per, 2 * per, 3 * per] and dev.steps == 3 * per + per // 2
+    assert all(len(s.values) == len(dev.signals) for s in samples)
+    assert dev.run_to(dev.steps) == [] and dev.shown == 3 * per
+    last = samples[-1]
+    ref = _fresh(dev)
+    ref.submit(_duty_input(ref), 0.6, at_step=per // 2)        # the same inputs on a fresh device
+    assert np.array_equal(_reference(ref, 3 * per), last.values)
+    pressure = next(s for s in dev.signals if s.endswith("pressure"))
+    assert last.values[dev.signals.index(pressure)] > 1e5       # Pa: the valve at 0.6 holds some bar
+
+
+def test_an_input_taken_now_acts_after_the_last_sample_shown(dev):
+    dev.run_to(2 * dev.sample_every + 3)
+    shown = dev.present_sample()
+    assert shown.step == dev.steps and dev.first_open_step() == dev.steps + 1
+    dev.submit(_duty_input(dev), 0.6)
+    dev.run_to(dev.steps + 1)
+    assert dev.watchdogs[dev.valve_names[0]].command_step == shown.step + 1
+
+
+def test_measure_shows_the_sensor_faults_and_leaves_the_true_sample(dev):
+    first = dev.sensors.signals[0]
+    assert dev.submit_fault(f"{{fault: bias, signal: {first}, value: 2.0}}", at_step=1) is None
+    s = dev.run_to(dev.sample_every)[-1]
+    before = s.values.copy()
+    measured = dev.measure(s)
+    j = dev.signals.index(first)
+    assert measured[j] == before[j] + 2.0 and np.array_equal(s.values, before)
+    others = [k for k in range(len(before)) if k != j]
+    assert np.array_equal(measured[others], before[others])
+
+
+def test_a_model_that_runs_away_sets_the_fault_and_run_to_hands_back_nothing_after_it(dev):
+    dev.run_to(dev.sample_every)
+    x = dev.sim.x if isinstance(dev, Rig) else dev.stepper.sim.x
+    x[0] = np.nan
+    assert dev.run_to(5 * dev.sample_every) == []                 # no exception: the fault state
+    assert dev.fault is not None and dev.steps == 5 * dev.sample_every
+    dev.submit(_duty_input(dev), 0.6, at_step=dev.steps + 2)       # inputs still act at their steps
+    assert dev.run_to(7 * dev.sample_every) == []
+    assert dev.commands[dev.valve_names[0]] == 0.6
+    what = dev.install(dev.prepare())
+    assert dev.fault is None and "cleared fault" in what and dev.steps == 7 * dev.sample_every
+    assert [s.step for s in dev.run_to(8 * dev.sample_every)] == [8 * dev.sample_every]
+
+
+def test_the_rig_refuses_new_parameters_at_run_time(rig):
+    from pcv_sim.errors import ParameterError
+
+    other = load_rig()
+    with pytest.raises(ParameterError, match="cannot change while it runs"):
+        rig.prepare(other)
+    assert rig.prepare() is rig.params
+
+
+def test_status_is_the_same_view_on_every_device(dev):
+    valve, name = dev.valve_names[0], _duty_input(dev)
+    dev.set_watchdog_timeout(0.01)
+    dev.submit(name, 0.6, at_step=1)
+    dev.submit(name, 7.0)
+    dev.submit_fault(f"{{fault: bias, signal: {dev.sensors.signals[0]}, value: 1.0}}", at_step=1)
+    dev.run_to(200)
+    st = dev.status()
+    assert st.time == pytest.approx(200 * dev.dt) and st.commands[valve] == 0.6 and st.duties[valve] == dev.safe_duty
+    assert st.watchdogs[valve] == WatchdogState.FIRED and st.watchdog_fired[valve] >= 1
+    assert st.faults == (f"bias@{dev.sensors.signals[0]}",) and st.fault is None
+    assert st.accepted[name] == 1 and st.rejected[name] == 1 and st.last_rejection.startswith(name)
+    assert name in dev.input_names and "faults" not in dev.input_names

@@ -2,6 +2,7 @@
 import math
 import re
 
+import numpy as np
 import pytest
 
 from pcv_sim.device.settings import (
@@ -347,7 +348,7 @@ def test_the_options_signals_are_among_the_devices_signals():
     from pcv_sim.units import kelvin
 
     assert {e.name for e in OPTION_INTERFACE} == set(OPTION_SIGNALS)
-    assert not set(OPTION_SIGNALS) & set(device().signals())
+    assert not set(OPTION_SIGNALS) & set(device().record_values())
     params = PARAMS
     for key, value in (("solenoid.coil_temperature", "lumped"), ("fluid.temperature", "input"),
                        ("spool.core", "separate")):
@@ -355,7 +356,7 @@ def test_the_options_signals_are_among_the_devices_signals():
     dev = ValveDevice(params, safe_duty=0.9, watchdog_timeout=0.0)
     dev.stepper.set_input("oil_temperature", kelvin(50.0))
     dev.stepper.advance(10_000)                     # 1 s at 90 %: the coil warms
-    signals = dev.signals()
+    signals = dev.record_values()
     assert signals["oil_temperature"] == kelvin(50.0)
     assert signals["ambient_temperature"] == kelvin(params.solenoid.ambient_temperature_c)
     assert signals["coil_temperature"] == dev.stepper.output("coil_temperature") > kelvin(40.0)
@@ -370,15 +371,15 @@ def test_a_sensor_fault_changes_what_is_measured_not_the_model():
     healthy = device(watchdog_timeout=0.0)
     assert dev.submit_fault('{fault: bias, signal: pressure, value: 1.0e+5}', at_step=5) is None
     assert dev.submit_fault('{fault: dropout, signal: current}', at_step=5) is None
-    for a, b in zip(dev.run(50), healthy.run(50)):
-        assert a == b                                  # the physics is untouched
+    for a, b in zip(dev.run_to(50), healthy.run_to(50), strict=True):
+        assert a.step == b.step and np.array_equal(a.values, b.values)     # the physics is untouched
         p, i, x = dev.measure(a)
-        assert p == a.pressure + 1e5 and math.isnan(i) and x == a.spool_position
+        assert p == a.values[0] + 1e5 and math.isnan(i) and x == a.values[2]
     assert set(dev.faults) == {('pressure', 'bias'), ('current', 'dropout')}
     assert dev.counts.accepted['faults'] == 2
     dev.submit_fault('{clear: bias, signal: pressure}')
-    s = dev.run(10)[-1]
-    assert dev.measure(s)[0] == s.pressure
+    s = dev.run_to(dev.steps + 10)[-1]
+    assert dev.measure(s)[0] == s.values[0]
 
 
 def test_a_physical_fault_acts_at_its_step_and_clearing_restores_the_valve():
@@ -437,5 +438,5 @@ def test_clearing_a_fault_that_is_not_active_is_refused_when_due_and_a_reset_cle
     assert len(dev.faults) == 2
     dev.reset()
     assert not dev.faults and not dev.sensors.active
-    s = dev.run(10)[-1]
-    assert dev.measure(s) == (s.pressure, s.current, s.spool_position)
+    s = dev.run_to(dev.steps + 10)[-1]
+    assert np.array_equal(dev.measure(s), s.values)

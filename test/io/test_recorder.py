@@ -196,7 +196,7 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
     limited = replace_param(PARAMS, "command.duty_fall_rate_limit", 2.0)
     rec = BagRecorder(tmp_path, name="b", every=10, frame_id="load_port")
     dev = ValveDevice(limited, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
-    rec.start(dev.stamp_ns(), dev.signals())
+    rec.start(dev.stamp_ns(), dev.record_values())
     for at, duty in [(0.05, 0.8), (0.2, 0.55), (0.4, 0.7), (0.55, 0.3)]:
         assert dev.submit("duty_cycle", duty, at_step=round(at / dev.dt)) is None
     dev.run(8000)
@@ -232,7 +232,7 @@ def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_pat
     def run(rec, hook) -> None:
         dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, sample_every=10)
         dev.recorder, dev.record_every = hook, 1
-        rec.start(dev.stamp_ns(), dev.signals())
+        rec.start(dev.stamp_ns(), dev.record_values())
         for at, duty in [(0.013, 0.8), (0.0551, 0.3), (0.08, 0.6)]:
             dev.submit("duty_cycle", duty, at_step=round(at / dev.dt))
         for _ in range(120):
@@ -265,7 +265,7 @@ def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_p
     rec = BagRecorder(tmp_path, name="b", faults=faults, writing=WriterSettings(writer="inline"))
     dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
     dev.on_fault_command = lambda step, text: rec.fault_command(dev.stamp_ns(step), text)
-    rec.start(dev.stamp_ns(), dev.signals())
+    rec.start(dev.stamp_ns(), dev.record_values())
     assert dev.submit_fault("{fault: coil_open}", at_step=100) is None
     assert dev.submit_fault("{clear: bias, signal: pressure}", at_step=150) is None    # not active when due
     assert dev.submit_fault("{clear: coil_open}", at_step=200) is None
