@@ -31,7 +31,8 @@ from pcv_sim.units import bar
 
 _OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
 
-__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Status", "recording_status"]
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Shown", "Status",
+           "recording_status"]
 
 OK, WARN, ERROR = 0, 1, 2
 CONCERNS = ("timing", "inputs", "model", "recording")
@@ -44,6 +45,17 @@ class Status:
     level: int
     message: str
     values: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Shown:
+    """What the node showed of its device, for its diagnostics."""
+
+    time_mode: str                      # real, simulated or external_clock
+    samples_published: int
+    resets: int                         # reset service calls that acted
+    last: dict[str, float]              # the last published sample: signal -> measured value (SI)
+    waiting_for: tuple[str, ...] = ()   # simulated lockstep: the valves whose answer it waits for
 
 
 class PeriodDiagnostics:
@@ -83,13 +95,13 @@ class DiagnosticsBuilder(PeriodDiagnostics):
     """The emulator's four statuses; `build` once per diagnostics period."""
 
     def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
-              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
+              recorder: RecorderStatus | None, shown: Shown) -> list[Status]:
         dev, s = device, settings
         wall, period_steps, new = self._period(
             now, dev.steps, {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}, schedule)
-        return [self._timing(dev, s, schedule, new, wall, period_steps, time_mode or s.time_mode),
+        return [self._timing(dev, s, schedule, new, wall, period_steps, shown.time_mode),
                 self._inputs(dev, s, new),
-                self._model(dev, samples_published),
+                self._model(dev, shown.samples_published),
                 self._recording(recorder)]
 
     def _timing(self, dev: ValveDevice, s: NodeSettings, sched: RealTimeSchedule | None, new: dict[str, int],

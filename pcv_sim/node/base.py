@@ -1,5 +1,5 @@
-"""`DeviceNode`: what every node of the package does the same way, written once (the emulator's
-`EmulatorNode` and the rig's `RigNode` are made of it).
+"""`NodeBase`: what a node of the package does whatever its device, written once (the one node class
+over a device, `pcv_sim.node.device_node.DeviceNode`, is made of it).
 
 - Construction: a ParameterError while setting up is logged (stderr and /rosout), the half-built
   node destroyed, the error raised for the process to exit 2 (`pcv_sim.node.process`).
@@ -84,7 +84,7 @@ __all__ = [
     "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "JOB_SWITCH_INTERVAL",
     "LOCKSTEP_FULL_POLL",
     "LOCKSTEP_RESEND", "SERVICE_POLL_PERIOD",
-    "DeviceNode", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
+    "NodeBase", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
 ]
 
 COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
@@ -116,9 +116,9 @@ def ros_value(value: Any) -> Any:
     return list(value) if isinstance(value, tuple) else value
 
 
-class DeviceNode(Node):
-    """The common part of the package's nodes (see the module docstring). A subclass sets up in
-    `_setup(argv)` and runs in `run(stop)`."""
+class NodeBase(Node):
+    """The device-independent part of the package's node (see the module docstring). A subclass sets
+    up in `_setup(argv)` and runs in `run(stop)`."""
 
     #: What the unknown-name message adds (where the other parameters are set).
     unknown_hint = ""
@@ -154,6 +154,8 @@ class DeviceNode(Node):
         self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
         self._pending: tuple[Any, Any] | None = None                # (settings, device parameters) of the running job
         self._staged: tuple[Any, Any, Any] | None = None            # checked, about to be queued for the loop
+        self._hold: list[bool] | None = None                        # `hold_answer` of the job being applied
+        self._held: tuple[Any, Any, Any, list[bool]] | None = None  # (service, header, answer, acted) held back
         self._switch_interval = sys.getswitchinterval()
         self._deferred_callbacks: tuple[Any, ...] = (self._on_set_parameters, self._on_set_parameters_atomically)
         self._event_handlers: list[Any] = []
@@ -532,6 +534,12 @@ class DeviceNode(Node):
     def _pump(self) -> None:
         """At a step boundary: apply a finished worker job (new settings, model) and answer its request;
         start the next one. Cheap when idle: called at every wake."""
+        held = self._held
+        if held is not None:
+            if not held[3]:
+                return                      # its answer waits until what it asked for acted
+            self._held = None
+            held[0].send_response(held[2], held[1])
         job = self._job
         if job is not None:
             srv, header, answer = job
@@ -539,10 +547,14 @@ class DeviceNode(Node):
                 return
             self._job = None
             sys.setswitchinterval(self._switch_interval)
+            self._hold = None
             for apply in self._ready:
                 apply()
             self._ready.clear()
             self._pending = None
+            if self._hold is not None:
+                self._held = (srv, header, answer.result(), self._hold)
+                return
             srv.send_response(answer.result(), header)
         if self._deferred:
             srv, request, header = self._deferred.popleft()
@@ -551,6 +563,12 @@ class DeviceNode(Node):
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(JOB_SWITCH_INTERVAL)
             self._job = (srv, header, self._worker.submit(self._serve, srv, request))
+
+    def hold_answer(self) -> list[bool]:
+        """From a worker-built callback the loop applies: the request's answer waits (and the next
+        request with it) until the returned list is not empty (what the request asked for acted)."""
+        self._hold = []
+        return self._hold
 
     def _serve(self, srv: Any, request: Any) -> Any:
         """Worker thread: one deferred request; an unexpected error is logged and answered, not raised."""

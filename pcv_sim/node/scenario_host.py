@@ -2,8 +2,8 @@
 
 `pcv-sim scenario run` and `pcv_sim.testing` come here for `controller: {ros: {namespace, command, wait}}`
 (`pcv_sim.rig.scenario.run_scenario` runs callables and refuses these).
-The rig is the real rig node (`RigNode`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
-this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes it a scenario:
+The rig is the real rig node (`rig_node`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
+this process, in the scenario's namespace; a small hook (`DeviceNode.hook`) makes it a scenario:
 
 - the timeline (duties, external force, faults, sensor faults) is scheduled on `node.device` as for a
   callable (`schedule_timeline`), so it acts at the same steps;

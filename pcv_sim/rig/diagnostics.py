@@ -21,10 +21,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Status, recording_status
+from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Shown, Status, recording_status
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, OPTION_INTERFACE
 from pcv_sim.rig.rig import EXTERNAL_FORCE, Rig
+from pcv_sim.rig.settings import RigNodeSettings
 from pcv_sim.simulation.clock import RealTimeSchedule
 
 __all__ = ["RigDiagnostics"]
@@ -37,9 +38,8 @@ class RigDiagnostics(PeriodDiagnostics):
 
     _recorder: RecorderStatus | None = None          # of the build in progress
 
-    def build(self, now: float, *, rig: Rig, resets: int, samples_published: int, time_mode: str, lockstep: bool,
-              schedule: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
-              last: dict[str, float], recorder: RecorderStatus | None = None) -> list[Status]:
+    def build(self, now: float, *, device: Rig, settings: RigNodeSettings, schedule: RealTimeSchedule | None,
+              recorder: RecorderStatus | None, shown: Shown) -> list[Status]:
         """`last`: the last published (measured) sample, signal -> SI value. Never the rig's sample()
         here: computing outputs moves the coil solve's Newton start, and a run must not depend on
         when the wall-clock diagnostics came. The valve options' outputs are in `last` too
@@ -47,12 +47,13 @@ class RigDiagnostics(PeriodDiagnostics):
         the recording's status (record.enabled). The inputs' counts are the rig's (`Device.counts`,
         by input name: `<valve>.duty_cycle`, `cylinder.external_force`, `faults`...)."""
         self._recorder = recorder
+        rig, last = device, shown.last
         counts = rig.counts
         wall, period_steps, new = self._period(now, rig.steps, {f"rejected.{k}": n for k, n in counts.rejected.items()},
                                                schedule)
         statuses = [self._valve(rig, v, new, last) for v in rig.valve_names]
-        statuses.append(self._rig(rig, resets, samples_published, new, time_mode, lockstep, schedule, failure,
-                                  waiting_for, period_steps * rig.dt / wall))
+        statuses.append(self._rig(rig, shown.resets, shown.samples_published, new, shown.time_mode, settings.lockstep,
+                                  schedule, rig.fault, shown.waiting_for, period_steps * rig.dt / wall))
         return statuses
 
     def _valve(self, rig: Rig, name: str, new: dict[str, int], y: dict[str, float]) -> Status:

@@ -229,13 +229,17 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
         sched.start(time.monotonic() - 0.0024)          # 2.4 ms of wall time since the start
         node._shown = 20
         node.take_input('left.duty_cycle', 'left/duty_cycle', 0.8, {'received_timestamp': 1})   # long ago: at step 21
-        response = node._on_reset(Trigger.Request(), Trigger.Response())
-        assert response.success and 'at the next step' in response.message
+        response = node._on_reset(Trigger.Request(), Trigger.Response())    # the worker's part: prepared
+        for install in node._ready:                      # the loop's: at the step an input received now acts at
+            install()
+        node._ready.clear()
         reset_at = rig.timing.last('reset')
         assert reset_at >= 24                            # not before its reception (~2.4 ms)
         node.take_input('cylinder.external_force', 'cylinder/external_force', 300.0,
                         {'received_timestamp': 10**12})                               # after it: it stays
+        assert not response.message and node._hold == []       # the answer waits until the reset acted
         rig.advance_to(reset_at + 10)
+        assert node._hold == [True] and response.success and 'model time goes on' in response.message
         assert rig.commands['left'] == 0.5 and rig.input_values()['cylinder.external_force'] == 300.0
         assert 'reset' in rig.log[-1][1] and node.resets == 1
         rig.reset()
