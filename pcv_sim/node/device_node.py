@@ -116,11 +116,11 @@ class DeviceNode(NodeBase):
 
     def _prepare(self, params: Any, changes: dict[str, Any]) -> tuple[Any, Any]:
         """Worker thread: the device's parameters with `changes` (`kind.with_changes`: checked, a
-        ParameterError for a refused one) and the device prepared for them."""
+        ParameterError for a refused one) and what the loop installs for them (`kind.prepare`)."""
         if not changes:
             return params, None
         params = self.kind.with_changes(params, changes)
-        return params, (self.device.prepare(params), ", ".join(changes))
+        return params, (self.kind.prepare(self.device, params), ", ".join(changes))
 
     def _apply_settings(self, settings: Any) -> None:
         self.kind.apply_settings(self.device, settings)
@@ -128,9 +128,7 @@ class DeviceNode(NodeBase):
 
     def _install(self, prepared: Any) -> None:
         ready, names = prepared
-        what = self.device.install(ready)
-        self.get_logger().info(f"model parameters changed ({names}): model restarted at rest at the present "
-                               f"operating point: {what}")
+        self.get_logger().info(f"model parameters changed ({names}): {self.kind.install(self.device, ready)}")
 
     # --- inputs ----------------------------------------------------------------------------------
 

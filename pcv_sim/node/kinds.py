@@ -8,6 +8,7 @@ the start-up log line. Topics, inputs and signals are the device's own names (`p
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -17,17 +18,18 @@ from pcv_sim.device.diagnostics import DiagnosticsBuilder
 from pcv_sim.device.settings import MODEL_PREFIX, NodeSettings, SettingsSchema, model_parameters, params_with
 from pcv_sim.device.settings import SCHEMA as EMULATOR_SCHEMA
 from pcv_sim.device.valve import ValveDevice
-from pcv_sim.errors import ParameterError
+from pcv_sim.errors import CommandError, ParameterError
 from pcv_sim.io.recorder import BagRecorder
-from pcv_sim.params import ValveParams, load_params
+from pcv_sim.params import ValveParams, check_value, load_params
 from pcv_sim.rig import Rig, load_rig
 from pcv_sim.rig.bag import RigRecorder
 from pcv_sim.rig.diagnostics import RigDiagnostics
-from pcv_sim.rig.params import RigParams
+from pcv_sim.rig.params import RigParams, TimingParams
 from pcv_sim.rig.settings import SCHEMA as RIG_SCHEMA
 from pcv_sim.rig.settings import RigNodeSettings
+from pcv_sim.simulation.duty import check_duty
 
-__all__ = ["EMULATOR", "RIG", "NodeKind"]
+__all__ = ["EMULATOR", "RIG", "RIG_PREFIX", "RIG_RUNTIME", "NodeKind"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,8 @@ class NodeKind:
     device_parameters: Callable[[Any, Any], Any]              # (node, settings) -> the device's parameters
     make_device: Callable[[Any, Any], Any]                    # (settings, parameters) -> the device
     with_changes: Callable[[Any, dict[str, Any]], Any]        # (parameters, run-time changes) -> parameters
+    prepare: Callable[[Any, Any], Any]                        # (device, parameters) -> what install needs (worker)
+    install: Callable[[Any, Any], str]                        # (device, prepared) -> what changed (the loop)
     apply_settings: Callable[[Any, Any], None]                # (device, settings): changed settings into it
     chambers: Callable[[Any], dict[str, str]]                 # device -> valve: chamber (a | b)
     recorder: Callable[[Any], Callable[..., Any]]             # node -> the recorder's maker (`open_recorder`)
@@ -110,6 +114,8 @@ EMULATOR = NodeKind(
     device_parameters=_valve_parameters,
     make_device=_valve_device,
     with_changes=partial(params_with, runtime=True),
+    prepare=lambda dev, params: dev.prepare(params),
+    install=lambda dev, ready: f"model restarted at rest at the present operating point: {dev.install(ready)}",
     apply_settings=_valve_settings,
     chambers=lambda dev: {},
     recorder=_valve_recorder,
@@ -121,13 +127,51 @@ EMULATOR = NodeKind(
 # --- the rig -----------------------------------------------------------------------------------------
 
 
+#: The rig YAML's keys the rig takes while it runs, declared as `rig.<key>` from their one declaration
+#: (`pcv_sim.rig.params.TimingParams`), the YAML's value their default.
+RIG_RUNTIME = ("watchdog_timeout", "safe_duty")
+RIG_PREFIX = "rig."
+_TIMING = {f.name: f for f in dataclasses.fields(TimingParams)}
+
+
 def _rig_parameters(node: Any, settings: RigNodeSettings) -> RigParams:
-    """The rig YAML (rig_config) with this node's control_period (when set)."""
-    return settings.rig_params(load_rig(settings.rig_config or None))
+    """The rig YAML (rig_config) with this node's control_period (when set) and its `rig.<key>` parameters."""
+    rig = settings.rig_params(load_rig(settings.rig_config or None))
+    changes = {}
+    for key in RIG_RUNTIME:
+        f, value = _TIMING[key], getattr(rig.timing, key)
+        got = node.declare(f"{RIG_PREFIX}{key}", value, f"{f.metadata['description']} [{f.metadata['unit']}] (default: the rig "
+                           f"YAML's rig.{key})", is_float=True)
+        if got != value:
+            changes[f"{RIG_PREFIX}{key}"] = got
+    return _rig_with(rig, changes) if changes else rig
 
 
-def _no_changes(params: RigParams, changes: dict[str, Any]) -> RigParams:
-    raise ParameterError(f"{', '.join(changes)}: the rig's physics is set in its rig YAML at start")
+def _rig_with(rig: RigParams, changes: dict[str, Any]) -> RigParams:
+    """`rig` with `rig.<key>` values (RIG_RUNTIME), each checked by its declaration and the duty
+    ranges of the valves; ParameterError naming what is wrong."""
+    values = {}
+    for name, value in changes.items():
+        key = name.removeprefix(RIG_PREFIX)
+        if key not in RIG_RUNTIME:
+            raise ParameterError(f"{name}: the rig takes {', '.join(RIG_PREFIX + k for k in RIG_RUNTIME)} while it "
+                                 "runs; its physics is set in the rig YAML at start")
+        values[key] = check_value(name, _TIMING[key].metadata, value)
+    rig = dataclasses.replace(rig, timing=dataclasses.replace(rig.timing, **values))
+    for v in rig.valves:
+        try:
+            check_duty(rig.timing.safe_duty, v.params.command.duty_range)
+        except CommandError as err:
+            raise ParameterError(f"{RIG_PREFIX}safe_duty: {err} (valve {v.name})") from None
+    return rig
+
+
+def _rig_install(rig: Rig, params: RigParams) -> str:
+    rig.set_watchdog_timeout(params.timing.watchdog_timeout)
+    rig.set_safe_duty(params.timing.safe_duty)
+    rig.params = params
+    return (f"watchdog {params.timing.watchdog_timeout:g} s (0 = off) -> duty {params.timing.safe_duty:g}, from the "
+            "present step on")
 
 
 def _rig_recorder(node: Any) -> Callable[..., Any]:
@@ -148,11 +192,14 @@ def _describe_rig(node: Any) -> str:
 RIG = NodeKind(
     name="rig",
     schema=RIG_SCHEMA,
-    unknown_hint="; the physics is set in the rig YAML (rig_config)",
+    unknown_hint=(f"; {', '.join(RIG_PREFIX + k for k in RIG_RUNTIME)} override the rig YAML's, the rest of the "
+                  "physics is set in the rig YAML (rig_config)"),
     clock_advice="stop the other simulation, or run this rig with time_mode real",
     device_parameters=_rig_parameters,
     make_device=lambda s, params: Rig(params, seed=s.seed),
-    with_changes=_no_changes,
+    with_changes=_rig_with,
+    prepare=lambda rig, params: params,
+    install=_rig_install,
     apply_settings=lambda dev, s: None,
     chambers=lambda rig: {v.name: v.chamber for v in rig.params.valves if v.chamber in ("a", "b")},
     recorder=_rig_recorder,

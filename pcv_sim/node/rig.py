@@ -29,7 +29,9 @@ def _epilog() -> str:
     from pcv_sim.rig.settings import RIG_PARAMETERS
 
     return parameter_help(RIG_PARAMETERS, "FILE",
-                          "the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
+                          "the valves, the cylinder and the step are set in the rig YAML (rig_config); "
+                          "rig.watchdog_timeout and rig.safe_duty default to its rig.watchdog_timeout and "
+                          "rig.safe_duty and may change while the rig runs")
 
 
 def _rig_yaml_as_params_file(argv: list[str]) -> str | None:

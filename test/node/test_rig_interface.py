@@ -295,3 +295,36 @@ def test_the_rig_takes_run_time_parameter_changes_with_the_emulators_refusals(ro
         assert reason is None or reason in result.reason, (name, result.reason)
     assert wait_until(lambda: "parameters changed: diagnostics_period = 0.2" in rig.output(), 10), rig.output()
     assert "parameters changed: real_time_factor = 4.0" in rig.output()
+
+
+def test_the_rigs_watchdog_and_safe_duty_are_parameters_at_start_and_at_run_time(ros):
+    """rig.watchdog_timeout and rig.safe_duty (default: the rig YAML's) replace the YAML's when given
+    at start and act from the present step when set at run time, as the emulator's watchdog_timeout
+    and safe_duty; before a first command each valve's watchdog is waiting (it cannot fire); a safe
+    duty no valve takes and a rig key the rig is built on are refused, named."""
+    from std_msgs.msg import Float64
+
+    from pcv_sim.node.client import EmulatorClient
+
+    ns = ros.ns('rig')
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01, 'rig.watchdog_timeout': 0.2,
+                                 'diagnostics_period': 0.2})
+    client = rig_client(ros)
+    c = EmulatorClient(ns, context=ros.context, node_name='rig_watchdog', emulator_node='rig', outputs=())
+    ros.clients.append(c)
+    assert client.wait_for_rig(START), rig.output()
+    assert wait_until(lambda: 'watchdog 0.2 s' in rig.output(), 10), rig.output()
+    diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: left', (0, '', {}))[2].get('watchdog') == 'waiting')
+    assert diag is not None, rig.output()
+    assert 'watchdog fired' not in rig.output()              # 0.2 s passed long ago: no command, no firing
+    refused = c.set_parameters({'rig.safe_duty': 7.0, 'rig.time_step': 1e-5}, timeout=START)
+    assert not refused[0].successful and 'rig.safe_duty: got 7.0; accepted is' in refused[0].reason
+    assert not refused[1].successful and 'unknown parameter(s) rig.time_step' in refused[1].reason
+    ok = c.set_parameters({'rig.safe_duty': 0.25, 'rig.watchdog_timeout': 0.3}, timeout=START)
+    assert all(r.successful for r in ok), [r.reason for r in ok]
+    assert wait_until(lambda: 'watchdog 0.3 s (0 = off) -> duty 0.25' in rig.output(), 10), rig.output()
+    client.duty_pubs['left'].publish(Float64(data=0.9))     # one command, then none: fires 0.3 s later
+    assert wait_until(lambda: 'left: watchdog fired, duty -> 0.25' in rig.output(), 30), rig.output()
+    assert 'no valid left/duty_cycle command for 0.3 s' in rig.output()
+    diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: left', (0, '', {}))[2].get('watchdog') == 'fired')
+    assert diag is not None and diag[f'{ns}/rig: right'][2]['watchdog'] == 'waiting', rig.output()
