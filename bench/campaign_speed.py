@@ -1,6 +1,7 @@
 """Benchmark: campaigns, per variant and in all, against the scenario's own in-process run.
 
-    .venv-kilted/bin/python bench/campaign_speed.py [--k 20] [--scaling 100] [--big 1000] [--no-dask] [--json]
+    .venv-kilted/bin/python bench/campaign_speed.py [--k 20] [--scaling 100] [--big 1000] [--repeats 5] [--no-dask]
+                                                    [--batch B] [--json]
 
 The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthened to 2 s.
 1. Overhead per variant, one worker, this process: K runs of the scenario's own in-process run
@@ -16,13 +17,21 @@ The scenario: examples/step.yaml (the example controller, a 20 mm step) lengthen
    lockstep loop (of it the controller's calls, timed inside the loop, in the array form the
    lockstep calls when the controller has one: the timer's own cost, ~0.1 us a call, is in that
    figure) and the assertions with the row.
-3. Scaling: a Monte Carlo of `--scaling` variants on 1 and on 2 local workers (variants/s of the
-   run; the workers' set-up, one warm-up variant before the fork, counted apart).
+3. Scaling: a Monte Carlo of `--scaling` variants on 1 and on 2 local workers, `--repeats`
+   alternated pairs (the order turned each pair): the ratio of each pair's run times, its median
+   and range, each side's rate (variants/s; median, range) and CPU time per variant (this process
+   and its workers, set-up included; at the same CPU per variant no variant got costlier, and what is missing from
+   2x is time the workers did not run: idle, or taken by other processes). The workers' set-up
+   (one warm-up variant before the fork) is counted apart.
 4. Dask against local: the same campaign on a localhost Dask cluster (a `dask scheduler` and two
    `dask worker --nworkers 1 --nthreads 1`, started here, stopped after; the cluster's start-up
-   not counted; the workers' warm-up, one pinned task each, counted apart) against 2 local
-   workers, interleaved, twice each (the better of each).
+   not counted). Its first campaign on the fresh workers (their imports and kernels: the set-up;
+   its run) is reported apart; then `--repeats` alternated pairs of Dask and 2 local workers,
+   summarised as in 3 (the CPU of the cluster's processes and this one).
 5. `--big` variants of a Monte Carlo on every core: the wall time (set-up and run).
+Every campaign of 1-5 runs its variants alone (`--batch 1`, the default here) or B at a time in one
+batch (`--batch B`: `pcv_sim.rig.batch`; its compiled code is loaded, or compiled, before the first
+figure); run it both ways, alternated, to see what the batch saves.
 The machine's load average is printed with the figures: on a shared machine it changes them.
 """
 
@@ -65,16 +74,50 @@ def _mc(samples: int, seed: int = 1) -> dict:
         "valves.fluid.bulk_modulus": {"distribution": "uniform", "tolerance": "10%", "tied": True}}}}
 
 
+#: `--batch`: variants per batch in every campaign of the bench (1: each alone).
+_BATCH = [1]
+
+
 def _timed_campaign(path: Path, out: Path, **kwargs) -> tuple[float, list[dict], dict]:
     """Wall time, the per-variant timings and the summary (its setup_time_s and run_time_s)."""
     from pcv_sim.campaign.run import run_campaign
 
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    result = run_campaign(path, out, report=False, **kwargs)
+    result = run_campaign(path, out, report=False, batch=_BATCH[0], **kwargs)
     wall = time.perf_counter() - t0
     with (out / "timings.csv").open() as f:
         return wall, list(csv.DictReader(f)), result.summary
+
+
+def _measured_campaign(path: Path, out: Path, *, processes: list | None = None, **kwargs) -> dict:
+    """A campaign's run and set-up time (s, from its summary) and the CPU time (s) it took in
+    all: this process, its finished children (a local pool's workers, reaped by the end) and
+    `processes` (psutil: a Dask cluster's scheduler, nannies and workers)."""
+
+    def cpu() -> float:
+        t = os.times()
+        return t.user + t.system + t.children_user + t.children_system + \
+            sum(sum(p.cpu_times()[:2]) for p in processes or ())
+
+    c0 = cpu()
+    _, _, s = _timed_campaign(path, out, **kwargs)
+    return {"run_s": s["run_time_s"], "setup_s": s["setup_time_s"], "cpu_s": cpu() - c0}
+
+
+def _paired(pairs: list[dict[str, dict]], base: str, other: str, n: int, name: str) -> dict:
+    """Per pair the ratio of `base`'s run time to `other`'s (> 1: `other` ran faster); the
+    median and the range of the ratios and of each side's rate (variants/s); each side's CPU
+    time per variant (all the campaign's processes, set-up included, over the variants it ran)."""
+    ratios = [p[base]["run_s"] / p[other]["run_s"] for p in pairs]
+    out: dict = {name: statistics.median(ratios), f"{name}_range": (min(ratios), max(ratios)), f"{name}_all": ratios}
+    for side in (base, other):
+        rates = [n / p[side]["run_s"] for p in pairs]
+        out[f"{side}_per_s"] = statistics.median(rates)
+        out[f"{side}_per_s_range"] = (min(rates), max(rates))
+        out[f"{side}_setup_s"] = statistics.median(p[side]["setup_s"] for p in pairs)
+        out[f"{side}_cpu_per_variant_s"] = statistics.median(p[side]["cpu_s"] for p in pairs) / n
+    return out
 
 
 class _Timed:
@@ -161,14 +204,21 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=20, help="variants for the overhead per variant")
     ap.add_argument("--scaling", type=int, default=100, help="variants for 1 vs 2 workers and Dask vs local")
     ap.add_argument("--big", type=int, default=1000, help="variants of the large Monte Carlo (0: skip)")
+    ap.add_argument("--repeats", type=int, default=5,
+                    help="alternated pairs for 1 vs 2 workers and for Dask vs local (medians and ranges)")
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--batch", type=int, default=1, metavar="B", help="variants per batch in every campaign (1: alone)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    _BATCH[0] = args.batch
 
+    import pcv_sim
     from pcv_sim.rig.rig import Rig
     from pcv_sim.rig.scenario import load_scenario, run_scenario
 
-    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count()}
+    # which build ran: a worktree on PYTHONPATH for a before/after pair
+    out: dict = {"load_before": os.getloadavg(), "cpus": os.cpu_count(), "package": str(Path(pcv_sim.__file__).parent),
+                 "batch": args.batch}
     tmp = Path(tempfile.mkdtemp(prefix="campaign_speed_"))
     try:
         scen = _scenario(tmp)
@@ -180,6 +230,7 @@ def main() -> None:
         rig = Rig(sc.rig, seed=sc.seed)
         run_scenario(sc, rig=rig)                 # kernels loaded, caches warm
         _timed_campaign(sweep, tmp / "warm", workers=1)
+        _timed_campaign(mc, tmp / "warm", workers=1)          # a batch's kernel loaded (or compiled) too
         own_kept, own_full, camp_sweep, camp_mc = [], [], [], []
         timings: list[dict] = []
         for _ in range(2):
@@ -208,36 +259,44 @@ def main() -> None:
                         "monte_carlo_run_median_s": statistics.median(run),
                         "setup_share": statistics.median(setup) / (statistics.median(setup) + statistics.median(run)),
                         "parts": _where(mc, k - 1)}
-        n = args.scaling
+        n, reps = args.scaling, args.repeats
         scal = _campaign(tmp, "scaling", _mc(n, seed=2))
-        w1, _, s1 = _timed_campaign(scal, tmp / "o1", workers=1)
-        w2, _, s2 = _timed_campaign(scal, tmp / "o2", workers=2)
+        # Alternated pairs, the order turned each time (1-2, 2-1, ...): a change of the machine's
+        # load in one pair's seconds hits both sides about equally; the ratio is taken per pair.
+        pairs: list[dict[str, dict]] = []
+        for r in range(reps):
+            pair = {}
+            for w in ((1, 2) if r % 2 == 0 else (2, 1)):
+                pair[str(w)] = _measured_campaign(scal, tmp / f"o{w}", workers=w)
+            pairs.append(pair)
         same = (tmp / "o1" / "results.csv").read_bytes() == (tmp / "o2" / "results.csv").read_bytes()
-        out["scaling"] = {"variants": n, "one_worker_per_s": n / s1["run_time_s"],
-                          "two_workers_per_s": n / s2["run_time_s"], "speed_up": s1["run_time_s"] / s2["run_time_s"],
-                          "two_workers_setup_s": s2["setup_time_s"], "wall_one_s": w1, "wall_two_s": w2,
-                          "same_table": same}
+        out["scaling"] = {"variants": n, "repeats": reps, "same_table": same,
+                          **_paired(pairs, "1", "2", n, "speed_up")}
         if not args.no_dask:
+            import psutil
+
             from pcv_sim.testing import dask_cluster
 
             (tmp / "dask").mkdir()
-            runs: dict[str, list[dict]] = {"dask": [], "local": []}
+            dpairs: list[dict[str, dict]] = []
             with dask_cluster(tmp / "dask", 2) as address:
-                for r in range(2):
-                    _, _, sd = _timed_campaign(scal, tmp / f"od{r}", scheduler=address)
-                    _, _, sl = _timed_campaign(scal, tmp / f"ol{r}", workers=2)
-                    runs["dask"].append(sd)
-                    runs["local"].append(sl)
-            same = all((tmp / f"od{r}" / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
-                       for r in range(2))
-            best = {key: min(v, key=lambda x: x["run_time_s"]) for key, v in runs.items()}
-            out["dask"] = {"variants": n, "dask_per_s": n / best["dask"]["run_time_s"],
-                           "local_two_per_s": n / best["local"]["run_time_s"],
-                           "dask_vs_local": best["local"]["run_time_s"] / best["dask"]["run_time_s"],
-                           "dask_setup_s": [x["setup_time_s"] for x in runs["dask"]],
-                           "local_setup_s": [x["setup_time_s"] for x in runs["local"]],
-                           "dask_run_s": [x["run_time_s"] for x in runs["dask"]],
-                           "local_run_s": [x["run_time_s"] for x in runs["local"]], "same_table": same}
+                cluster = psutil.Process().children(recursive=True)
+                # The first campaign on fresh workers: their imports and kernels are its set-up,
+                # and its run is reported apart (a new process's first variants).
+                first = _measured_campaign(scal, tmp / "od_first", scheduler=address, processes=cluster)
+                for r in range(reps):
+                    pair = {}
+                    for kind in (("dask", "local") if r % 2 == 0 else ("local", "dask")):
+                        if kind == "dask":
+                            pair[kind] = _measured_campaign(scal, tmp / "od", scheduler=address, processes=cluster)
+                        else:
+                            pair[kind] = _measured_campaign(scal, tmp / "ol", workers=2)
+                    dpairs.append(pair)
+            same = all((tmp / d / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
+                       for d in ("od", "od_first"))
+            out["dask"] = {"variants": n, "repeats": reps, "same_table": same,
+                           "first_setup_s": first["setup_s"], "first_per_s": n / first["run_s"],
+                           **_paired(dpairs, "local", "dask", n, "dask_vs_local")}
         if args.big:
             big = _campaign(tmp, "big", _mc(args.big, seed=3))
             wb, _, sb = _timed_campaign(big, tmp / "ob", workers=0)
@@ -250,7 +309,8 @@ def main() -> None:
         print(json.dumps(out, indent=1))
         return
     o = out["overhead"]
-    print(f"load average before {out['load_before']}, after {out['load_after']}; {out['cpus']} CPUs")
+    print(f"load average before {out['load_before']}, after {out['load_after']}; {out['cpus']} CPUs; "
+          f"package {out['package']}, batch {out['batch']}")
     print(f"per variant of a 2 s scenario, one worker (K = {o['k']}): own run on a kept rig "
           f"{o['own_kept_rig_s'] * 1e3:.1f} ms, own load + new rig + run {o['own_load_and_new_rig_s'] * 1e3:.1f} ms; "
           f"campaign sweep {o['campaign_sweep_s'] * 1e3:.1f} ms ({o['sweep_vs_own_kept']:.3f}x the kept-rig run), "
@@ -262,14 +322,22 @@ def main() -> None:
     print("  parts (median): " + ", ".join(f"{name} {v * 1e3:.2f} ms" if name.endswith("_s") else f"{name} {v:.1f}"
                                            for name, v in w["parts"].items()))
     s = out["scaling"]
-    print(f"{s['variants']} variants: 1 worker {s['one_worker_per_s']:.2f}/s, 2 workers {s['two_workers_per_s']:.2f}/s "
-          f"({s['speed_up']:.2f}x; set-up of the 2 workers {s['two_workers_setup_s']:.2f} s apart); "
-          f"same table: {s['same_table']}")
+    print(f"{s['variants']} variants, {s['repeats']} alternated pairs: 2 workers against 1 {s['speed_up']:.2f}x "
+          f"(median; range {s['speed_up_range'][0]:.2f}-{s['speed_up_range'][1]:.2f}x); 1 worker "
+          f"{s['1_per_s']:.1f}/s ({s['1_per_s_range'][0]:.1f}-{s['1_per_s_range'][1]:.1f}), 2 workers "
+          f"{s['2_per_s']:.1f}/s ({s['2_per_s_range'][0]:.1f}-{s['2_per_s_range'][1]:.1f}); CPU per variant "
+          f"{s['1_cpu_per_variant_s'] * 1e3:.1f} / {s['2_cpu_per_variant_s'] * 1e3:.1f} ms; set-up of the 2 workers "
+          f"{s['2_setup_s']:.2f} s apart; same table: {s['same_table']}")
     if "dask" in out:
         d = out["dask"]
-        print(f"Dask (2 workers) {d['dask_per_s']:.2f}/s vs local 2 workers {d['local_two_per_s']:.2f}/s "
-              f"({d['dask_vs_local']:.2f}x; set-up apart: Dask {d['dask_setup_s']}, local {d['local_setup_s']} s); "
-              f"same table as local: {d['same_table']}")
+        print(f"Dask (2 workers) against 2 local workers, {d['repeats']} alternated pairs: {d['dask_vs_local']:.2f}x "
+              f"(median; range {d['dask_vs_local_range'][0]:.2f}-{d['dask_vs_local_range'][1]:.2f}x); Dask "
+              f"{d['dask_per_s']:.1f}/s ({d['dask_per_s_range'][0]:.1f}-{d['dask_per_s_range'][1]:.1f}), local "
+              f"{d['local_per_s']:.1f}/s ({d['local_per_s_range'][0]:.1f}-{d['local_per_s_range'][1]:.1f}); CPU per "
+              f"variant Dask {d['dask_cpu_per_variant_s'] * 1e3:.1f} ms, local "
+              f"{d['local_cpu_per_variant_s'] * 1e3:.1f} ms; set-up apart: Dask {d['dask_setup_s']:.2f} s, local "
+              f"{d['local_setup_s']:.2f} s; the first campaign on fresh workers: set-up {d['first_setup_s']:.2f} s, "
+              f"{d['first_per_s']:.1f}/s; same table as local: {d['same_table']}")
     if "big" in out:
         b = out["big"]
         print(f"{b['variants']}-variant Monte Carlo of a 2 s scenario on {b['workers']} workers: {b['wall_s']:.1f} s "

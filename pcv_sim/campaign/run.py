@@ -55,12 +55,14 @@ class CampaignResult:
 def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, workers: int = 0, scheduler: str | None = None,
                  resume: bool = False, report: bool = True,
                  on_row: Callable[[dict[str, Any]], None] | None = None,
-                 on_start: Callable[[int], None] | None = None) -> CampaignResult:
+                 on_start: Callable[[int], None] | None = None, batch: int = 0) -> CampaignResult:
     """Run `campaign` (a file or a loaded Campaign) into the directory `out`: on `workers`
     local processes (0: every core; 1: this process) or on the Dask cluster at `scheduler`.
     `on_start(n)` is told how many variants will run (with `resume`, the missing ones), `on_row`
-    each finished row. A KeyboardInterrupt keeps every finished variant (the result says
-    `interrupted`)."""
+    each finished row. `batch`: variants run `batch` at a time in one batch (`pcv_sim.rig.batch`;
+    the same rows; 1: each alone; 0: two at a time where the batch's compiled code is at hand,
+    `pcv_sim.campaign.runner.run_chunk`). A KeyboardInterrupt keeps every finished variant (the
+    result says `interrupted`)."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     variants = Variants(c, validate=True)      # every value checked before any variant runs
     out = Path(out)
@@ -83,9 +85,9 @@ def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, workers: i
 
     try:
         if scheduler is not None:
-            run_dask(c, todo, scheduler, add, on_ready)
+            run_dask(c, todo, scheduler, add, on_ready, batch=batch)
         else:
-            run_local(c, todo, workers or os.cpu_count() or 1, add, on_ready)
+            run_local(c, todo, workers or os.cpu_count() or 1, add, on_ready, batch=batch)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -1,13 +1,16 @@
 """Run a campaign: one scenario over many variants of its valves, plant, inputs and faults.
 
-    pcv-sim campaign run FILE.yaml [--workers N] [--scheduler tcp://HOST:PORT] [--out DIR] [--json] [--resume]
+    pcv-sim campaign run FILE.yaml [--workers N] [--batch B] [--scheduler tcp://HOST:PORT] [--out DIR] [--json]
+                                   [--resume]
     pcv-sim campaign run FILE.yaml --variant K [--report r.html] [--bag b]
 
 The campaign file (`pcv_sim.campaign.spec`) names a scenario and what varies: a sweep, a Monte
 Carlo of tolerances, a fault matrix. Every variant runs in lockstep like `pcv-sim scenario run`
 of the scenario with its values written into the files. By default on every core of this
 machine (worker processes that load the compiled kernels once); with --scheduler on a Dask
-cluster. Out: DIR/results.csv (a row per variant), DIR/report.html, the summary on stdout.
+cluster. --batch B steps B variants in one compiled call per control period (the same results;
+the first use of a batch of this rig compiles for minutes); by default two where that is compiled
+already, else each alone. Out: DIR/results.csv (a row per variant), DIR/report.html, the summary on stdout.
 Ctrl-C (SIGINT) or SIGTERM keeps every finished variant; --resume runs only the missing ones. --variant K re-runs
 variant K alone (its report and bag), with the same assertion values as in the campaign.
 Exit status: 0 the campaign's gate holds, 1 it does not, 2 a bad file or options, 130 interrupted.
@@ -38,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", type=Path, metavar="FILE.yaml")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="local worker processes (default: every core; 1 runs in this process)")
+    p.add_argument("--batch", type=int, default=0, metavar="B",
+                   help="variants stepped together in one compiled call (1: each alone; 0: two where that "
+                        "batch's compiled code is in the kernel cache, default; the same results)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:PORT)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -127,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
                          "no --config")
     if args.workers < 0:
         raise UsageError(f"--workers {args.workers}: accepted is a number >= 1 (0: every core)")
+    if args.batch < 0:
+        raise UsageError(f"--batch {args.batch}: accepted is a number >= 1 (0: auto)")
     if args.variant is None and (args.report is not None or args.bag is not None):
         raise UsageError("--report/--bag: with --variant K (the campaign's own report is DIR/report.html)")
     campaign = load_campaign(args.path)
@@ -140,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         with _interrupt_on_signals():
             result = run_campaign(campaign, out, workers=args.workers, scheduler=args.scheduler,
-                                  resume=args.resume, on_row=progress.update, on_start=progress.start)
+                                  resume=args.resume, on_row=progress.update, on_start=progress.start,
+                                  batch=args.batch)
     finally:
         progress.close()
     s = result.summary

@@ -11,8 +11,9 @@ signal of each run as DIR/<scenario>.csv.
 
 A ROS controller (`controller: {ros: ...}` in the file, or `--ros NAMESPACE` for any scenario):
 the rig node runs here, over DDS. A controller the scenario starts (`command`) runs in a ROS
-domain of the runner's own (one per parallel worker: 215 .. 232, localhost only), so parallel
-scenarios never see each other; a node the user started is reached in $ROS_DOMAIN_ID, and the
+domain of the runner's own (one per parallel worker: 215 .. 232, localhost only, each reserved on
+the machine while its process lives), so parallel scenarios, also other runs' on the machine,
+never see each other; a node the user started is reached in $ROS_DOMAIN_ID, and the
 scenarios of a directory that use such nodes run one after the other (one rig, one /clock, in
 that domain at a time); the example node starts afresh when the next one's time starts at 0.
 """
@@ -20,9 +21,12 @@ that domain at a time); the example node starts afresh when the next one's time 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import fcntl
 import multiprocessing
 import os
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -56,20 +60,44 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 DOMAINS = range(215, 233)   # ROS domains for controllers the runner starts: above the ephemeral ports' range
-_worker_domain: int | None = None
+_DOMAIN_LOCKS = Path(tempfile.gettempdir()) / "pcv_sim-ros-domains"
+_reserved: tuple[int, int, int] | None = None     # (pid, domain, the locked file's descriptor)
 
 
-def private_domain(slot: int) -> int:
-    return DOMAINS[slot % len(DOMAINS)]
+def reserve_domain(preferred: int = 0) -> int:
+    """This process's ROS domain (of DOMAINS) for the controllers it starts, reserved on the
+    whole machine: an exclusive lock on one file per domain, held until the process ends
+    (flock: released however it ends, and not shared with a forked child, which reserves its
+    own). Two rigs in one domain see each other's /clock and controllers, and discovery is
+    localhost-wide: runners of other users, CI jobs or test runs on the machine must not pick the
+    same one. Tried from DOMAINS[preferred % len] on; with every one taken, waits for that one."""
+    global _reserved
+    if _reserved is not None and _reserved[0] == os.getpid():
+        return _reserved[1]
+    if not _DOMAIN_LOCKS.is_dir():
+        _DOMAIN_LOCKS.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(OSError):           # every user's runners lock files in it
+            os.chmod(_DOMAIN_LOCKS, 0o1777)
+    order = [DOMAINS[(preferred + i) % len(DOMAINS)] for i in range(len(DOMAINS))]
+    for i, domain in enumerate([*order, order[0]]):
+        fd = os.open(_DOMAIN_LOCKS / f"{domain}.lock", os.O_RDONLY | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (fcntl.LOCK_NB if i < len(order) else 0))
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        _reserved = (os.getpid(), domain, fd)
+        return domain
+    raise AssertionError("unreachable: the last attempt blocks until it holds the lock")
 
 
 def _init_worker(counter: Any, base: int) -> None:
-    """Each worker process of a directory run takes a ROS domain of its own."""
-    global _worker_domain
+    """Each worker process of a directory run reserves a ROS domain of its own (tried from one
+    per worker on, so that the workers of one run rarely try the same one first)."""
     with counter.get_lock():
         slot = counter.value
         counter.value += 1
-    _worker_domain = private_domain(base + slot)
+    reserve_domain(base + slot)
 
 
 def _load(path: Path, ros: str | None, wait: float) -> Any:
@@ -91,7 +119,7 @@ def _load(path: Path, ros: str | None, wait: float) -> Any:
 def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = None, wait: float = 30.0,
          domain: int | None = None, csv: Path | None = None) -> dict[str, Any]:
     """Load, run, record one scenario; a dict (picklable) with `status` 0/1/2. A controller the
-    scenario starts runs in ROS domain `domain` (None: this worker's, or one from the pid)."""
+    scenario starts runs in ROS domain `domain` (None: the one this process reserved)."""
     from pcv_sim.errors import PcvSimError
     from pcv_sim.rig.record import write_bag, write_csv
     from pcv_sim.rig.report import render_html
@@ -102,7 +130,7 @@ def _one(path: Path, bag: Path | None, report: Path | None, ros: str | None = No
         scenario = _load(path, ros, wait)
         if scenario.ros is not None and scenario.ros.command:
             if domain is None:
-                domain = _worker_domain if _worker_domain is not None else private_domain(os.getpid())
+                domain = reserve_domain(os.getpid())
         else:
             domain = None                  # a node the user started: in $ROS_DOMAIN_ID
         if scenario.ros is not None:

@@ -25,6 +25,9 @@ in that order (NaN for the setpoint when the run has none); `step` writes the du
 valves `commanded` and then the values of `flags`, in those orders, into the list `out`. Each
 is then taken as the dict form's would be (a refused duty counted, the last valid one kept).
 It saves building and parsing two dicts each period; None keeps the dict form.
+
+`lockstep_periods` is the same run as a generator, which a batch of rigs (`pcv_sim.rig.batch`)
+drives one control period at a time; alone it never pauses (`run_lockstep`).
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import functools
 import math
 import operator
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Generator, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,7 +49,7 @@ from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.profiles import Profile
 from pcv_sim.rig.rig import InputHook, Rig
 
-__all__ = ["Controller", "ControllerError", "RigRun", "run_lockstep"]
+__all__ = ["Batched", "Controller", "ControllerError", "RigRun", "lockstep_periods", "run_lockstep"]
 
 Controller = Callable[[float, Mapping[str, float]], Any]
 
@@ -99,13 +102,39 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                  setpoint: Callable[[float], float] | None = None) -> RigRun:
     """Run `rig` from its present state for `duration` s in lockstep with `controller` (None:
     the duties come from the rig's schedule alone). Returns every control instant's samples."""
+    periods = lockstep_periods(rig, controller, duration, setpoint=setpoint)
+    try:
+        next(periods)               # alone, the run never pauses: it returns at once
+    except StopIteration as done:
+        run: RigRun = done.value
+        return run
+    raise AssertionError("a lockstep run alone paused")
+
+
+#: What a batched lockstep run sends a copy at a control period it may take in the batch: the
+#: norm the batch's compiled call returned (its sample already in the copy's row); None: the copy
+#: takes the period alone.
+Batched = float | None
+
+
+def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *,
+                     setpoint: Callable[[float], float] | None = None, rows: np.ndarray | None = None,
+                     batched: bool = False) -> Generator[int, Batched, RigRun]:
+    """`run_lockstep` as a generator that returns the run. Alone (`batched` False) it never yields.
+    In a batch (`pcv_sim.rig.batch`), at every control period k it yields the period before which
+    it could go on in the batch (k when it cannot: something other than its array form's duties
+    falls due, a sensor fault is active, the last sample) and is sent the batch's norm after the
+    batch took period k for it (its true sample in `rows[k]`, its state stepped one period and the
+    step after the sample, in the arrays the batch holds and has bound `rig.sim` to), or None:
+    it takes period k alone, on its own arrays. `rows`: the (n + 1, signals) array the true
+    samples go into (a new one by default)."""
     T = rig.params.timing.control_period
     per = rig.params.steps_per_period
     n = round(duration / T)
     k0 = rig.steps
     names = rig.signals
     valves = rig.valve_names
-    true = np.empty((n + 1, len(names)))
+    true = np.empty((n + 1, len(names))) if rows is None else rows
     measured: dict[int, np.ndarray] = {}    # the rows a sensor fault made differ from the true ones
     duty_rows: list[Any] = []
     in_force = operator.itemgetter(*valves)
@@ -170,10 +199,12 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
         except CommandError:
             pass
 
+    got: Batched = None
     wall0 = time.perf_counter()
     try:
         k = 0
         while k <= n:
+            end = k
             if array_step is not None and hook is None and not active and k < n and sim.steps <= k0 + k * per:
                 # A stretch of periods in which nothing but the array form's duties falls due (the
                 # fast path's tests below, made once for the stretch: the step before which a fed
@@ -182,16 +213,30 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                 fs = rig._feed_steps
                 r = rig._feed_next
                 due = min(horizon, queue.next_step, fs[r] if r < len(fs) else NEVER)
-                start, end = k, min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
+                end = min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
+            if batched and end <= k:
+                # Not in the batch: this period alone. (The batch may have bound the simulator's
+                # arrays to its own, or given them back, while this run waited: u read again.)
+                got = yield k
+                u = sim.u
+            if end > k:
+                start = k
                 now = sim.steps
                 feed_i, feed_v = rig._feed_i, rig._feed_v
+                assert array_step is not None
                 for k in range(start, end):
                     at = k0 + k * per
                     y = true[k]
-                    try:
-                        norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
-                    except MODEL_FAILURES as err:
-                        rig._fail(f"model step failed ({type(err).__name__}: {err})")
+                    if batched:             # each period in the batch (got: its norm) or alone (None)
+                        got = yield end
+                        u = sim.u
+                    if got is None:
+                        try:
+                            norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
+                        except MODEL_FAILURES as err:
+                            rig._fail(f"model step failed ({type(err).__name__}: {err})")
+                    else:
+                        norm = got
                     sim.steps = now = at + 1
                     if not isfinite(norm):
                         rig._check_finite()
@@ -215,9 +260,8 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
                         else:
                             refuse(j, key, value)
                     duty_rows.append(in_force(in_force_now))
-                if end > start:
-                    k = end
-                    continue
+                k = end
+                continue
             at = k0 + k * per
             answer = k < n and controller is not None
             last = at + 1 if answer else at
@@ -338,6 +382,7 @@ def run_lockstep(rig: Rig, controller: Controller | None, duration: float, *,
         sync()                                  # the watchdogs know every command, also after an error
     wall = time.perf_counter() - wall0
     times = (k0 + np.arange(n + 1) * per) * rig.dt
+    true = np.ascontiguousarray(true)           # a batch's rows are a strided view of its samples
     meas = true.copy()
     for k, values in measured.items():
         meas[k] = values

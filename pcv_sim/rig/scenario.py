@@ -102,6 +102,7 @@ from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [
     "ASSERTION_TYPES",
+    "RUN_STOPS",
     "Outcome",
     "RosController",
     "Scenario",
@@ -111,6 +112,8 @@ __all__ = [
     "run_scenario",
     "scenario_from_mapping",
     "scenario_result",
+    "scenario_stopped",
+    "schedule_timeline",
 ]
 
 _TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions",
@@ -723,15 +726,24 @@ def run_scenario(scenario: Scenario, controller: Controller | None = None, *, ri
     else:
         rig.reset()
     schedule_timeline(rig, scenario)
-    path = str(scenario.path) if scenario.path else ""
     wall0 = time.perf_counter()
     try:
         run = run_lockstep(rig, controller, scenario.duration, setpoint=scenario.setpoint_function())
-    except (RigError, CommandError, FaultError) as err:
-        wall = time.perf_counter() - wall0
-        return ScenarioResult(scenario.name, path, False, [], scenario.duration / wall if wall else math.inf, wall,
-                              f"the run stopped at t = {rig.time:.4f} s: {err}")
+    except RUN_STOPS as err:
+        return scenario_stopped(scenario, rig, err, time.perf_counter() - wall0)
     return scenario_result(scenario, run)
+
+
+#: What stops a scenario's run as a failed run with its reason (anything else the controller
+#: raised propagates).
+RUN_STOPS = (RigError, CommandError, FaultError)
+
+
+def scenario_stopped(scenario: Scenario, rig: Rig, err: Exception, wall: float) -> ScenarioResult:
+    """The result of a run that one of `RUN_STOPS` stopped (`err`) after `wall` s."""
+    return ScenarioResult(scenario.name, str(scenario.path) if scenario.path else "", False, [],
+                          scenario.duration / wall if wall else math.inf, wall,
+                          f"the run stopped at t = {rig.time:.4f} s: {err}")
 
 
 def scenario_result(scenario: Scenario, run: RigRun) -> ScenarioResult:
