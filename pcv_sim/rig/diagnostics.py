@@ -5,10 +5,11 @@ message, string key values with SI units in the names); the node turns them into
 DiagnosticArray. Names `<node full name>: <valve>` and `<node full name>: rig`, hardware_id the
 node's full name (REP 107 style, as the emulator's).
 
-    <valve>  WARN while its watchdog has fired, while a fault is active on it or on one of its
-             signals, or when its duty commands or its options' inputs were refused in the period;
-             with the valve options on, their signals (`ambient_temperature_k`, `coil_temperature_k`,
-             `coil_resistance_ohm`, `core_position_m`... as the emulator's) and input counts.
+    <valve>  the emulator's `inputs` status for this valve (`pcv_sim.device.diagnostics.valve_inputs`:
+             watchdog, duty in force and last valid, faults on it or its signals, its inputs' counts,
+             its options' temperatures; WARN while its watchdog has fired, a fault is active on it or
+             its inputs were refused in the period), its chamber, its last published signals and its
+             options' outputs (`coil_temperature_k`, `coil_resistance_ohm`, `core_position_m`).
     rig      ERROR when the model ran away (non-finite: nothing is published any more) or the
              recording failed; WARN while any fault is active, any watchdog has fired, fault or
              external force commands were refused in the period, (real time) steps were skipped in
@@ -21,7 +22,16 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Shown, Status, recording_status
+from pcv_sim.device.diagnostics import (
+    ERROR,
+    OK,
+    WARN,
+    PeriodDiagnostics,
+    Shown,
+    Status,
+    recording_status,
+    valve_inputs,
+)
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, OPTION_INTERFACE
 from pcv_sim.rig.rig import EXTERNAL_FORCE, Rig
@@ -57,41 +67,13 @@ class RigDiagnostics(PeriodDiagnostics):
         return statuses
 
     def _valve(self, rig: Rig, name: str, new: dict[str, int], y: dict[str, float]) -> Status:
-        faults = [f"{kind}@{target}" for (target, kind) in rig.faults
-                  if target == name or target.startswith(f"{name}.")]
-        problems = []
-        if rig.watchdog_fired[name]:
-            problems.append(f"watchdog: no duty command for {rig.params.timing.watchdog_timeout:g} s, "
-                            f"safe duty {rig.params.timing.safe_duty:g}")
-        if faults:
-            problems.append(f"fault(s) active: {', '.join(faults)}")
-        counts = rig.counts
-        duty = f"{name}.{DUTY_CYCLE}"
-        if new.get(f"rejected.{duty}"):
-            problems.append(f"{new[f'rejected.{duty}']} duty command(s) rejected")
-        options = [o.partition(".")[2] for o in rig.option_inputs if o.startswith(f"{name}.")]
-        for option in options:
-            if new.get(f"rejected.{name}.{option}"):
-                problems.append(f"{new[f'rejected.{name}.{option}']} {option} input(s) rejected")
-        slot = rig.params.valve(name)
-        values: dict[str, Any] = {
-            "chamber": slot.chamber,
-            "duty_command": f"{rig.commands[name]:g}",
-            "duty_in_force": f"{rig.duties[name]:g}",
-            "watchdog": rig.watchdogs[name].state,
-            "faults": ", ".join(faults),
-            "accepted.duty_cycle": counts.accepted.get(duty, 0),
-            "rejected.duty_cycle": counts.rejected.get(duty, 0),
-        }
+        problems, values = valve_inputs(rig, name, new)     # the emulator's inputs status, for this valve
+        values["chamber"] = rig.params.valve(name).chamber
         for key, signal, fmt in (("pressure_pa", "pressure", ".1f"), ("current_a", "current", ".5f"),
                                  ("spool_position_m", "spool_position", ".4e")):
             v = y.get(f"{name}.{signal}")
             values[key] = format(v, fmt) if v is not None and not math.isnan(v) else ""
-        for option in options:                          # the valve options' inputs in force, K
-            values[f"{option}_k"] = f"{rig.temperature(name, option):.2f}"
-            values[f"accepted.{option}"] = counts.accepted.get(f"{name}.{option}", 0)
-            values[f"rejected.{option}"] = counts.rejected.get(f"{name}.{option}", 0)
-        for signal in rig.option_outputs:               # and their outputs, as last published
+        for signal in rig.option_outputs:               # the options' outputs, as last published
             if signal.startswith(f"{name}.") and (v := y.get(signal)) is not None:
                 option = signal.partition(".")[2]
                 values[f"{option}_{_OPTION_UNITS[option].lower()}"] = f"{v:.6g}"
