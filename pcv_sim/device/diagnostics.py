@@ -202,7 +202,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         values.update({
             "duty_effective": f"{last.duty:g}" if last else "",
             "load_flow_m3s": f"{dev.load_flow:g}",
-            "supply_pressure_pa": f"{dev.stepper.supply_pressure:g}",
+            "supply_pressure_pa": f"{dev.input_values()['supply_pressure']:g}",
             "last_rejection": dev.counts.last_rejection,
             f"accepted.{FAULTS}": dev.counts.accepted.get(FAULTS, 0),
             f"rejected.{FAULTS}": dev.counts.rejected.get(FAULTS, 0),
@@ -216,7 +216,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         values: dict[str, Any] = {
             "model": "fault" if dev.fault else "ok",
             "fault_reason": dev.fault or "",
-            "integrator": dev.stepper.integrator,
+            "integrator": dev.sim.integrator,
             "pressure_pa": f"{last.pressure:.1f}" if last else "",
             "pressure_bar": f"{bar(last.pressure):.3f}" if last else "",
             "current_a": f"{last.current:.5f}" if last else "",

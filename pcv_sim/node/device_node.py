@@ -174,7 +174,7 @@ class DeviceNode(NodeBase):
             return response
 
         def reset() -> None:
-            response.message = dev.install(prepared)
+            response.message = f"{dev.install(prepared)}; model time goes on"
             response.success = True
             self.resets += 1
             if self.recorder is not None:

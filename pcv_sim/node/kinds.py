@@ -100,7 +100,7 @@ def _valve_recorder(node: Any) -> Callable[..., Any]:
 def _describe_valve(node: Any) -> str:
     s, dev = node.settings, node.device
     return (f"{_mode(node)}, samples at {s.publish_rate:g} Hz, model step {dev.dt * 1e3:g} ms "
-            f"({dev.stepper.integrator}), watchdog {s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config "
+            f"({dev.sim.integrator}), watchdog {s.watchdog_timeout:g} s -> duty {s.safe_duty:g}, valve config "
             f"{s.valve_config or 'shipped default'}, {_faults(s)}")
 
 

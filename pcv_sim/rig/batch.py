@@ -14,9 +14,13 @@ copy would take the lockstep's fast path (nothing but its controller's array-for
 due) is taken by the batch's compiled call for all, its sample written into each copy's row;
 any other period (a fault's onset, a watchdog deadline, a fed input, a sensor fault, the last
 sample, a copy without an array form) every copy takes alone, on its own arrays, as it would in
-a run of its own. While the batch holds a copy's state, the copy's `Simulator` arrays are views
-of the batch's arena (`bind`), so whatever the rig writes (its duties) goes where the batch
-steps; they are copied back before the copy steps alone (`unbind`). The same operations on the
+a run of its own. So a batch wins where such periods are rare: a setpoint profile costs nothing
+(the lockstep evaluates it per copy), a profile of a model input that changes every period (an
+external force, a duty) makes every period one taken alone.
+
+While the batch holds a copy's state, the copy's `Simulator` arrays are views of the batch's
+arena (`bind`), so whatever the rig writes (its duties) goes where the batch steps; they are
+copied back before the copy steps alone (`unbind`). The same operations on the
 same numbers in either case: every copy's run is bit for bit its run alone (the tests compare
 both). A period whose batched call fails or runs away in any copy is taken again by every copy
 alone from the state before it (the batch keeps that state), so a copy that runs away fails

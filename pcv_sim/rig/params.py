@@ -106,9 +106,6 @@ def _slot(name: Any, raw: Any, base: Path, params: ValveParams | None = None) ->
     config = slot.config
     if params is None:
         params = load_params(base / config if config else None)
-    if params.command.duty_fall_rate_limit is not None:
-        raise ParameterError(f"{path}.config: {config or 'the valve YAML'} sets command.duty_fall_rate_limit; "
-                             "the rig applies each duty command at its step: accepted is null")
     return ValveSlot(name, params, slot.chamber, slot.initial_duty, config)
 
 

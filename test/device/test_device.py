@@ -231,8 +231,7 @@ def test_measure_shows_the_sensor_faults_and_leaves_the_true_sample(dev):
 
 def test_a_model_that_runs_away_sets_the_fault_and_run_to_hands_back_nothing_after_it(dev):
     dev.run_to(dev.sample_every)
-    x = dev.sim.x if isinstance(dev, Rig) else dev.stepper.sim.x
-    x[0] = np.nan
+    dev.sim.x[0] = np.nan
     assert dev.run_to(5 * dev.sample_every) == []                 # no exception: the fault state
     assert dev.fault is not None and dev.steps == 5 * dev.sample_every
     dev.submit(_duty_input(dev), 0.6, at_step=dev.steps + 2)       # inputs still act at their steps
@@ -243,13 +242,37 @@ def test_a_model_that_runs_away_sets_the_fault_and_run_to_hands_back_nothing_aft
     assert [s.step for s in dev.run_to(8 * dev.sample_every)] == [8 * dev.sample_every]
 
 
-def test_the_rig_refuses_new_parameters_at_run_time(rig):
+def test_new_valve_parameters_at_run_time_restart_the_rig_as_a_fresh_one(rig):
+    """The rig restarts at its start (initial duties, piston at rest at its initial position) with
+    the new parameters, model time going on: from there the same numbers as a rig built with them."""
+    heavier = load_rig(valve_changes={"left": {("spool", "mass"): 0.05}})
+    rig.submit("left.duty_cycle", 0.7, at_step=1)
+    rig.run_to(500)
+    original = rig.params
+    rig.install(rig.prepare(heavier))
+    try:
+        _same_as_a_fresh_rig(rig, heavier)
+    finally:
+        rig.install(rig.prepare(original))          # the module's rig, as the other tests know it
+    assert rig.valve_specs[0].params.spool.mass == original.valves[0].params.spool.mass
+
+
+def _same_as_a_fresh_rig(rig, heavier):
+    import dataclasses
+
     from pcv_sim.errors import ParameterError
 
-    other = load_rig()
-    with pytest.raises(ParameterError, match="cannot change while it runs"):
-        rig.prepare(other)
-    assert rig.prepare() is rig.params
+    assert rig.steps == 500 and rig.params is heavier and rig.valve_specs[0].params.spool.mass == 0.05
+    fresh = Rig(heavier)
+    for dev in (rig, fresh):
+        dev.submit("right.duty_cycle", 0.6, at_step=dev.steps + 3)
+    got = rig.run_to(rig.steps + 300)
+    want = fresh.run_to(300)
+    assert [s.step - 500 for s in got] == [s.step for s in want]
+    assert all(np.array_equal(a.values, b.values) for a, b in zip(got, want, strict=True))
+    bigger = dataclasses.replace(heavier, cylinder=dataclasses.replace(heavier.cylinder, mass=2 * heavier.cylinder.mass))
+    with pytest.raises(ParameterError, match="only its valves' parameters may change"):
+        rig.prepare(bigger)
 
 
 def test_status_is_the_same_view_on_every_device(dev):
@@ -265,3 +288,80 @@ def test_status_is_the_same_view_on_every_device(dev):
     assert st.faults == (f"bias@{dev.sensors.signals[0]}",) and st.fault is None
     assert st.accepted[name] == 1 and st.rejected[name] == 1 and st.last_rejection.startswith(name)
     assert name in dev.input_names and "faults" not in dev.input_names
+
+
+# --- what only one device had, every device has -------------------------------------------------
+
+def _diverging(dev_kind):
+    """A device whose first valve (spool mass 0.01 kg: m / B = 33 us < dt) diverges at duty 0.7."""
+    if dev_kind == "valve":
+        from pcv_sim.params import replace_param
+
+        return ValveDevice(replace_param(load_params(), "spool.mass", 0.01), safe_duty=0.3, watchdog_timeout=0.0)
+    return Rig(load_rig(valve_changes={"left": {("spool", "mass"): 0.01}}))
+
+
+@pytest.mark.parametrize("kind", ["valve", "rig"])
+def test_no_sample_a_valve_cannot_show_leaves_any_device(kind):
+    dev = _diverging(kind)
+    dev.submit(_duty_input(dev), 0.7)
+    samples = dev.run_to(2000)
+    assert dev.fault is not None and ("diverged" in dev.fault or "non-finite" in dev.fault
+                                      or "model step failed" in dev.fault), dev.fault
+    valve = dev.valve_names[0]
+    limits = dev.limits[valve]
+    jp, ji = (dev.signals.index(f"{'' if kind == 'valve' else valve + '.'}{s}") for s in ("pressure", "current"))
+    assert samples and all(limits.problem(s.values[jp], s.values[ji]) is None for s in samples)
+    assert dev.run_to(2100) == [] and dev.steps == 2100
+
+
+class _Blocks:
+    """A recorder that takes stretches of steps (`record_block`) and single steps (`__call__`)."""
+
+    def __init__(self):
+        self.steps = []
+        self.rows = []
+
+    def __call__(self, t_ns, values):
+        self.steps.append(t_ns)
+
+    def record_block(self, t0_ns, dt_ns, rows):
+        self.steps += [t0_ns + k * dt_ns for k in range(len(rows))]
+        self.rows.append(rows)
+
+
+def test_a_recorder_of_every_step_gets_traced_blocks_on_every_device(dev):
+    rec = _Blocks()
+    dev.recorder, dev.record_every = rec, 1
+    dev.origin_ns = 7_000
+    dev.submit(_duty_input(dev), 0.6, at_step=25)
+    samples = dev.run_to(100)
+    assert rec.steps == [dev.stamp_ns(k) for k in range(1, 101)]          # every step once, in order
+    assert rec.rows and all(r.shape[1] == len(dev.signals) for r in rec.rows)
+    assert len(samples) == 100 // dev.sample_every
+    dev.recorder = None
+
+
+@pytest.mark.parametrize("kind", ["valve", "rig"])
+def test_the_fall_rate_limiter_acts_on_every_device(kind, tmp_path):
+    """Sec. 3.2: the duty a limited valve's model gets falls at most `duty_fall_rate_limit` per s."""
+    from pcv_sim.params import replace_param
+
+    params = replace_param(load_params(), "command.duty_fall_rate_limit", 2.0)
+    if kind == "valve":
+        dev = ValveDevice(params, safe_duty=0.3, watchdog_timeout=0.0)
+        slot = "duty_cycle"
+    else:
+        dev = Rig(load_rig(valve_changes={"left": {("command", "duty_fall_rate_limit"): 2.0}}))
+        slot = "left.duty_cycle"
+    dev.submit(_duty_input(dev), 0.9, at_step=1)
+    dev.run_to(100)
+    assert dev.input_values()[slot] == 0.9                 # a rise passes at once
+    dev.submit(_duty_input(dev), 0.4, at_step=101)
+    dev.run_to(101)
+    assert dev.input_values()[slot] == pytest.approx(0.9 - 2.0 * dev.dt)
+    dev.run_to(1101)
+    assert dev.input_values()[slot] == pytest.approx(0.9 - 2.0 * 1001 * dev.dt)
+    assert dev.duties[dev.valve_names[0]] == 0.4           # the duty in force: the command
+    dev.run_to(4000)
+    assert dev.input_values()[slot] == 0.4

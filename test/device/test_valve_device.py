@@ -12,7 +12,7 @@ from pcv_sim.device.settings import (
     params_with,
     settings_with,
 )
-from pcv_sim.device.valve import ValveDevice, WatchdogState, rest_stepper
+from pcv_sim.device.valve import ValveDevice, WatchdogState
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import load_params, params_to_mapping
 from pcv_sim.simulation.stepper import RealTimeStepper
@@ -96,7 +96,7 @@ def test_bad_inputs_are_refused_counted_and_the_last_valid_value_stays(name, val
     assert dev.counts.last_rejection.startswith(f'{name}: ')
     samples = dev.run(100)                             # the device keeps running ...
     assert len(samples) == 10
-    assert dev.command == 0.5 and dev.load_flow == 0.0 and dev.supply_pressure is None
+    assert dev.command == 0.5 and dev.load_flow == 0.0 and dev.supply_pressure == PARAMS.circuit.supply_pressure
     assert samples == twin.run(100)                    # ... exactly as if the input never came
 
 
@@ -107,7 +107,7 @@ def test_valid_inputs_are_counted_by_topic():
     dev.submit('supply_pressure', 150e5)
     dev.run(1)
     assert dev.counts.accepted == {'duty_cycle': 1, 'load_flow': 1, 'supply_pressure': 1, 'faults': 0}
-    assert dev.stepper.load_flow == 1e-5 and dev.stepper.supply_pressure == 150e5
+    assert dev.input_values()['supply_pressure'] == 150e5 and dev.load_flow == dev.record_values()['load_flow'] == 1e-5
 
 
 def test_unknown_input_is_an_error():
@@ -122,15 +122,15 @@ def test_watchdog_fires_after_the_timeout_in_model_time_and_resumes():
     assert dev.watchdog_state == WatchdogState.WAITING
     dev.submit('duty_cycle', 0.7, at_step=5)
     dev.run(104)
-    assert dev.watchdog_state == WatchdogState.OK and dev.stepper.command == 0.7
+    assert dev.watchdog_state == WatchdogState.OK and dev.duties['valve'] == 0.7
     dev.run(1)                                                # step 105 = 5 + 100
     assert dev.watchdog_state == WatchdogState.FIRED
     assert dev.watchdog_fired_step == 105 and dev.watchdog_fired == 1
-    assert dev.stepper.command == 0.3 and dev.duty_command_in_force == 0.3
+    assert dev.duties['valve'] == 0.3 and dev.duty_command_in_force == 0.3
     assert dev.command == 0.7                                 # the last command is remembered
     dev.submit('duty_cycle', 0.6)
     dev.run(1)
-    assert dev.watchdog_state == WatchdogState.OK and dev.stepper.command == 0.6
+    assert dev.watchdog_state == WatchdogState.OK and dev.duties['valve'] == 0.6
 
 
 def test_a_rejected_command_does_not_feed_the_watchdog():
@@ -146,14 +146,14 @@ def test_watchdog_off_and_runtime_changes():
     dev = device(watchdog_timeout=0.0)
     dev.submit('duty_cycle', 0.7)
     dev.run(100_000)
-    assert dev.watchdog_state == WatchdogState.OFF and dev.stepper.command == 0.7
+    assert dev.watchdog_state == WatchdogState.OFF and dev.duties['valve'] == 0.7
     dev.set_watchdog_timeout(0.01)                   # armed from the last command: fires at once
     dev.run(1)
-    assert dev.watchdog_state == WatchdogState.FIRED and dev.stepper.command == 0.3
+    assert dev.watchdog_state == WatchdogState.FIRED and dev.duties['valve'] == 0.3
     dev.set_safe_duty(0.4)                           # a new safe duty applies while fired
-    assert dev.stepper.command == 0.4
+    assert dev.duties['valve'] == 0.4
     dev.set_watchdog_timeout(0.0)                    # switched off: the last command again
-    assert dev.stepper.command == 0.7
+    assert dev.duties['valve'] == 0.7
     with pytest.raises(ValueError, match='watchdog_timeout'):
         dev.set_watchdog_timeout(-1.0)
 
@@ -171,20 +171,20 @@ def test_a_diverging_model_is_a_fault_until_reset_or_new_parameters():
     dev.submit('duty_cycle', 0.7)
     samples = dev.run(2000)
     assert dev.fault is not None and ('diverged' in dev.fault or 'model step failed' in dev.fault), dev.fault
-    limits = dev.limits
+    limits = dev.physical_limits
     assert all(limits.problem(s.pressure, s.current) is None for s in samples)   # no runaway sample escapes
     steps = dev.steps
     assert dev.run(100) == [] and dev.steps == steps + 100   # time goes on, no samples
     assert math.isfinite(dev.last_good.pressure)
     # reset with the same parameters: the model would fault again at once -> refused, still faulted
     with pytest.raises(ValueError, match=r'the model faults again at once at rest at duty 0\.7'):
-        dev.reset()
+        dev.prepare()
     assert dev.fault is not None and dev.run(100) == []
     # good parameters while faulted: the model restarts (as the node's log says), fault cleared
     message = dev.install(dev.prepare(PARAMS))
     assert 'cleared fault' in message and dev.fault is None
     assert len(dev.run(100)) == 10
-    assert dev.reset().startswith('model at rest at duty 0.7')
+    assert dev.install(dev.prepare()).startswith('model at rest at duty 0.7')
 
 
 def test_a_finite_runaway_is_a_fault_before_any_sample_shows_it():
@@ -204,35 +204,24 @@ def test_a_finite_runaway_is_a_fault_before_any_sample_shows_it():
     assert all(-1e5 <= r['pressure'] <= 800e5 and abs(r['current']) < 5.0 for r in recorded)
 
 
-def test_physical_limits():
-    from pcv_sim.device.valve import PhysicalLimits
-
-    lim = PhysicalLimits.of(PARAMS)
-    assert (lim.pressure_min, lim.pressure_max) == (-1e5, 800e5)         # -1 bar .. 2 x 400 bar
-    assert lim.current_max == pytest.approx(2 * 12.0 / 5.6)
-    assert lim.problem(122e5, 1.5) is None
-    assert 'pressure 1.2e+282 bar outside the physical range -1 .. 800 bar' in lim.problem(1.2e287, 1.0)
-    assert 'pressure -2 bar' in lim.problem(-2e5, 1.0)
-    assert "coil current 9 A beyond the coil's possible +-4.29 A" in lim.problem(100e5, 9.0)
-    assert lim.problem(100e5, math.nan) is not None
-
-
 def test_a_model_exception_is_a_fault_not_a_crash(monkeypatch):
     dev = device()
 
     def broken(n):
         raise ArithmeticError('no coil current solves Eq. 2')
 
-    monkeypatch.setattr(dev.stepper, 'advance_finite', broken)   # the device's stepping call
+    monkeypatch.setattr(dev.sim, 'advance', broken)   # the device's stepping calls
+    monkeypatch.setattr(dev.sim, 'advance_sample', lambda n, *args: broken(n))
     assert dev.run(20) == []
-    assert dev.fault.startswith('model step failed (ArithmeticError: no coil current solves Eq. 2) at t = 0.0010 s')
+    assert dev.fault.startswith('model step failed (ArithmeticError: no coil current solves Eq. 2) before t = 0 s')
+    assert dev.steps == 20
 
 
 def test_injected_fault():
     dev = device()
     dev.set_fault('injected')
     assert dev.run(20) == [] and dev.fault == 'injected'
-    assert dev.reset().endswith('(cleared fault: injected)')
+    assert dev.install(dev.prepare()).endswith('(cleared fault: injected)')
 
 
 # --- recorder hook ---------------------------------------------------------------------------
@@ -258,10 +247,10 @@ def test_recorder_gets_every_nth_step_with_its_stamp():
 
 def test_rest_below_the_equilibrium_range_is_reached_by_settling():
     """Below ~0.3 duty RealTimeStepper.reset finds no equilibrium (spool on its end stop)."""
-    st = rest_stepper(PARAMS, 0.0)
-    p, x = st.pressure, st.spool_position
-    st.advance(1000)
-    assert st.pressure == pytest.approx(p, abs=1.0) and st.spool_position == pytest.approx(x, abs=1e-9)
+    dev = device(safe_duty=0.0, watchdog_timeout=0.0)
+    p, x = dev.valve_sample().pressure, dev.valve_sample().spool_position
+    s = dev.run(1000)[-1]
+    assert s.pressure == pytest.approx(p, abs=1.0) and s.spool_position == pytest.approx(x, abs=1e-9)
     assert x == pytest.approx(PARAMS.spool.stroke_min_mm * 1e-3)
 
 
@@ -274,7 +263,7 @@ def test_parameter_change_restarts_at_the_present_operating_point():
     dev.install(dev.prepare(heavier))
     assert dev.steps == steps and dev.params.spool.mass == 0.05
     ref = RealTimeStepper(heavier, duty=0.6)
-    assert dev.stepper.pressure == pytest.approx(ref.pressure)
+    assert dev.valve_sample().pressure == pytest.approx(ref.pressure)
 
 
 # --- settings --------------------------------------------------------------------------------
@@ -354,14 +343,15 @@ def test_the_options_signals_are_among_the_devices_signals():
                        ("spool.core", "separate")):
         params = replace_param(params, key, value)
     dev = ValveDevice(params, safe_duty=0.9, watchdog_timeout=0.0)
-    dev.stepper.set_input("oil_temperature", kelvin(50.0))
-    dev.stepper.advance(10_000)                     # 1 s at 90 %: the coil warms
+    dev.set_temperature("valve", "oil_temperature", kelvin(50.0))
+    dev.advance_to(10_000)                          # 1 s at 90 %: the coil warms
     signals = dev.record_values()
+    y = dict(zip(dev.signals, dev.sample(), strict=True))
     assert signals["oil_temperature"] == kelvin(50.0)
     assert signals["ambient_temperature"] == kelvin(params.solenoid.ambient_temperature_c)
-    assert signals["coil_temperature"] == dev.stepper.output("coil_temperature") > kelvin(40.0)
-    assert signals["coil_resistance"] == dev.stepper.output("coil_resistance") > params.solenoid.coil_resistance
-    assert signals["core_position"] == dev.stepper.output("core_position") == dev.stepper.spool_position
+    assert signals["coil_temperature"] == y["coil_temperature"] > kelvin(40.0)
+    assert signals["coil_resistance"] == y["coil_resistance"] > params.solenoid.coil_resistance
+    assert signals["core_position"] == y["core_position"] == y["spool_position"]
 
 
 # --- faults ----------------------------------------------------------------------------------
@@ -386,30 +376,30 @@ def test_a_physical_fault_acts_at_its_step_and_clearing_restores_the_valve():
     dev = device(watchdog_timeout=0.0)
     dev.submit('duty_cycle', 0.7, at_step=1)
     dev.run(3000)
-    i0 = dev.sample().current
+    i0 = dev.valve_sample().current
     assert i0 > 0.3
     assert dev.submit_fault('{fault: coil_open}', at_step=dev.steps + 10) is None   # the one valve: no target
     dev.run(9)
-    assert dev.sample().current == pytest.approx(i0, rel=1e-3)     # not yet
+    assert dev.valve_sample().current == pytest.approx(i0, rel=1e-3)     # not yet
     dev.run(3000)
-    assert abs(dev.sample().current) < 0.01 * i0                    # no drive: the current decays
+    assert abs(dev.valve_sample().current) < 0.01 * i0                    # no drive: the current decays
     assert dev.faults == {('valve', 'coil_open'): dev.faults[('valve', 'coil_open')]}
     dev.submit_fault('{clear: coil_open, valve: valve}')
     dev.run(5000)
-    assert dev.sample().current == pytest.approx(i0, rel=1e-2)
+    assert dev.valve_sample().current == pytest.approx(i0, rel=1e-2)
 
 
 def test_a_supply_fault_holds_over_a_supply_input_and_clearing_restores_the_input():
     dev = device(watchdog_timeout=0.0)
     dev.submit_fault('{fault: supply_drop, pressure: 5.0e+6}')
     dev.run(2)
-    assert dev.stepper.supply_pressure == 5e6
+    assert dev.input_values()['supply_pressure'] == 5e6
     dev.submit('supply_pressure', 150e5)
     dev.run(2)
-    assert dev.stepper.supply_pressure == 5e6 and dev.supply_pressure == 150e5
+    assert dev.input_values()['supply_pressure'] == 5e6 and dev.supply_pressure == 150e5
     dev.submit_fault('{clear: supply_drop}')
     dev.run(2)
-    assert dev.stepper.supply_pressure == 150e5
+    assert dev.input_values()['supply_pressure'] == 150e5
 
 
 @pytest.mark.parametrize('text, match', [

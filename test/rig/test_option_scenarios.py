@@ -63,7 +63,6 @@ def test_a_section_applies_to_every_valve_and_a_valves_own_keys_win():
     ({"fluid": "input"}, r"valves\.fluid: got 'input'; accepted is a mapping key: value of the valve YAML's fluid"),
     ({"middle": {"fluid": {"temperature": "input"}}}, r"valves: unknown key 'middle'.*accepted: solenoid.*left, right"),
     ({"left": {"fluidd": {}}}, r"valves\.left: unknown key 'fluidd' \(did you mean 'fluid'\?\)"),
-    ({"command": {"duty_fall_rate_limit": 2.0}}, r"sets command\.duty_fall_rate_limit; the rig applies each duty"),
     ({"simulation": {"time_step": 1e-5}}, r"valves\.left: its simulation\.time_step 1e-05 s differs from rig\.time_step"),
     ([1, 2], r"valves: got \[1, 2\]; accepted is a mapping"),
 ])

@@ -175,6 +175,36 @@ def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_
     assert run.signal("pilot.pressure")[-1] > 110 * BAR
 
 
+def test_a_valve_with_a_fall_rate_limit_ramps_its_duty_as_the_single_valve_stepper(tmp_path):
+    """The fall-rate limiter is every device's (Sec. 3.2): a rig valve whose YAML sets
+    command.duty_fall_rate_limit falls at that rate, step by step, the same numbers bit for bit as
+    the emulator's stepper with the limiter; a rise passes at once."""
+    import yaml
+
+    from pcv_sim.params import DEFAULT_CONFIG
+    from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
+    from pcv_sim.simulation.stepper import RealTimeStepper
+
+    limited = tmp_path / "limited.yaml"
+    limited.write_text(DEFAULT_CONFIG.read_text().replace("duty_fall_rate_limit: null", "duty_fall_rate_limit: 2.0"))
+    data = yaml.safe_load(DEFAULT_RIG.read_text())
+    data["valves"]["pilot"] = {"config": str(limited), "chamber": "none", "initial_duty": 0.5}
+    rig = Rig(rig_from_mapping(data, base=DEFAULT_RIG.parent))
+    run = run_lockstep(rig, lambda t, m: {"pilot": 0.9 if t < 0.02 else 0.3, "left": 0.6}, 0.3)
+    pilot = run.duties[:, 2]
+    assert pilot[19] == 0.9 and pilot[21] == 0.3        # the duty in force: the command
+    st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
+    pressures = []
+    for k in range(len(run.times)):
+        pressures.append(st.pressure)
+        st.advance(1)
+        st.set_duty(0.9 if k < 20 else 0.3)
+        st.advance(9)
+    assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
+    # 0.9 -> 0.3 at 2 /s takes 0.3 s: the valve's model input is still falling at the end
+    assert rig.input_values()["pilot.duty_cycle"] == pytest.approx(0.9 - 2.0 * (0.3 - 0.0201), abs=2e-4)
+
+
 def test_reset_keeping_time_is_a_fresh_start_shifted_in_time_and_inputs_reach_the_hook(rig):
     """The rig node's reset service: state, duties, faults back to the start; t goes on. Every
     input change reaches `on_input` with the step it acts from (the node's recorder)."""
