@@ -632,45 +632,63 @@ class Device:
         if prepared.sim is None:
             what = self.reset(keep_time=True)
         else:
+            # The inputs in force now (taken since `prepare` too) act on the new model from now on.
+            inputs = self.input_values()
+            supply, supply0, flow = list(self._supply), list(self._supply0), list(self._load_flow)
             steps = self.sim.steps
             new = prepared.sim
             if self._same_layout(new):
                 self.sim._S[:] = new._S            # the simulator's arrays stay (a lockstep holds them)
-                self.sim.steps = steps
                 sim = self.sim
             else:
                 sim = new
-                sim.steps = steps
+            sim.steps = steps
             if prepared.valves is not None:
                 self.params = prepared.params
                 self._rest.clear()
                 self._configure(prepared.valves, sim)
                 if self.sensors.signals != self.signals:
                     self.sensors = Sensors(self.signals, self.sensors.period, self.sensors.seed)
-                if self.restart_at_start:
-                    self.reset(keep_time=True)
             self._healthy = [p.copy() for p in self._configured]
             self.faults = {}
             self.sensors.reset()
-            names = self.valve_names
-            for k, name in enumerate(names):
-                self._limiters[k].value = float(sim.u[self._duty_i[k]])
-                self._lim_step[k] = steps
-                self._supply[k] = float(sim.u[self._supply_i[k]])
-                try:
-                    check_duty(self.duties[name], self._ranges[name])
-                except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
-                    self.counts.last_rejection = f"after a model restart: {err}"
-            for (valve, name), i in zip(self._option_in, self._option_in_i):
-                if name == "oil_temperature":       # the spool's pole follows the oil in force (R34)
-                    try:
-                        self.set_temperature(valve, name, float(sim.u[i]))
-                    except CommandError as err:     # too cold for the new step: the YAML's oil stays
-                        self.counts.last_rejection = f"after a model restart: {err}"
+            if self.restart_at_start:
+                self.reset(keep_time=True)
+            else:
+                self._put_inputs(inputs, [s if s != s0 else new0 for s, s0, new0 in zip(supply, supply0, self._supply0)],
+                                 flow)
             what = prepared.what
             self._inputs_changed()
         self.clear_fault()
         return f"{what} (cleared fault: {was})" if was else what
+
+    def _put_inputs(self, inputs: Mapping[str, float], supply: Sequence[float], flow: Sequence[float]) -> None:
+        """After a restart at the present operating point: the duties in force (the limiters at rest
+        there), supplies, load flows and the options' and plant's inputs of `inputs` (as
+        `input_values` names them) into the model."""
+        u = self.sim.u
+        for k, name in enumerate(self.valve_names):
+            try:
+                check_duty(self.duties[name], self._ranges[name])
+            except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
+                self.counts.last_rejection = f"after a model restart: {err}"
+            else:
+                u[self._duty_i[k]] = self.duties[name]
+            self._limiters[k].value = float(u[self._duty_i[k]])
+            self._lim_step[k] = self.sim.steps
+            self._supply[k] = supply[k]
+            u[self._supply_i[k]] = supply[k]
+            if self._flow_i[k] >= 0:
+                self._load_flow[k] = flow[k]
+                u[self._flow_i[k]] = flow[k]
+        for name, i in self._plant_i.items():
+            u[i] = inputs.get(name, 0.0)
+        for (valve, name), full in zip(self._option_in, self.option_inputs):
+            if full in inputs:
+                try:    # the oil's: the spool's pole follows it (R34)
+                    self.set_temperature(valve, name, inputs[full])
+                except CommandError as err:     # too cold for the new step: the YAML's stays
+                    self.counts.last_rejection = f"after a model restart: {err}"
 
     def _same_layout(self, sim: Simulator) -> bool:
         """`sim` runs the same compiled code on arrays of the same layout and tables as the device's."""
