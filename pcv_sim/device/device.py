@@ -119,6 +119,10 @@ MODEL_FAILURES = (ArithmeticError, ValueError)
 TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
                       "oil_temperature": "fluid.temperature: input"}
 
+#: What a recorder gets of each valve besides its outputs (`Device.record_values`): the duty in force
+#: (the command, or the watchdog's), the duty after the fall-rate limiter, load flow, supply pressure.
+RECORD_INPUTS = ("duty_command", "duty", "load_flow", "supply_pressure")
+
 #: `Device.on_input(step, name, value)`: an input of the model changed, acting from `step` on.
 InputHook = Callable[[int, str, float], None]
 
@@ -330,6 +334,15 @@ class Device:
                           for n in names]
         self._volumes = [v.params.circuit.load_volume for v in valves]
         self._wired_volumes = any(i >= 0 for i in self._volume_i)
+        #: per valve, what `record_values` reads: its name, its keys, the indices of its duty input, load flow
+        #: (its own: input; a chamber's: the plant's output), supply input and its three outputs
+        self._record_slots = [
+            (n, tuple(f"{self._prefix[n]}{r}" for r in (*RECORD_INPUTS, *kernel.OUTPUTS)), self._duty_i[k],
+             self._flow_i[k], plant.index("output", wired[f"{n}.load_flow"]) if f"{n}.load_flow" in wired else -1,
+             self._supply_i[k], tuple(plant.index("output", f"{n}.{r}") for r in kernel.OUTPUTS))
+            for k, n in enumerate(names)]
+        self._plant_signal_i = [(name, plant.index("output", name)) for name in
+                                (plant_spec.signals if plant_spec is not None else ())]
         layouts = [kernel.layout(v.params, kind) for v in valves]
         sampled = [f"{v.name}.{o}" for v, lay in zip(valves, layouts) for o in lay.outputs]
         self.signals: tuple[str, ...] = tuple(
@@ -1352,31 +1365,23 @@ class Device:
 
     def _record_values(self, y: np.ndarray) -> dict[str, float]:
         u = self.sim.u
-        plant = self.plant
         out: dict[str, float] = {}
-        for k, name in enumerate(self.valve_names):
-            pre = self._prefix[name]
-            out[f"{pre}duty_command"] = self.duties[name]
-            out[f"{pre}duty"] = float(u[self._duty_i[k]])
-            flow = self._flow_i[k]
-            out[f"{pre}load_flow"] = float(u[flow]) if flow >= 0 else self._wired_flow(name, y)
-            out[f"{pre}supply_pressure"] = float(u[self._supply_i[k]])
-            for role in kernel.OUTPUTS:
-                out[f"{pre}{role}"] = float(y[plant.index("output", f"{name}.{role}")])
+        for valve, (command, duty, flow, supply, *outputs), i_duty, i_flow, o_flow, i_supply, o in self._record_slots:
+            out[command] = self.duties[valve]
+            out[duty] = float(u[i_duty])
+            out[flow] = float(u[i_flow]) if i_flow >= 0 else float(y[o_flow])
+            out[supply] = float(u[i_supply])
+            for key, i in zip(outputs, o):
+                out[key] = float(y[i])
         for name, i in zip(self.option_inputs, self._option_in_i):
             out[name] = float(u[i])
         for name, i in zip(self.option_outputs, self._option_out_i):
             out[name] = float(y[i])
         for name, i in self._plant_i.items():
             out[name] = float(u[i])
-        if self.plant_spec is not None:
-            for name in self.plant_spec.signals:
-                out[name] = float(y[plant.index("output", name)])
+        for name, i in self._plant_signal_i:
+            out[name] = float(y[i])
         return out
-
-    def _wired_flow(self, valve: str, y: np.ndarray) -> float:
-        wired = {dst: src for src, dst in (self.plant_spec.wires if self.plant_spec else ())}
-        return float(y[self.plant.index("output", wired[f"{valve}.load_flow"])])
 
     def option_input_values(self) -> dict[str, float]:
         """The valve options' inputs in force (K), read without computing an output."""
