@@ -141,11 +141,11 @@ def node_parts(context, n: int = 2000) -> dict[str, float]:
     """The rig node's own work in one 1 ms period, in this process (no DDS partner), in us."""
     from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
 
-    node = RigNode(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
-    rig = node.rig
-    node._publish_samples()          # a sample to publish again and again below
+    node = rig_node(argv=["rig"], context=context, parameter_overrides=[Parameter("time_mode", value="real")])
+    rig = node.device
+    node._publish(rig.present_sample())     # a sample to publish again and again below
     try:
         def timed(fn) -> float:
             t0 = time.perf_counter()
@@ -175,9 +175,9 @@ def main() -> None:
     import rclpy
 
     from pcv_sim.jit import backend
-    from pcv_sim.node.adapter import _tighten_timer_slack
+    from pcv_sim.node.base import tighten_timer_slack
 
-    _tighten_timer_slack()      # the controller polls in 20 us sleeps, as the rig node does
+    tighten_timer_slack()       # the controller polls in 20 us sleeps, as the rig node does
     domain = 150 + os.getpid() % 50
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     context = rclpy.Context()

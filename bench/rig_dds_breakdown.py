@@ -115,19 +115,19 @@ def _controller_child(out: str, argv: list[str]) -> int:
 
 def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
     """Time the rig node's publish and its taking of the answers; (trace by stamp, polls)."""
-    from pcv_sim.node import rig_node, scenario_host
+    from pcv_sim.node import device_node, scenario_host
 
     trace: dict[int, list[int]] = {}            # stamp -> [publish start, publish end, answer complete, CPU ns]
     polls = [0, 0]
-    node_cls, host_cls = rig_node.RigNode, scenario_host._Host
+    node_cls, host_cls = device_node.DeviceNode, scenario_host._Host
     orig_sampled, orig_send, orig_duty, orig_drain = (
-        host_cls.sampled, node_cls._send_samples, node_cls._on_duty, node_cls._drain)
+        host_cls.sampled, node_cls._send_samples, node_cls._on_input, node_cls._drain)
     orig_command = getattr(node_cls, "_on_command", None)
     shown = [0]
 
     def sampled(self, true, measured):            # the hook runs before the samples go out
         node = self.node
-        stamp = node.rig.origin_ns + node.rig.steps * node.dt_ns
+        stamp = node.device.stamp_ns()
         shown[0] = stamp
         trace[stamp] = [mono_ns(), 0, 0, time.process_time_ns()]
         orig_sampled(self, true, measured)
@@ -138,16 +138,16 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
         if row is not None and not row[1]:
             row[1] = mono_ns()
 
-    def _on_duty(self, valve, msg, info=None):
-        orig_duty(self, valve, msg, info)
-        if len(self._answered) == len(self.rig.valve_names):
+    def _on_input(self, entry, value_of, msg, info=None):
+        orig_duty(self, entry, value_of, msg, info)
+        if len(self._answered) == len(self.device.valve_names):
             row = trace.get(shown[0])
             if row is not None and not row[2]:
                 row[2] = mono_ns()
 
     def _on_command(self, raw, info=None):
         orig_command(self, raw, info)
-        if len(self._answered) == len(self.rig.valve_names):
+        if len(self._answered) == len(self.device.valve_names):
             row = trace.get(shown[0])
             if row is not None and not row[2]:
                 row[2] = mono_ns()
@@ -158,8 +158,8 @@ def _rig_patches() -> tuple[dict[int, list[int]], list[int]]:
         polls[1] += n == 0
         return n
 
-    host_cls.sampled, node_cls._send_samples, node_cls._on_duty, node_cls._drain = (
-        sampled, _send_samples, _on_duty, _drain)
+    host_cls.sampled, node_cls._send_samples, node_cls._on_input, node_cls._drain = (
+        sampled, _send_samples, _on_input, _drain)
     if orig_command is not None:
         node_cls._on_command = _on_command
     return trace, polls

@@ -2,9 +2,9 @@
 
     .venv-kilted/bin/python bench/rig_recording.py [--duration 10] [--rounds 2] [--json]
 
-The rig node (`pcv_sim.node.rig_node.RigNode`, the shipped config/rig.yaml: two valves + the
+The rig node (`pcv_sim.node.rig.rig_node`, the shipped config/rig.yaml: two valves + the
 cylinder at 0.1 ms, samples every 1 ms) in this process, `time_mode: real`, run by its own loop
-(`RigNode.run`) for duration / rounds s per configuration and round, alternately without and with
+(`DeviceNode.run`) for duration / rounds s per configuration and round, alternately without and with
 `record.enabled` (`RigRecorder`: every valve under its namespace, the cylinder, 1 kHz samples;
 its writer thread serialises the joint states message by message). No controller: the duties stay
 at their initial values until the watchdog, so the work per period is the rig's and the
@@ -33,12 +33,12 @@ class _Stop:
 def one(context, duration: float, record: str) -> dict[str, float]:
     from rclpy.parameter import Parameter
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
 
     params = [Parameter("time_mode", value="real"), Parameter("diagnostics_period", value=100.0)]
     if record:
         params += [Parameter("record.enabled", value=True), Parameter("record.directory", value=record)]
-    node = RigNode(argv=["rig"], context=context, parameter_overrides=params)
+    node = rig_node(argv=["rig"], context=context, parameter_overrides=params)
     stop = _Stop()
     timer = threading.Timer(duration, lambda: setattr(stop, "requested", True))
     cpu0, wall0 = time.process_time(), time.monotonic()
@@ -49,7 +49,7 @@ def one(context, duration: float, record: str) -> dict[str, float]:
         sched = node._schedule
         assert sched is not None
         st = node.recorder.status() if node.recorder is not None else None
-        return {"steps": node.rig.steps, "late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
+        return {"steps": node.device.steps, "late_steps": sched.late_steps, "skipped_steps": sched.skipped_steps,
                 "max_lag_ms": sched.max_lag * 1e3, "messages": st.messages if st else 0,
                 "dropped": st.dropped if st else 0,
                 "cpu_percent": 100 * (time.process_time() - cpu0) / (time.monotonic() - wall0)}

@@ -409,7 +409,7 @@ class Device:
                for k, v in enumerate(valves) if self._flow_i[k] >= 0},
             **{f"{self._prefix[v.name]}supply_pressure": InputKind(check_supply_pressure, partial(self._set_supply, k))
                for k, v in enumerate(valves)},
-            **{f"{self._prefix[v]}{name}": InputKind(partial(check_temperature, self._what(v, name)),
+            **{f"{self._prefix[v]}{name}": InputKind(partial(check_temperature, name.replace("_", " ")),
                                                      partial(self.set_temperature, v, name))
                for v, name in self._option_in if name in TEMPERATURE_INPUTS},
             **{name: InputKind(check, partial(self._put_plant_input, name))

@@ -22,16 +22,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.device.settings import NodeSettings
-from pcv_sim.device.valve import ValveDevice, WatchdogState
+from pcv_sim.device.valve import VALVE, ValveDevice
 from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.io.topics import OPTION_INTERFACE
+from pcv_sim.io.topics import FAULTS, OPTION_INTERFACE
 from pcv_sim.simulation.clock import RealTimeSchedule
 from pcv_sim.units import bar
 
 _OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
 
-__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Status", "recording_status"]
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Shown", "Status",
+           "recording_status", "valve_inputs"]
 
 OK, WARN, ERROR = 0, 1, 2
 CONCERNS = ("timing", "inputs", "model", "recording")
@@ -44,6 +46,63 @@ class Status:
     level: int
     message: str
     values: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Shown:
+    """What the node showed of its device, for its diagnostics."""
+
+    time_mode: str                      # real, simulated or external_clock
+    samples_published: int
+    resets: int                         # reset service calls that acted
+    last: dict[str, float]              # the last published sample: signal -> measured value (SI)
+    waiting_for: tuple[str, ...] = ()   # simulated lockstep: the valves whose answer it waits for
+
+
+def valve_inputs(device: Any, valve: str, new: dict[str, int]) -> tuple[list[str], dict[str, Any]]:
+    """What every device's diagnostics say of one valve's inputs (`device`: a `Device`; `new`: the
+    counts gained in the period, `rejected.<input>`): its watchdog (state, timeout, firings and
+    their stamps, the safe duty), the duty command in force (the safe duty while the watchdog
+    holds) and the last valid one, the faults on it or its signals, its inputs' counts
+    (`accepted.<role>`, `rejected.<role>`: duty_cycle, the options' temperatures...) and the
+    options' temperatures in force (`<name>_k`). Problems: a fired watchdog, active faults,
+    refused inputs in the period."""
+    prefix = f"{valve}." if f"{valve}.duty_cycle" in device.inputs else ""
+    dog = device.watchdogs[valve]
+    timeout = dog.timeout_steps * device.dt
+    faults = [f"{kind}@{target}" for target, kind in device.faults
+              if not prefix or target == valve or target.startswith(prefix)]
+    problems = []
+    if dog.state == WatchdogState.FIRED:
+        problems.append(f"watchdog: no duty command for {timeout:g} s, safe duty {device.safe_duty:g}")
+    if faults:
+        problems.append(f"faults active: {', '.join(faults)}")
+    mine = [n for n in device.inputs if n.startswith(prefix)] if prefix else list(device.inputs)
+    rejected = {n[len(prefix):]: new.get(f"rejected.{n}", 0) for n in mine}
+    if any(rejected.values()):
+        problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items() if v))
+    values: dict[str, Any] = {
+        "watchdog": dog.state,
+        "watchdog_timeout_s": f"{timeout:g}",
+        "watchdog_fired_count": dog.fired,
+        "safe_duty": f"{device.safe_duty:g}",
+        "duty_command": f"{device.duties[valve]:g}",
+        "duty_last_valid": f"{device.commands[valve]:g}" if dog.command_step is not None else "",
+        "duty_applied_stamp_ns": device.stamp_ns(dog.command_step) if dog.command_step is not None else "",
+        "watchdog_fired_stamp_ns": device.stamp_ns(dog.fired_step) if dog.fired_step is not None else "",
+        "faults_active": ", ".join(faults),
+    }
+    for n in mine:
+        role = n[len(prefix):]
+        values[f"accepted.{role}"] = device.counts.accepted.get(n, 0)
+        values[f"rejected.{role}"] = device.counts.rejected.get(n, 0)
+    # The valve options' temperatures in force (K), read without computing an output.
+    temperatures = ({n[len(prefix):]: v for n, v in device.input_values().items()
+                     if n in device.option_inputs and n.startswith(prefix)} if prefix
+                    else device.option_input_values())
+    for n, value in temperatures.items():
+        values[f"{n}_k"] = f"{value:.2f}"
+    return problems, values
 
 
 class PeriodDiagnostics:
@@ -83,13 +142,13 @@ class DiagnosticsBuilder(PeriodDiagnostics):
     """The emulator's four statuses; `build` once per diagnostics period."""
 
     def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
-              recorder: RecorderStatus | None, samples_published: int, time_mode: str | None = None) -> list[Status]:
+              recorder: RecorderStatus | None, shown: Shown) -> list[Status]:
         dev, s = device, settings
         wall, period_steps, new = self._period(
             now, dev.steps, {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}, schedule)
-        return [self._timing(dev, s, schedule, new, wall, period_steps, time_mode or s.time_mode),
+        return [self._timing(dev, s, schedule, new, wall, period_steps, shown.time_mode),
                 self._inputs(dev, s, new),
-                self._model(dev, samples_published),
+                self._model(dev, shown.samples_published),
                 self._recording(recorder)]
 
     def _timing(self, dev: ValveDevice, s: NodeSettings, sched: RealTimeSchedule | None, new: dict[str, int],
@@ -136,35 +195,18 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         return self._status("timing", WARN if problems else OK, problems, "on time", values)
 
     def _inputs(self, dev: ValveDevice, s: NodeSettings, new: dict[str, int]) -> Status:
-        problems = []
-        if dev.watchdog_state == WatchdogState.FIRED:
-            problems.append(f"watchdog: no duty command for {s.watchdog_timeout:g} s, safe duty {dev.safe_duty:g}")
-        if dev.faults:
-            problems.append("faults active: " + ", ".join(f"{k}@{t}" for t, k in dev.faults))
-        rejected = {k[len("rejected."):]: v for k, v in new.items() if k.startswith("rejected.") and v}
-        if rejected:
-            problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
+        problems, values = valve_inputs(dev, VALVE, new)
+        if new.get(f"rejected.{FAULTS}"):
+            problems.append(f"rejected inputs: {FAULTS} {new[f'rejected.{FAULTS}']}")
         last = dev.last_good
-        values: dict[str, Any] = {
-            "watchdog": dev.watchdog_state,
-            "watchdog_timeout_s": f"{s.watchdog_timeout:g}",
-            "watchdog_fired_count": dev.watchdog_fired,
-            "safe_duty": f"{dev.safe_duty:g}",
-            "duty_command": f"{dev.duty_command_in_force:g}",
+        values.update({
             "duty_effective": f"{last.duty:g}" if last else "",
-            "duty_applied_stamp_ns": dev.stamp_ns(dev.duty_applied_step) if dev.duty_applied_step is not None else "",
-            "watchdog_fired_stamp_ns": (dev.stamp_ns(dev.watchdog_fired_step)
-                                        if dev.watchdog_fired_step is not None else ""),
             "load_flow_m3s": f"{dev.load_flow:g}",
             "supply_pressure_pa": f"{dev.input_values()['supply_pressure']:g}",
             "last_rejection": dev.counts.last_rejection,
-            "faults_active": ", ".join(f"{k}@{t}" for t, k in dev.faults),
-        }
-        for name, value in dev.option_input_values().items():    # the valve options' inputs in force, K
-            values[f"{name}_k"] = f"{value:.2f}"
-        for k in dev.counts.accepted:
-            values[f"accepted.{k}"] = dev.counts.accepted[k]
-            values[f"rejected.{k}"] = dev.counts.rejected[k]
+            f"accepted.{FAULTS}": dev.counts.accepted.get(FAULTS, 0),
+            f"rejected.{FAULTS}": dev.counts.rejected.get(FAULTS, 0),
+        })
         ok = ("waiting for the first duty command" if dev.watchdog_state == WatchdogState.WAITING
               else "commands arriving")
         return self._status("inputs", WARN if problems else OK, problems, ok, values)

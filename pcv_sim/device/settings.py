@@ -121,6 +121,24 @@ class CommonSettings:
         "bool", name="faults.enabled", read_only=True)
     seed: int = setting(0, "-", "seed of the sensor-noise faults (a run repeats bit for bit)", _seed, "int",
                         read_only=True)
+    frame_id: str = setting("load_port", "-", "header.frame_id of the valves' pressure samples", any_value, "str")
+    lockstep: bool = setting(
+        True, "-", "simulated time: publish the samples of a period, then wait for one duty_cycle command of every "
+        "valve (or one lockstep/command) before computing the next period (deterministic bit for bit)", any_value,
+        "bool", read_only=True)
+    real_time_factor: float = setting(
+        0.0, "-", "simulated time without lockstep: model seconds per wall second; 0 or inf = as fast as possible",
+        convert=real_time_factor)
+    allow_unknown_parameters: bool = setting(
+        False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
+        "file) stops the node at start (exit 2); true: warn and ignore it", any_value, "bool", read_only=True)
+    record_enabled: bool = setting(
+        False, "-", "record the device's inputs (on change, at the step they act) and outputs to a rosbag2/MCAP bag "
+        "from the start (the device at rest) until SIGINT/SIGTERM; the rig's: every valve under its namespace, the "
+        "cylinder, the fault commands and its events", any_value, "bool", name="record.enabled", read_only=True)
+    record_name: str = setting(
+        "", "-", "bag directory name; '' = <node name>[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
+        "overwritten", bag_name_check, "str", name="record.name", read_only=True)
     record_directory: str = setting(
         ".", "-", "directory the bag is created in (made if missing; ~ expanded)", any_value, "str",
         name="record.directory", read_only=True)
@@ -168,12 +186,6 @@ class NodeSettings(CommonSettings):
         "period of `ros2 topic pub`'s default rate", non_negative)
     safe_duty: float = setting(
         0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
-    real_time_factor: float = setting(
-        0.0, "-", "simulated time: model seconds per wall second; 0 or inf = as fast as possible",
-        convert=real_time_factor)
-    lockstep: bool = setting(
-        True, "-", "simulated time: after each published sample wait for one duty_cycle message before "
-        "advancing (deterministic controller-in-the-loop)", any_value, "bool", read_only=True)
     valve_config: str = setting(
         "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
     diagnostics_late_fraction: float = setting(
@@ -185,16 +197,6 @@ class NodeSettings(CommonSettings):
     diagnostics_max_lag: float = setting(
         0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
         "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
-    frame_id: str = setting("load_port", "-", "header.frame_id of the pressure samples", any_value, "str")
-    allow_unknown_parameters: bool = setting(
-        False, "-", "false: a parameter name nobody declares (a typo, a key of another node in a shared params "
-        "file) stops the node at start (exit 2); true: warn and ignore it", any_value, "bool", read_only=True)
-    record_enabled: bool = setting(
-        False, "-", "record inputs and outputs to a rosbag2/MCAP bag from the start (the device at rest) until "
-        "SIGINT/SIGTERM", any_value, "bool", name="record.enabled", read_only=True)
-    record_name: str = setting(
-        "", "-", "bag directory name; '' = emulator[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
-        "overwritten", bag_name_check, "str", name="record.name", read_only=True)
     record_signals: tuple[str, ...] = setting(
         RECORDABLE, "-", "signals to record: inputs on change (the duty as the model used it), outputs at "
         "record.rate_hz", name="record.signals", read_only=True, convert=_record_signals)

@@ -565,6 +565,27 @@ class BagRecorder(QueuedBag):
             build={"signals": self.signals, "options": self.options, "every": every, "dt_ns": dt_ns, "namespace": namespace,
                    "frame_id": frame_id, "max_queue_s": max_queue_s, "faults": faults})
 
+    # --- a node's side (`pcv_sim.node.device_node`: every device's recorder offers these) ------
+
+    def attach(self, device: Any) -> None:
+        """On a `ValveDevice`'s hooks: called at every model step (inputs stamped exactly, outputs
+        decimated here; stretches as `record_block`), and with each fault command that acted."""
+        device.record_every = 1
+        device.recorder = self
+        device.on_fault_command = lambda step, text: self.fault_command(device.stamp_ns(step), text)
+
+    def begin(self, device: Any) -> str:
+        """Anchor the recording at the device's present model time (at rest); what goes where (the log)."""
+        self.start(device.stamp_ns(), device.record_values())
+        return (f"{', '.join((*self.signals, *self.options))} to {self.path} (outputs every "
+                f"{self.every * self.dt_ns * 1e-6:g} ms of model time, inputs on change)")
+
+    def shown(self, device: Any, sample: Any, measured: Any) -> None:
+        """A published sample: recorded through the device's hook already."""
+
+    def reset(self, device: Any) -> None:
+        """The device went back to rest: the hook records its inputs as they change."""
+
     # --- the model loop's side ----------------------------------------------------------------
 
     def start(self, t_ns: int, signals: Mapping[str, float]) -> None:

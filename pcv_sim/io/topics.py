@@ -36,6 +36,9 @@ __all__ = [
     "FAULTS",
     "FLAGS_QOS",
     "INPUT_ROLES",
+    "JOINT_FIELDS",
+    "JOINT_NAME",
+    "JOINT_STATE",
     "JOINT_STATES",
     "LOAD_FLOW",
     "LOCKSTEP_COMMAND",
@@ -56,9 +59,13 @@ __all__ = [
     "SPOOL_POSITION",
     "SUPPLY_PRESSURE",
     "Endpoint",
+    "InputTopic",
+    "OutputTopic",
     "bag_topic",
     "chamber_topic",
     "cylinder_topic",
+    "input_topics",
+    "output_topics",
     "role_of",
     "valve_topic",
 ]
@@ -218,3 +225,78 @@ SCENARIO_INTERFACE: Final = (
     Endpoint("out", SETPOINT, FLOAT64, "m", COMMAND_QOS),
     Endpoint("in", CONTROLLER_FLAGS, "diagnostic_msgs/msg/DiagnosticArray", "", FLAGS_QOS),
 )
+
+
+# --- a device's interface as topics ----------------------------------------------------------
+# The node serves any device from these tables: a device names its inputs and signals
+# (`<owner>.<role>`, or the bare role for the emulator's one valve) and the topic, message type and
+# what a message carries follow from the name here, once.
+
+JOINT_STATE: Final = "sensor_msgs/msg/JointState"
+#: The prismatic joint of the cylinder in `cylinder/joint_states`.
+JOINT_NAME: Final = "steering"
+#: The cylinder's signals, in the order a JointState carries them (position m, velocity m/s, effort N).
+JOINT_FIELDS: Final = ("position", "velocity", "effort")
+#: The roles whose messages are FluidPressure (stamped, Pa); the rest are Float64.
+_PRESSURE_ROLES: Final = (SUPPLY_PRESSURE, PRESSURE)
+
+
+def _topic_of(name: str) -> str:
+    """A device's input or signal name as its relative topic: `left.duty_cycle` -> `left/duty_cycle`."""
+    owner, _, role = name.rpartition(".")
+    return valve_topic(owner, role) if owner else role
+
+
+@dataclass(frozen=True)
+class InputTopic:
+    """One input topic of a device: its relative topic, message type, the device's input name and,
+    for a valve's duty, the valve whose answer it is in a lockstep (else "")."""
+
+    topic: str
+    type: str
+    input: str
+    answers: str = ""
+
+
+@dataclass(frozen=True)
+class OutputTopic:
+    """One output topic of a device's samples: the signals it carries (one; the cylinder's three for
+    a JointState) and the header.frame_id of a stamped message ("" = the node's frame_id)."""
+
+    topic: str
+    type: str
+    signals: tuple[str, ...]
+    frame_id: str = ""
+
+
+def input_topics(inputs: tuple[str, ...] | list[str], valves: tuple[str, ...] | list[str]) -> tuple[InputTopic, ...]:
+    """The topics of a device's inputs (`valves`: its valve names; a valve's duty_cycle answers a lockstep
+    for it). The valves' duties first, in the order of `valves` (a lockstep waits on them)."""
+    def answers(name: str) -> str:
+        owner, _, role = name.rpartition(".")
+        if role != DUTY_CYCLE:
+            return ""
+        return owner or valves[0]
+
+    duties = sorted((n for n in inputs if answers(n)), key=lambda n: valves.index(answers(n)))
+    return tuple(InputTopic(_topic_of(n), FLUID_PRESSURE if n.rpartition(".")[2] in _PRESSURE_ROLES else FLOAT64,
+                            n, answers(n))
+                 for n in (*duties, *(n for n in inputs if n not in duties)))
+
+
+def output_topics(signals: tuple[str, ...] | list[str], chambers: dict[str, str] | None = None) -> tuple[OutputTopic, ...]:
+    """The topics of a device's sampled signals: one per valve signal (`left/pressure`...), the
+    cylinder's signals as one JointState (`cylinder/joint_states`), and per chamber (`chambers`:
+    valve -> a | b) the pressure of the valve on it again as `cylinder/pressure_<chamber>`."""
+    out = []
+    for name in signals:
+        owner, _, role = name.rpartition(".")
+        if owner == CYLINDER:
+            continue
+        out.append(OutputTopic(_topic_of(name), FLUID_PRESSURE if role in _PRESSURE_ROLES else FLOAT64, (name,)))
+    for valve, chamber in (chambers or {}).items():
+        out.append(OutputTopic(chamber_topic(chamber), FLUID_PRESSURE, (f"{valve}.{PRESSURE}",), f"chamber_{chamber}"))
+    joint = tuple(f"{CYLINDER}.{f}" for f in JOINT_FIELDS)
+    if all(s in signals for s in joint):
+        out.append(OutputTopic(cylinder_topic(JOINT_STATES), JOINT_STATE, joint, CYLINDER))
+    return tuple(out)

@@ -1,6 +1,7 @@
-"""The ROS 2 side of pcv_sim: the `emulator` process (`emulator`), its node (`adapter`), a client
-(`client`) and the `demo`. All of them import rclpy; what they adapt lives in `pcv_sim.device`
-(the device, its settings, parameter plumbing and diagnostics), which does not.
+"""The ROS 2 side of pcv_sim: the `emulator` and `rig` processes (`emulator`, `rig`), their one node
+class over a device (`device_node`, what differs between them in `kinds`), clients (`client`,
+`rig_client`) and the `demo`. All of them import rclpy; what they adapt lives in `pcv_sim.device`
+and `pcv_sim.rig` (the devices, their settings, parameter plumbing and diagnostics), which do not.
 """
 
-__all__ = ["adapter", "client", "demo", "emulator"]
+__all__ = ["client", "demo", "device_node", "emulator", "kinds", "rig"]

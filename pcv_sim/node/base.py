@@ -1,5 +1,5 @@
-"""`DeviceNode`: what every node of the package does the same way, written once (the emulator's
-`EmulatorNode` and the rig's `RigNode` are made of it).
+"""`NodeBase`: what a node of the package does whatever its device, written once (the one node class
+over a device, `pcv_sim.node.device_node.DeviceNode`, is made of it).
 
 - Construction: a ParameterError while setting up is logged (stderr and /rosout), the half-built
   node destroyed, the error raised for the process to exit 2 (`pcv_sim.node.process`).
@@ -35,8 +35,10 @@ import os
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from functools import partial
+from operator import attrgetter
 from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -47,7 +49,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSPolicyKind, QoSProfile
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from sensor_msgs.msg import FluidPressure, JointState
+from std_msgs.msg import Float64, String
 
 from pcv_sim.device.device import Device
 from pcv_sim.device.diagnostics import PeriodDiagnostics, Status
@@ -64,8 +67,10 @@ from pcv_sim.device.parameters import (
 )
 from pcv_sim.device.settings import SettingsSchema
 from pcv_sim.errors import BagError, ParameterError
+from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
 from pcv_sim.io.recorder import SWITCH_INTERVAL, RecorderStatus, WriterSettings
-from pcv_sim.io.topics import CLOCK, FAULTS
+from pcv_sim.io.topics import CLOCK, DUTY_CYCLE, FAULTS, InputTopic
+from pcv_sim.node.lockstep_channel import COMMAND_TOPIC
 from pcv_sim.node.polling import Waiter, drain, linger_for_rosout
 from pcv_sim.simulation.clock import (
     NO_CLOCK_YET,
@@ -79,7 +84,7 @@ __all__ = [
     "CLOCK_DISCOVERY", "CLOCK_QOS", "COMMAND_QOS", "DIAGNOSTICS_QOS", "EVENT_POLL_EVERY", "JOB_SWITCH_INTERVAL",
     "LOCKSTEP_FULL_POLL",
     "LOCKSTEP_RESEND", "SERVICE_POLL_PERIOD",
-    "DeviceNode", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
+    "NodeBase", "StopFlag", "freeze_heap", "publisher_name", "ros_value", "tighten_timer_slack",
 ]
 
 COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
@@ -95,6 +100,9 @@ SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_E
                "ros2 topic echo --qos-reliability best_effort)")
 COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
 KEPT = "the last valid value stays in force"            # what a refused input leaves
+#: An input topic's message type -> (message class, what it carries).
+_INPUT_MESSAGES: dict[str, tuple[Any, Callable[[Any], Any]]] = {
+    FLOAT64: (Float64, attrgetter("data")), FLUID_PRESSURE: (FluidPressure, attrgetter("fluid_pressure"))}
 
 
 class StopFlag(Protocol):
@@ -108,9 +116,9 @@ def ros_value(value: Any) -> Any:
     return list(value) if isinstance(value, tuple) else value
 
 
-class DeviceNode(Node):
-    """The common part of the package's nodes (see the module docstring). A subclass sets up in
-    `_setup(argv)` and runs in `run(stop)`."""
+class NodeBase(Node):
+    """The device-independent part of the package's node (see the module docstring). A subclass sets
+    up in `_setup(argv)` and runs in `run(stop)`."""
 
     #: What the unknown-name message adds (where the other parameters are set).
     unknown_hint = ""
@@ -146,6 +154,8 @@ class DeviceNode(Node):
         self._ready: list[Callable[[], None]] = []                  # worker-built, applied by the loop
         self._pending: tuple[Any, Any] | None = None                # (settings, device parameters) of the running job
         self._staged: tuple[Any, Any, Any] | None = None            # checked, about to be queued for the loop
+        self._hold: list[bool] | None = None                        # `hold_answer` of the job being applied
+        self._held: tuple[Any, Any, Any, list[bool]] | None = None  # (service, header, answer, acted) held back
         self._switch_interval = sys.getswitchinterval()
         self._deferred_callbacks: tuple[Any, ...] = (self._on_set_parameters, self._on_set_parameters_atomically)
         self._event_handlers: list[Any] = []
@@ -153,6 +163,10 @@ class DeviceNode(Node):
         self._last_reject_log: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
         self._inputs: list[tuple[Any, Any]] = []    # (subscription, handler(msg, info)), taken by `_drain`
+        self._answer_subs: list[Any] = []           # the lockstep_keys' commands, in their order
+        self._channel_sub: Any = None               # the lockstep channel's command, when subscribed
+        self._duty_topics: dict[str, str] = {}      # valve -> its duty's topic (the watchdog's message)
+        self._logged = 0                            # device.log entries forwarded to the logger
         self._next_service_poll = 0.0               # monotonic s of the next service poll
         self._answered: set[str] = set()            # lockstep: keys heard since the last sample
         self._shown = 0                             # the last step whose sample was published
@@ -382,6 +396,49 @@ class DeviceNode(Node):
         tail = f" ({more} more rejected since the last message)" if more else ""
         self.get_logger().warning(f"rejected {topic}: {reason}; {outcome}{tail}")
 
+    def subscribe_inputs(self, table: Sequence[InputTopic], on_command: Callable[..., None] | None = None) -> None:
+        """The device's input topics (`pcv_sim.io.topics.input_topics`), each taken into the device's
+        `submit`. The valves' duties first, then, given `on_command`, the lockstep channel's command
+        (raw CDR): the lockstep waits on these (`lockstep_keys`, `_lockstep_answers`)."""
+        duties = [e for e in table if e.answers]
+        self.lockstep_keys = tuple(e.answers for e in duties)
+        for entry in (*duties, None, *(e for e in table if not e.answers)):
+            if entry is None:
+                if on_command is not None:
+                    sub = self.create_subscription(JointState, COMMAND_TOPIC, on_command, COMMAND_QOS, raw=True,
+                                                   event_callbacks=self.input_events(COMMAND_TOPIC))
+                    self._inputs.append((sub, on_command))
+                    self._channel_sub = sub
+                continue
+            msg_type, value_of = _INPUT_MESSAGES[entry.type]
+            handler = partial(self._on_input, entry, value_of)
+            sub = self.create_subscription(msg_type, entry.topic, handler, COMMAND_QOS,
+                                           event_callbacks=self.input_events(entry.topic))
+            self._inputs.append((sub, handler))
+            if entry.answers:
+                self._answer_subs.append(sub)
+                self._duty_topics[entry.answers] = entry.topic
+
+    def _on_input(self, entry: InputTopic, value_of: Callable[[Any], Any], msg: Any, info: Any = None) -> None:
+        if entry.answers:
+            self._answered.add(entry.answers)        # valid or not: the lockstep's answer
+        self.take_input(entry.input, entry.topic, value_of(msg), info)
+
+    def take_input(self, name: str, topic: str, value: Any, info: Any) -> None:
+        """An input of the device (its name; `topic` for the log), checked now by the device and
+        acting from the step an input taken now acts from (`acting_step`); a refused one logged."""
+        dev = self.device
+        at = self.acting_step(dev.timing, name, self.first_open_step(), dev.origin_ns, info)
+        reason = dev.submit(name, value, at)
+        if reason is not None:
+            self.log_rejection(name, topic, reason)
+        else:
+            dev.timing.took(name, at)
+
+    def first_open_step(self) -> int:
+        """The first step whose sample nobody has seen: an input taken now acts from there at the earliest."""
+        return max(self.device.first_open_step(), self._shown + 1)
+
     def acting_step(self, timing: InputTiming, name: str, first: int, origin_ns: int, info: Any) -> int:
         """The step an input of `name` taken now acts from (`InputTiming`, the devices' one rule; `first`:
         the first step not shown): in real time from its DDS reception time, otherwise from `first`."""
@@ -405,7 +462,40 @@ class DeviceNode(Node):
         self._take_fault(msg.data, info)
 
     def _take_fault(self, text: str, info: Any) -> None:
-        raise NotImplementedError
+        """Checked by the device now, acting as an input taken now."""
+        dev = self.device
+        at = self.acting_step(dev.timing, FAULTS, self.first_open_step(), dev.origin_ns, info)
+        reason = dev.submit_fault(text, at)
+        if reason is not None:
+            self.log_rejection(FAULTS, FAULTS, reason, "nothing changed")
+        else:
+            dev.timing.took(FAULTS, at)
+
+    def forward_log(self) -> None:
+        """What the device did that a user must hear about (its log: watchdogs, faults, resets), once
+        per event: a watchdog firing as a warning saying what to send, the rest as information."""
+        dev = self.device
+        log = dev.log
+        if self._logged > len(log):
+            self._logged = 0                # the device started its log anew
+        while self._logged < len(log):
+            t, text = log[self._logged]
+            self._logged += 1
+            valve, _, what = text.partition(": ")
+            watchdog = dev.watchdogs.get(valve)
+            if watchdog is not None and what.startswith("watchdog fired"):
+                topic = self._duty_topics.get(valve, DUTY_CYCLE)
+                timeout = watchdog.timeout_steps * dev.dt
+                self.get_logger().warning(
+                    f"t = {t:.4f} s: {text}; watchdog: no valid {topic} command for {timeout:g} s (model time): the "
+                    f"duty fell to safe_duty {dev.safe_duty:g}. Send the duty at least every {timeout:g} s (a "
+                    f"controller does; by hand: ros2 topic pub -r 10 {topic} std_msgs/msg/Float64 '{{data: 0.7}}'), "
+                    "or raise watchdog_timeout (0 = off). The next valid command resumes.")
+            elif watchdog is not None and what.startswith("watchdog cleared"):
+                self.get_logger().info(f"t = {t:.4f} s: {text}; watchdog: duty commands resumed, duty "
+                                       f"{dev.duties[valve]:g}")
+            else:
+                self.get_logger().info(f"t = {t:.4f} s: {text}")
 
     def publisher_of(self, topic: str, info: Any) -> str:
         """The node that published a message on `topic` (`publisher_name`)."""
@@ -444,6 +534,12 @@ class DeviceNode(Node):
     def _pump(self) -> None:
         """At a step boundary: apply a finished worker job (new settings, model) and answer its request;
         start the next one. Cheap when idle: called at every wake."""
+        held = self._held
+        if held is not None:
+            if not held[3]:
+                return                      # its answer waits until what it asked for acted
+            self._held = None
+            held[0].send_response(held[2], held[1])
         job = self._job
         if job is not None:
             srv, header, answer = job
@@ -451,10 +547,14 @@ class DeviceNode(Node):
                 return
             self._job = None
             sys.setswitchinterval(self._switch_interval)
+            self._hold = None
             for apply in self._ready:
                 apply()
             self._ready.clear()
             self._pending = None
+            if self._hold is not None:
+                self._held = (srv, header, answer.result(), self._hold)
+                return
             srv.send_response(answer.result(), header)
         if self._deferred:
             srv, request, header = self._deferred.popleft()
@@ -463,6 +563,12 @@ class DeviceNode(Node):
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(JOB_SWITCH_INTERVAL)
             self._job = (srv, header, self._worker.submit(self._serve, srv, request))
+
+    def hold_answer(self) -> list[bool]:
+        """From a worker-built callback the loop applies: the request's answer waits (and the next
+        request with it) until the returned list is not empty (what the request asked for acted)."""
+        self._hold = []
+        return self._hold
 
     def _serve(self, srv: Any, request: Any) -> Any:
         """Worker thread: one deferred request; an unexpected error is logged and answered, not raised."""
@@ -528,8 +634,8 @@ class DeviceNode(Node):
 
     def _lockstep_answers(self) -> tuple[list[Any], Any]:
         """The subscriptions of the `lockstep_keys` commands (made first, in that order), and one that
-        answers for all of them at once (a lockstep channel), or None."""
-        return [sub for sub, _ in self._inputs[:len(self.lockstep_keys)]], None
+        answers for all of them at once (a lockstep channel, made right after them), or None."""
+        return list(self._answer_subs), self._channel_sub
 
     def _wait_for_controllers(self, stop: StopFlag, subs: list[Any], channel: Any) -> None:
         """Lockstep: before the first sample, until every answering command (or the channel that

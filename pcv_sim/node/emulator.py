@@ -4,8 +4,9 @@
     python -m pcv_sim.node.emulator --ros-args -r __ns:=/left -p watchdog_timeout:=2.0
 
 The process (signals, exit status, the command line) is `pcv_sim.node.process`'s; the node is
-`pcv_sim.node.adapter.EmulatorNode`. Only the standard library is imported at the top, so a signal
-at any moment stops the emulator cleanly (exit 0; a recording that had started is finalized).
+`pcv_sim.node.device_node.DeviceNode` over one valve (`pcv_sim.node.kinds.EMULATOR`). Only the
+standard library is imported at the top, so a signal at any moment stops the emulator cleanly
+(exit 0; a recording that had started is finalized).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, parameter_help, run_node
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "emulator_node", "main"]
 
 DESCRIPTION = ("Hydraulic proportional pressure control valve emulator (ROS 2 node). Topics: in duty_cycle, "
                "load_flow, supply_pressure; out pressure, current, spool_position, /diagnostics.")
@@ -29,10 +30,17 @@ def _epilog() -> str:
                           "(config/valve.yaml), e.g. model.spool.mass")
 
 
-def _node(argv: list[str]) -> Any:
-    from pcv_sim.node.adapter import EmulatorNode
+def emulator_node(**kwargs: Any) -> Any:
+    """The emulator node in this process (`argv`, `context`, `namespace`, `parameter_overrides`... as for
+    an rclpy Node); the caller runs and destroys it."""
+    from pcv_sim.node.device_node import DeviceNode
+    from pcv_sim.node.kinds import EMULATOR
 
-    return EmulatorNode(argv=argv)
+    return DeviceNode(EMULATOR, **kwargs)
+
+
+def _node(argv: list[str]) -> Any:
+    return emulator_node(argv=argv)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -4,9 +4,10 @@
     python -m pcv_sim.node.rig --ros-args -p control_period:=0.01
 
 This module owns the process (signals, exit status), as `pcv_sim.node.emulator` does for one
-valve; the node is `pcv_sim.node.rig_node.RigNode`. Only the standard library is imported at the
-top: SIGINT/SIGTERM handling is installed first, so a signal at any moment is a clean stop (exit
-0); invalid parameters exit 2 with a message naming the parameter.
+valve; the node is `pcv_sim.node.device_node.DeviceNode` over the rig (`pcv_sim.node.kinds.RIG`).
+Only the standard library is imported at the top: SIGINT/SIGTERM handling is installed first, so
+a signal at any moment is a clean stop (exit 0); invalid parameters exit 2 with a message naming
+the parameter.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 from pcv_sim.node.process import main_process, parameter_help, run_node
 
-__all__ = ["main"]
+__all__ = ["main", "rig_node"]
 
 DESCRIPTION = ("Steering rig: the valves of a rig YAML and the steering cylinder as one ROS 2 node. Topics per valve: "
                "in <valve>/duty_cycle; out <valve>/pressure, current, spool_position; cylinder/joint_states, "
@@ -28,7 +29,9 @@ def _epilog() -> str:
     from pcv_sim.rig.settings import RIG_PARAMETERS
 
     return parameter_help(RIG_PARAMETERS, "FILE",
-                          "the valves, the cylinder, the step and the watchdog are set in the rig YAML (rig_config)")
+                          "the valves, the cylinder and the step are set in the rig YAML (rig_config); "
+                          "rig.watchdog_timeout and rig.safe_duty default to its rig.watchdog_timeout and "
+                          "rig.safe_duty and may change while the rig runs")
 
 
 def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
@@ -51,9 +54,16 @@ def _rig_yaml_as_params_file(argv: list[str]) -> str | None:
 
 
 def _node(argv: list[str]) -> Any:
-    from pcv_sim.node.rig_node import RigNode
+    return rig_node(argv=argv)
 
-    return RigNode(argv=argv)
+
+def rig_node(**kwargs: Any) -> Any:
+    """The rig node in this process (`argv`, `context`, `namespace`, `parameter_overrides`... as for an
+    rclpy Node); the caller runs and destroys it."""
+    from pcv_sim.node.device_node import DeviceNode
+    from pcv_sim.node.kinds import RIG
+
+    return DeviceNode(RIG, **kwargs)
 
 
 def main(args: list[str] | None = None) -> int:

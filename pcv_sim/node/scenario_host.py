@@ -2,10 +2,10 @@
 
 `pcv-sim scenario run` and `pcv_sim.testing` come here for `controller: {ros: {namespace, command, wait}}`
 (`pcv_sim.rig.scenario.run_scenario` runs callables and refuses these).
-The rig is the real rig node (`RigNode`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
-this process, in the scenario's namespace; a small hook (`RigNode.hook`) makes it a scenario:
+The rig is the real rig node (`rig_node`, as `ros2 run pcv_sim rig` in simulated lockstep time) in
+this process, in the scenario's namespace; a small hook (`DeviceNode.hook`) makes it a scenario:
 
-- the timeline (duties, external force, faults, sensor faults) is scheduled on `node.rig` as for a
+- the timeline (duties, external force, faults, sensor faults) is scheduled on `node.device` as for a
   callable (`schedule_timeline`), so it acts at the same steps;
 - at each control instant the scenario's setpoint goes with the period's sample on the lockstep
   channel (`setpoint`, m: `pcv_sim.node.lockstep_channel`), and is published on `setpoint`
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.errors import PcvSimError
-from pcv_sim.io.topics import CONTROLLER_FLAGS, SETPOINT
+from pcv_sim.io.topics import CONTROLLER_FLAGS, JOINT_STATES, SETPOINT, cylinder_topic
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.scenario import RosController, Scenario, ScenarioResult, scenario_result, schedule_timeline
 
@@ -69,9 +69,9 @@ class _Host:
         from std_msgs.msg import Float64
 
         self.node, self.scenario, self.ros, self.proc, self.log_path = node, scenario, ros, proc, log_path
-        rig = node.rig
+        rig = node.device
         self.per = rig.params.steps_per_period
-        self.period_ns = self.per * node.dt_ns
+        self.period_ns = self.per * node.device.dt_ns
         self.n = n = round(scenario.duration / rig.params.timing.control_period)
         names, self.valves = rig.signals, rig.valve_names
         self.true = np.full((n + 1, len(names)), np.nan)
@@ -96,7 +96,7 @@ class _Host:
     # --- the hook ---------------------------------------------------------------------------
 
     def sampled(self, true: np.ndarray, measured: list[float]) -> None:
-        rig = self.node.rig
+        rig = self.node.device
         k = rig.steps // self.per
         self.progress = time.monotonic()
         if k > self.n:
@@ -125,10 +125,10 @@ class _Host:
     def answered(self, k: int) -> None:
         """The controller answered the sample of instant k; the rig is one step past it, so
         `rig.duties` are those in force after the instant (as `run_lockstep` records them)."""
-        rig = self.node.rig
+        rig = self.node.device
         if k < self.n:
             self.duties[k] = [rig.duties[v] for v in self.valves]
-        counts = self.node.counts
+        counts = self.node.device.counts
         total = sum(counts.rejected.values())
         if total > self._rejected_seen:
             self._rejected_seen = total
@@ -169,7 +169,7 @@ class _Host:
         now = time.monotonic()
         if now - self.progress > self.ros.wait:
             self.failure = (f"no answer from the ROS controller for {self.ros.wait:g} s after the sample at "
-                            f"t = {self.node.rig.time:.4f} s (waiting for duty_cycle from "
+                            f"t = {self.node.device.time:.4f} s (waiting for duty_cycle from "
                             f"{', '.join(v for v in self.valves if v not in self.node._answered) or 'none'})")
             return True
         if self.proc is not None and now >= self._next_proc_check:
@@ -184,7 +184,7 @@ class _Host:
         self.done = self.done or value
 
     def run_record(self) -> RigRun:
-        rig = self.node.rig
+        rig = self.node.device
         times = np.arange(self.n + 1) * self.per * rig.dt
         wall = time.perf_counter() - self.wall0
         return RigRun(times, rig.signals, self.true, self.meas, self.duties, self.valves, self.sp, self.flags,
@@ -235,10 +235,9 @@ def _wait_for_controller(node: Any, host: _Host, spec: RosController, proc: Any,
     channel, a flags publisher (a controller of the user's may have neither), then _SETTLE s:
     matched on this side, the controller's side matches within milliseconds (a first sample it
     missed would cost the rig's 0.5 s re-publication)."""
-    names = node.rig.valve_names
-    duty = [(node.resolve_topic_name(f"{v}/duty_cycle"), sub) for v, (sub, _h) in zip(names, node._inputs)]
-    command = node._inputs[len(names)][0]
-    joint, sample = node._pub_joint, node._pub_sample
+    duty = [(sub.topic_name, sub) for sub in node._answer_subs]
+    command = node._channel_sub
+    joint, sample = node._samples.publisher(cylinder_topic(JOINT_STATES)), node._pub_sample
     optional: list[tuple[str, Callable[[], bool]]] = [(flags_sub.topic_name, lambda: flags_sub.get_publisher_count() > 0)]
     if host.setpoint is not None:
         optional.append((host._pub_sp.topic_name, lambda: host._pub_sp.get_subscription_count() > 0))
@@ -276,7 +275,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
 
     spec = scenario.ros
     assert spec is not None
@@ -298,12 +297,12 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
             overrides.append(Parameter("rig_config", value=str(scenario.rig_file)))
         if log_path is not None:
             proc = _start(scenario, domain, log_path)        # first: its start-up overlaps the rig's
-        node = RigNode(argv=["rig"], context=context, namespace=spec.namespace or "/", parameter_overrides=overrides)
-        if node.rig.params != scenario.rig:
+        node = rig_node(argv=["rig"], context=context, namespace=spec.namespace or "/", parameter_overrides=overrides)
+        if node.device.params != scenario.rig:
             raise ScenarioAborted("the rig node's rig differs from the scenario's (rig_config)")
         host = _Host(node, scenario, spec, proc, log_path)
         flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
-        schedule_timeline(node.rig, scenario)
+        schedule_timeline(node.device, scenario)
         host.channel = channel = _wait_for_controller(node, host, spec, proc, flags_sub)
         if channel:                  # the flags come with the answers; unsubscribed, nobody writes them
             node._inputs = [(sub, h) for sub, h in node._inputs if sub is not flags_sub]
@@ -330,7 +329,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         log_dir.cleanup()
     if host.failure is not None or node.failure is not None:
         wall = time.perf_counter() - wall0
-        reason = host.failure or f"the run stopped at t = {node.rig.time:.4f} s: {node.failure}"
+        reason = host.failure or f"the run stopped at t = {node.device.time:.4f} s: {node.failure}"
         return ScenarioResult(scenario.name, path, False, [], math.nan, wall, reason, host.run_record())
     return scenario_result(scenario, host.run_record())
 

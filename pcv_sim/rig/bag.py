@@ -28,6 +28,8 @@ from pcv_sim.io.topics import (
     EVENTS,
     FAULTS,
     INPUT_ROLES,
+    JOINT_NAME,
+    JOINT_STATE,
     JOINT_STATES,
     LOAD_FLOW,
     OPTION_INTERFACE,
@@ -46,8 +48,6 @@ from pcv_sim.rig.rig import CYLINDER_SIGNALS, EXTERNAL_FORCE
 
 __all__ = ["JOINT_NAME", "JOINT_STATE", "STRING", "RigBagLayout", "RigRecorder"]
 
-#: The prismatic joint of the cylinder in `cylinder/joint_states`.
-JOINT_NAME: Final = "steering"
 
 
 class RigBagLayout:
@@ -82,7 +82,6 @@ class RigBagLayout:
 
 
 _IN: Final = 0       # queue item (_IN, topic, t_ns, value)
-JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 _TEXT: Final = 2     # queue item (_TEXT, topic, t_ns, text)
 _STAMP_PACK: Final = struct.Struct("<iI")
 _JOINT_PACK: Final = struct.Struct("<d")
@@ -207,6 +206,34 @@ class RigRecorder(QueuedBag):
             item_bytes=9 * (len(self.signals) + len(self._option_out)) + 48,
             build={"valves": self.valves, "signals": self.signals, "options": self.options, "namespace": namespace,
                    "max_items": max_items})
+
+    # --- a node's side (`pcv_sim.node.device_node`: every device's recorder offers these) ------
+
+    def attach(self, device: Any) -> None:
+        """On a `Rig`'s hooks: its inputs as they change (`on_input`), its fault commands as they act."""
+        self._logged = 0
+        device.on_input = lambda step, name, value: self.input(device.stamp_ns(step), name, value)
+        device.on_fault_command = lambda step, text: self.text(self.faults_topic, device.stamp_ns(step), text)
+
+    def begin(self, device: Any) -> str:
+        """Start with every input in force at the present model time (the rig at rest); what goes where."""
+        self.start(device.stamp_ns(), device.input_values())
+        return (f"to {self.path}: every valve under its namespace, the cylinder, faults and events (outputs every "
+                "control period, inputs on change)")
+
+    def shown(self, device: Any, sample: Any, measured: Iterable[float]) -> None:
+        """A published sample (the rig at its step): measured values, the load volumes, the options'
+        true outputs, and the rig's new log entries."""
+        self.sample(device.stamp_ns(sample.step), measured, device.load_volumes(), device.option_sample)
+        log = device.log
+        while self._logged < len(log):
+            t, text = log[self._logged]
+            self._logged += 1
+            self.text(self.events_topic, device.stamp_ns(round(t / device.dt)), text)
+
+    def reset(self, device: Any) -> None:
+        """The piston jumped back to rest: no mean flow across the reset."""
+        self.restart_flows()
 
     # --- the model loop's side ----------------------------------------------------------------
 

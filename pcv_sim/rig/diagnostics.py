@@ -5,10 +5,11 @@ message, string key values with SI units in the names); the node turns them into
 DiagnosticArray. Names `<node full name>: <valve>` and `<node full name>: rig`, hardware_id the
 node's full name (REP 107 style, as the emulator's).
 
-    <valve>  WARN while its watchdog has fired, while a fault is active on it or on one of its
-             signals, or when its duty commands or its options' inputs were refused in the period;
-             with the valve options on, their signals (`ambient_temperature_k`, `coil_temperature_k`,
-             `coil_resistance_ohm`, `core_position_m`... as the emulator's) and input counts.
+    <valve>  the emulator's `inputs` status for this valve (`pcv_sim.device.diagnostics.valve_inputs`:
+             watchdog, duty in force and last valid, faults on it or its signals, its inputs' counts,
+             its options' temperatures; WARN while its watchdog has fired, a fault is active on it or
+             its inputs were refused in the period), its chamber, its last published signals and its
+             options' outputs (`coil_temperature_k`, `coil_resistance_ohm`, `core_position_m`).
     rig      ERROR when the model ran away (non-finite: nothing is published any more) or the
              recording failed; WARN while any fault is active, any watchdog has fired, fault or
              external force commands were refused in the period, (real time) steps were skipped in
@@ -19,34 +20,27 @@ node's full name (REP 107 style, as the emulator's).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
-from pcv_sim.device.diagnostics import ERROR, OK, WARN, PeriodDiagnostics, Status, recording_status
+from pcv_sim.device.diagnostics import (
+    ERROR,
+    OK,
+    WARN,
+    PeriodDiagnostics,
+    Shown,
+    Status,
+    recording_status,
+    valve_inputs,
+)
 from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.io.topics import OPTION_INTERFACE
-from pcv_sim.rig.rig import Rig
+from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, OPTION_INTERFACE
+from pcv_sim.rig.rig import EXTERNAL_FORCE, Rig
+from pcv_sim.rig.settings import RigNodeSettings
 from pcv_sim.simulation.clock import RealTimeSchedule
 
-__all__ = ["RigCounts", "RigDiagnostics"]
+__all__ = ["RigDiagnostics"]
 
 _OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
-
-
-@dataclass
-class RigCounts:
-    """What the node counts of its inputs (all of them; the log is rate-limited)."""
-
-    #: valve -> valid duty commands, and <valve>.<option input> -> valid temperatures
-    accepted: dict[str, int] = field(default_factory=dict)
-    rejected: dict[str, int] = field(default_factory=dict)     # the same, refused
-    faults_accepted: int = 0
-    faults_rejected: int = 0
-    force_accepted: int = 0                                    # cylinder/external_force
-    force_rejected: int = 0
-    resets: int = 0
-    last_rejection: str = ""
-    samples_published: int = 0
 
 
 class RigDiagnostics(PeriodDiagnostics):
@@ -54,79 +48,53 @@ class RigDiagnostics(PeriodDiagnostics):
 
     _recorder: RecorderStatus | None = None          # of the build in progress
 
-    def build(self, now: float, *, rig: Rig, counts: RigCounts, time_mode: str, lockstep: bool,
-              schedule: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
-              last: dict[str, float], recorder: RecorderStatus | None = None) -> list[Status]:
+    def build(self, now: float, *, device: Rig, settings: RigNodeSettings, schedule: RealTimeSchedule | None,
+              recorder: RecorderStatus | None, shown: Shown) -> list[Status]:
         """`last`: the last published (measured) sample, signal -> SI value. Never the rig's sample()
         here: computing outputs moves the coil solve's Newton start, and a run must not depend on
         when the wall-clock diagnostics came. The valve options' outputs are in `last` too
         (`<valve>.coil_temperature`...), their inputs read from the rig (what is in force). `recorder`:
-        the recording's status (record.enabled)."""
+        the recording's status (record.enabled). The inputs' counts are the rig's (`Device.counts`,
+        by input name: `<valve>.duty_cycle`, `cylinder.external_force`, `faults`...)."""
         self._recorder = recorder
-        totals = {f"rejected.{v}": n for v, n in counts.rejected.items()}
-        totals["rejected.faults"] = counts.faults_rejected
-        totals["rejected.external_force"] = counts.force_rejected
-        wall, period_steps, new = self._period(now, rig.steps, totals, schedule)
-        statuses = [self._valve(rig, v, counts, new, last) for v in rig.valve_names]
-        statuses.append(self._rig(rig, counts, new, time_mode, lockstep, schedule, failure, waiting_for,
-                                  period_steps * rig.dt / wall))
+        rig, last = device, shown.last
+        counts = rig.counts
+        wall, period_steps, new = self._period(now, rig.steps, {f"rejected.{k}": n for k, n in counts.rejected.items()},
+                                               schedule)
+        statuses = [self._valve(rig, v, new, last) for v in rig.valve_names]
+        statuses.append(self._rig(rig, shown.resets, shown.samples_published, new, shown.time_mode, settings.lockstep,
+                                  schedule, rig.fault, shown.waiting_for, period_steps * rig.dt / wall))
         return statuses
 
-    def _valve(self, rig: Rig, name: str, counts: RigCounts, new: dict[str, int], y: dict[str, float]) -> Status:
-        faults = [f"{kind}@{target}" for (target, kind) in rig.faults
-                  if target == name or target.startswith(f"{name}.")]
-        problems = []
-        if rig.watchdog_fired[name]:
-            problems.append(f"watchdog: no duty command for {rig.params.timing.watchdog_timeout:g} s, "
-                            f"safe duty {rig.params.timing.safe_duty:g}")
-        if faults:
-            problems.append(f"fault(s) active: {', '.join(faults)}")
-        if new.get(f"rejected.{name}"):
-            problems.append(f"{new[f'rejected.{name}']} duty command(s) rejected")
-        options = [o.partition(".")[2] for o in rig.option_inputs if o.startswith(f"{name}.")]
-        for option in options:
-            if new.get(f"rejected.{name}.{option}"):
-                problems.append(f"{new[f'rejected.{name}.{option}']} {option} input(s) rejected")
-        slot = rig.params.valve(name)
-        values: dict[str, Any] = {
-            "chamber": slot.chamber,
-            "duty_command": f"{rig.commands[name]:g}",
-            "duty_in_force": f"{rig.duties[name]:g}",
-            "watchdog": "off" if not rig.params.timing.watchdog_timeout else
-                        "fired" if rig.watchdog_fired[name] else "ok",
-            "faults": ", ".join(faults),
-            "accepted.duty_cycle": counts.accepted.get(name, 0),
-            "rejected.duty_cycle": counts.rejected.get(name, 0),
-        }
+    def _valve(self, rig: Rig, name: str, new: dict[str, int], y: dict[str, float]) -> Status:
+        problems, values = valve_inputs(rig, name, new)     # the emulator's inputs status, for this valve
+        values["chamber"] = rig.params.valve(name).chamber
         for key, signal, fmt in (("pressure_pa", "pressure", ".1f"), ("current_a", "current", ".5f"),
                                  ("spool_position_m", "spool_position", ".4e")):
             v = y.get(f"{name}.{signal}")
             values[key] = format(v, fmt) if v is not None and not math.isnan(v) else ""
-        for option in options:                          # the valve options' inputs in force, K
-            values[f"{option}_k"] = f"{rig.temperature(name, option):.2f}"
-            values[f"accepted.{option}"] = counts.accepted.get(f"{name}.{option}", 0)
-            values[f"rejected.{option}"] = counts.rejected.get(f"{name}.{option}", 0)
-        for signal in rig.option_outputs:               # and their outputs, as last published
+        for signal in rig.option_outputs:               # the options' outputs, as last published
             if signal.startswith(f"{name}.") and (v := y.get(signal)) is not None:
                 option = signal.partition(".")[2]
                 values[f"{option}_{_OPTION_UNITS[option].lower()}"] = f"{v:.6g}"
         return self._status(name, WARN if problems else OK, problems, "ok", values)
 
-    def _rig(self, rig: Rig, counts: RigCounts, new: dict[str, int], time_mode: str, lockstep: bool,
-             sched: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
+    def _rig(self, rig: Rig, resets: int, samples_published: int, new: dict[str, int], time_mode: str,
+             lockstep: bool, sched: RealTimeSchedule | None, failure: str | None, waiting_for: tuple[str, ...],
              factor: float) -> Status:
+        counts = rig.counts
         faults = [f"{kind}@{target}" for (target, kind) in rig.faults]
         fired = [v for v in rig.valve_names if rig.watchdog_fired[v]]
-        rejected = sum(counts.rejected[v] for v in rig.valve_names)
+        rejected = sum(counts.rejected.get(f"{v}.{DUTY_CYCLE}", 0) for v in rig.valve_names)
         problems = []
         if faults:
             problems.append(f"fault(s) active: {', '.join(faults)}")
         if fired:
             problems.append(f"watchdog fired: {', '.join(fired)}")
-        if new.get("rejected.faults"):
-            problems.append(f"{new['rejected.faults']} fault command(s) rejected")
-        if new.get("rejected.external_force"):
-            problems.append(f"{new['rejected.external_force']} external force command(s) rejected")
+        if new.get(f"rejected.{FAULTS}"):
+            problems.append(f"{new[f'rejected.{FAULTS}']} fault command(s) rejected")
+        if new.get(f"rejected.{EXTERNAL_FORCE}"):
+            problems.append(f"{new[f'rejected.{EXTERNAL_FORCE}']} external force command(s) rejected")
         values: dict[str, Any] = {
             "time_mode": time_mode,
             "lockstep": str(lockstep).lower() if time_mode == "simulated" else "",
@@ -135,16 +103,16 @@ class RigDiagnostics(PeriodDiagnostics):
             "control_period_s": f"{rig.params.timing.control_period:g}",
             "faults_active": ", ".join(faults),
             "watchdog_fired": ", ".join(fired),
-            "rejected_inputs": sum(counts.rejected.values()) + counts.faults_rejected + counts.force_rejected,
+            "rejected_inputs": sum(counts.rejected.values()),
             "rejected.duty_cycle": rejected,
-            "rejected.faults": counts.faults_rejected,
-            "accepted.faults": counts.faults_accepted,
-            "external_force_n": f"{rig.input_values()['cylinder.external_force']:g}",
-            "accepted.external_force": counts.force_accepted,
-            "rejected.external_force": counts.force_rejected,
-            "resets": counts.resets,
+            "rejected.faults": counts.rejected.get(FAULTS, 0),
+            "accepted.faults": counts.accepted.get(FAULTS, 0),
+            "external_force_n": f"{rig.input_values()[EXTERNAL_FORCE]:g}",
+            "accepted.external_force": counts.accepted.get(EXTERNAL_FORCE, 0),
+            "rejected.external_force": counts.rejected.get(EXTERNAL_FORCE, 0),
+            "resets": resets,
             "last_rejection": counts.last_rejection,
-            "samples_published": counts.samples_published,
+            "samples_published": samples_published,
             "waiting_for": ", ".join(waiting_for),
         }
         if sched is not None:

@@ -18,10 +18,8 @@ from pcv_sim.device.settings import (
     CommonSettings,
     SettingsSchema,
     any_value,
-    bag_name_check,
     non_negative,
     one_of,
-    real_time_factor,
 )
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import setting
@@ -42,27 +40,9 @@ class RigNodeSettings(CommonSettings):
         "simulated", "-", "simulated: model time from 0, one /clock for the whole rig (controller CI); real: "
         "model time follows the wall clock (hardware in the loop)", one_of("real", "simulated"), "str",
         read_only=True)
-    lockstep: bool = setting(
-        True, "-", "simulated time: publish the samples of a control period, then wait for one duty_cycle "
-        "command of every valve before computing the next period (deterministic bit for bit)", any_value, "bool",
-        read_only=True)
-    real_time_factor: float = setting(
-        0.0, "-", "simulated time without lockstep: model seconds per wall second; 0 or inf = as fast as "
-        "possible", convert=real_time_factor)
     control_period: float = setting(
         0.0, "s", "samples out and commands in every control period (model time); 0 = the rig YAML's "
         "rig.control_period; a whole multiple of rig.time_step", non_negative, read_only=True)
-    allow_unknown_parameters: bool = setting(
-        False, "-", "false: a parameter name nobody declares (a typo) stops the node at start (exit 2); true: "
-        "warn and ignore it", any_value, "bool", read_only=True)
-    record_enabled: bool = setting(
-        False, "-", "record every valve (under its namespace, as the emulator records one), the cylinder, the "
-        "fault commands and the rig's events to a rosbag2/MCAP bag from the start (the rig at rest) until "
-        "SIGINT/SIGTERM; outputs at every published sample (control_period), inputs on change at the step they "
-        "act", any_value, "bool", name="record.enabled", read_only=True)
-    record_name: str = setting(
-        "", "-", "bag directory name; '' = rig[_<namespace>]_YYYYmmdd-HHMMSS; an existing bag is never "
-        "overwritten", bag_name_check, "str", name="record.name", read_only=True)
 
     def check(self, rig: RigParams) -> RigNodeSettings:
         """Cross-checks against the rig (step multiples); returns self or raises ParameterError."""

@@ -3,7 +3,7 @@ import dataclasses
 
 import pytest
 
-from pcv_sim.device.diagnostics import CONCERNS, ERROR, OK, WARN, DiagnosticsBuilder
+from pcv_sim.device.diagnostics import CONCERNS, ERROR, OK, WARN, DiagnosticsBuilder, Shown
 from pcv_sim.device.settings import NodeSettings
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.io.recorder import RecorderStatus
@@ -44,7 +44,7 @@ class Rig:
 
     def statuses(self):
         out = self.builder.build(self.now, device=self.device, settings=self.settings, schedule=self.schedule,
-                                 recorder=self.recorder, samples_published=0)
+                                 recorder=self.recorder, shown=Shown(self.settings.time_mode, 0, 0, {}))
         assert [s.name for s in out] == [f'{NAME}: {c}' for c in CONCERNS]
         assert {s.hardware_id for s in out} == {NAME}
         return {s.name.split(': ')[1]: s for s in out}

@@ -88,7 +88,7 @@ def test_the_entry_module_imports_nothing_heavy_before_main_installs_the_handler
     from node.conftest import clean_child_env
 
     code = ("import sys, pcv_sim.node.emulator; "
-            "print(sorted(m for m in ('rclpy', 'numpy', 'scipy', 'yaml', 'pcv_sim.node.adapter') if m in sys.modules))")
+            "print(sorted(m for m in ('rclpy', 'numpy', 'scipy', 'yaml', 'pcv_sim.node.device_node') if m in sys.modules))")
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, env=clean_child_env(),
                          timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == '[]', out

@@ -212,32 +212,36 @@ def test_real_time_reset_acts_at_an_inputs_step_and_a_real_time_run_is_recorded(
     use_sim_time cannot be switched at run time."""
 
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Float64
     from std_srvs.srv import Trigger
 
     from pcv_sim.io import read_bag
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
     from pcv_sim.simulation.clock import RealTimeSchedule
 
-    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[
+    node = rig_node(argv=['rig'], context=ros.context, parameter_overrides=[
         Parameter('time_mode', value='real'), Parameter('record.enabled', value=True),
         Parameter('record.directory', value=str(ros.tmp_path)), Parameter('record.name', value='rt')])
     ns = node.get_namespace().rstrip('/')
     try:
-        rig = node.rig
+        rig = node.device
         assert not node.set_parameters([Parameter('use_sim_time', value=True)])[0].successful
         node._schedule = sched = RealTimeSchedule(rig.dt)
         sched.start(time.monotonic() - 0.0024)          # 2.4 ms of wall time since the start
         node._shown = 20
-        node._on_duty('left', Float64(data=0.8), {'received_timestamp': 1})    # long ago: at step 21
-        response = node._on_reset(Trigger.Request(), Trigger.Response())
-        assert response.success and 'at the next step' in response.message
+        node.take_input('left.duty_cycle', 'left/duty_cycle', 0.8, {'received_timestamp': 1})   # long ago: at step 21
+        response = node._on_reset(Trigger.Request(), Trigger.Response())    # the worker's part: prepared
+        for install in node._ready:                      # the loop's: at the step an input received now acts at
+            install()
+        node._ready.clear()
         reset_at = rig.timing.last('reset')
         assert reset_at >= 24                            # not before its reception (~2.4 ms)
-        node._on_external_force(Float64(data=300.0), {'received_timestamp': 10**12})  # after it: it stays
+        node.take_input('cylinder.external_force', 'cylinder/external_force', 300.0,
+                        {'received_timestamp': 10**12})                               # after it: it stays
+        assert not response.message and node._hold == []       # the answer waits until the reset acted
         rig.advance_to(reset_at + 10)
+        assert node._hold == [True] and response.success and 'model time goes on' in response.message
         assert rig.commands['left'] == 0.5 and rig.input_values()['cylinder.external_force'] == 300.0
-        assert 'reset' in rig.log[-1][1] and node.counts.resets == 1
+        assert 'reset' in rig.log[-1][1] and node.resets == 1
         rig.reset()
         node._schedule = None
 
@@ -291,3 +295,36 @@ def test_the_rig_takes_run_time_parameter_changes_with_the_emulators_refusals(ro
         assert reason is None or reason in result.reason, (name, result.reason)
     assert wait_until(lambda: "parameters changed: diagnostics_period = 0.2" in rig.output(), 10), rig.output()
     assert "parameters changed: real_time_factor = 4.0" in rig.output()
+
+
+def test_the_rigs_watchdog_and_safe_duty_are_parameters_at_start_and_at_run_time(ros):
+    """rig.watchdog_timeout and rig.safe_duty (default: the rig YAML's) replace the YAML's when given
+    at start and act from the present step when set at run time, as the emulator's watchdog_timeout
+    and safe_duty; before a first command each valve's watchdog is waiting (it cannot fire); a safe
+    duty no valve takes and a rig key the rig is built on are refused, named."""
+    from std_msgs.msg import Float64
+
+    from pcv_sim.node.client import EmulatorClient
+
+    ns = ros.ns('rig')
+    rig = start_rig(ros, params={'lockstep': False, 'control_period': 0.01, 'rig.watchdog_timeout': 0.2,
+                                 'diagnostics_period': 0.2})
+    client = rig_client(ros)
+    c = EmulatorClient(ns, context=ros.context, node_name='rig_watchdog', emulator_node='rig', outputs=())
+    ros.clients.append(c)
+    assert client.wait_for_rig(START), rig.output()
+    assert wait_until(lambda: 'watchdog 0.2 s' in rig.output(), 10), rig.output()
+    diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: left', (0, '', {}))[2].get('watchdog') == 'waiting')
+    assert diag is not None, rig.output()
+    assert 'watchdog fired' not in rig.output()              # 0.2 s passed long ago: no command, no firing
+    refused = c.set_parameters({'rig.safe_duty': 7.0, 'rig.time_step': 1e-5}, timeout=START)
+    assert not refused[0].successful and 'rig.safe_duty: got 7.0; accepted is' in refused[0].reason
+    assert not refused[1].successful and 'unknown parameter(s) rig.time_step' in refused[1].reason
+    ok = c.set_parameters({'rig.safe_duty': 0.25, 'rig.watchdog_timeout': 0.3}, timeout=START)
+    assert all(r.successful for r in ok), [r.reason for r in ok]
+    assert wait_until(lambda: 'watchdog 0.3 s (0 = off) -> duty 0.25' in rig.output(), 10), rig.output()
+    client.duty_pubs['left'].publish(Float64(data=0.9))     # one command, then none: fires 0.3 s later
+    assert wait_until(lambda: 'left: watchdog fired, duty -> 0.25' in rig.output(), 30), rig.output()
+    assert 'no valid left/duty_cycle command for 0.3 s' in rig.output()
+    diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: left', (0, '', {}))[2].get('watchdog') == 'fired')
+    assert diag is not None and diag[f'{ns}/rig: right'][2]['watchdog'] == 'waiting', rig.output()

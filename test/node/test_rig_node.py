@@ -289,14 +289,13 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
     is what decides it): the first step stamped at or after the DDS reception, after the last
     sample shown, and two inputs on one valve never at the same step."""
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Float64
 
-    from pcv_sim.node.rig_node import RigNode
+    from pcv_sim.node.rig import rig_node
     from pcv_sim.simulation.clock import RealTimeSchedule
 
-    node = RigNode(argv=['rig'], context=ros.context, parameter_overrides=[Parameter('time_mode', value='real')])
+    node = rig_node(argv=['rig'], context=ros.context, parameter_overrides=[Parameter('time_mode', value='real')])
     try:
-        rig = node.rig
+        rig = node.device
         node._schedule = sched = RealTimeSchedule(rig.dt)
         sched.start(time.monotonic() - 1.0)            # 1 s of wall time since the start: nothing is "future"
         rig.origin_ns = 1_000_000_000_000
@@ -304,8 +303,9 @@ def test_real_time_inputs_act_at_the_step_of_their_reception_never_before(ros):
         steps = []
 
         def acted_at(valve, received_ns):
-            node._on_duty(valve, Float64(data=0.7), {'received_timestamp': received_ns})
-            steps.append(rig.timing.last(valve))           # the step the one just given acts at
+            node.take_input(f'{valve}.duty_cycle', f'{valve}/duty_cycle', 0.7,
+                            {'received_timestamp': received_ns})
+            steps.append(rig.timing.last(f'{valve}.duty_cycle'))   # the step the one just given acts at
 
         acted_at('left', rig.origin_ns + 2_345_000)     # received at 2.345 ms: step 24 (2.4 ms), not 23
         acted_at('left', rig.origin_ns + 2_345_000)     # the same instant again: the step after
