@@ -119,6 +119,10 @@ MODEL_FAILURES = (ArithmeticError, ValueError)
 TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
                       "oil_temperature": "fluid.temperature: input"}
 
+#: What a recorder gets of each valve besides its outputs (`Device.record_values`): the duty in force
+#: (the command, or the watchdog's), the duty after the fall-rate limiter, load flow, supply pressure.
+RECORD_INPUTS = ("duty_command", "duty", "load_flow", "supply_pressure")
+
 #: `Device.on_input(step, name, value)`: an input of the model changed, acting from `step` on.
 InputHook = Callable[[int, str, float], None]
 
@@ -330,6 +334,15 @@ class Device:
                           for n in names]
         self._volumes = [v.params.circuit.load_volume for v in valves]
         self._wired_volumes = any(i >= 0 for i in self._volume_i)
+        #: per valve, what `record_values` reads: its name, its keys, the indices of its duty input, load flow
+        #: (its own: input; a chamber's: the plant's output), supply input and its three outputs
+        self._record_slots = [
+            (n, tuple(f"{self._prefix[n]}{r}" for r in (*RECORD_INPUTS, *kernel.OUTPUTS)), self._duty_i[k],
+             self._flow_i[k], plant.index("output", wired[f"{n}.load_flow"]) if f"{n}.load_flow" in wired else -1,
+             self._supply_i[k], tuple(plant.index("output", f"{n}.{r}") for r in kernel.OUTPUTS))
+            for k, n in enumerate(names)]
+        self._plant_signal_i = [(name, plant.index("output", name)) for name in
+                                (plant_spec.signals if plant_spec is not None else ())]
         layouts = [kernel.layout(v.params, kind) for v in valves]
         sampled = [f"{v.name}.{o}" for v, lay in zip(valves, layouts) for o in lay.outputs]
         self.signals: tuple[str, ...] = tuple(
@@ -632,45 +645,63 @@ class Device:
         if prepared.sim is None:
             what = self.reset(keep_time=True)
         else:
+            # The inputs in force now (taken since `prepare` too) act on the new model from now on.
+            inputs = self.input_values()
+            supply, supply0, flow = list(self._supply), list(self._supply0), list(self._load_flow)
             steps = self.sim.steps
             new = prepared.sim
             if self._same_layout(new):
                 self.sim._S[:] = new._S            # the simulator's arrays stay (a lockstep holds them)
-                self.sim.steps = steps
                 sim = self.sim
             else:
                 sim = new
-                sim.steps = steps
+            sim.steps = steps
             if prepared.valves is not None:
                 self.params = prepared.params
                 self._rest.clear()
                 self._configure(prepared.valves, sim)
                 if self.sensors.signals != self.signals:
                     self.sensors = Sensors(self.signals, self.sensors.period, self.sensors.seed)
-                if self.restart_at_start:
-                    self.reset(keep_time=True)
             self._healthy = [p.copy() for p in self._configured]
             self.faults = {}
             self.sensors.reset()
-            names = self.valve_names
-            for k, name in enumerate(names):
-                self._limiters[k].value = float(sim.u[self._duty_i[k]])
-                self._lim_step[k] = steps
-                self._supply[k] = float(sim.u[self._supply_i[k]])
-                try:
-                    check_duty(self.duties[name], self._ranges[name])
-                except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
-                    self.counts.last_rejection = f"after a model restart: {err}"
-            for (valve, name), i in zip(self._option_in, self._option_in_i):
-                if name == "oil_temperature":       # the spool's pole follows the oil in force (R34)
-                    try:
-                        self.set_temperature(valve, name, float(sim.u[i]))
-                    except CommandError as err:     # too cold for the new step: the YAML's oil stays
-                        self.counts.last_rejection = f"after a model restart: {err}"
+            if self.restart_at_start:
+                self.reset(keep_time=True)
+            else:
+                self._put_inputs(inputs, [s if s != s0 else new0 for s, s0, new0 in zip(supply, supply0, self._supply0)],
+                                 flow)
             what = prepared.what
             self._inputs_changed()
         self.clear_fault()
         return f"{what} (cleared fault: {was})" if was else what
+
+    def _put_inputs(self, inputs: Mapping[str, float], supply: Sequence[float], flow: Sequence[float]) -> None:
+        """After a restart at the present operating point: the duties in force (the limiters at rest
+        there), supplies, load flows and the options' and plant's inputs of `inputs` (as
+        `input_values` names them) into the model."""
+        u = self.sim.u
+        for k, name in enumerate(self.valve_names):
+            try:
+                check_duty(self.duties[name], self._ranges[name])
+            except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
+                self.counts.last_rejection = f"after a model restart: {err}"
+            else:
+                u[self._duty_i[k]] = self.duties[name]
+            self._limiters[k].value = float(u[self._duty_i[k]])
+            self._lim_step[k] = self.sim.steps
+            self._supply[k] = supply[k]
+            u[self._supply_i[k]] = supply[k]
+            if self._flow_i[k] >= 0:
+                self._load_flow[k] = flow[k]
+                u[self._flow_i[k]] = flow[k]
+        for name, i in self._plant_i.items():
+            u[i] = inputs.get(name, 0.0)
+        for (valve, name), full in zip(self._option_in, self.option_inputs):
+            if full in inputs:
+                try:    # the oil's: the spool's pole follows it (R34)
+                    self.set_temperature(valve, name, inputs[full])
+                except CommandError as err:     # too cold for the new step: the YAML's stays
+                    self.counts.last_rejection = f"after a model restart: {err}"
 
     def _same_layout(self, sim: Simulator) -> bool:
         """`sim` runs the same compiled code on arrays of the same layout and tables as the device's."""
@@ -1334,31 +1365,23 @@ class Device:
 
     def _record_values(self, y: np.ndarray) -> dict[str, float]:
         u = self.sim.u
-        plant = self.plant
         out: dict[str, float] = {}
-        for k, name in enumerate(self.valve_names):
-            pre = self._prefix[name]
-            out[f"{pre}duty_command"] = self.duties[name]
-            out[f"{pre}duty"] = float(u[self._duty_i[k]])
-            flow = self._flow_i[k]
-            out[f"{pre}load_flow"] = float(u[flow]) if flow >= 0 else self._wired_flow(name, y)
-            out[f"{pre}supply_pressure"] = float(u[self._supply_i[k]])
-            for role in kernel.OUTPUTS:
-                out[f"{pre}{role}"] = float(y[plant.index("output", f"{name}.{role}")])
+        for valve, (command, duty, flow, supply, *outputs), i_duty, i_flow, o_flow, i_supply, o in self._record_slots:
+            out[command] = self.duties[valve]
+            out[duty] = float(u[i_duty])
+            out[flow] = float(u[i_flow]) if i_flow >= 0 else float(y[o_flow])
+            out[supply] = float(u[i_supply])
+            for key, i in zip(outputs, o):
+                out[key] = float(y[i])
         for name, i in zip(self.option_inputs, self._option_in_i):
             out[name] = float(u[i])
         for name, i in zip(self.option_outputs, self._option_out_i):
             out[name] = float(y[i])
         for name, i in self._plant_i.items():
             out[name] = float(u[i])
-        if self.plant_spec is not None:
-            for name in self.plant_spec.signals:
-                out[name] = float(y[plant.index("output", name)])
+        for name, i in self._plant_signal_i:
+            out[name] = float(y[i])
         return out
-
-    def _wired_flow(self, valve: str, y: np.ndarray) -> float:
-        wired = {dst: src for src, dst in (self.plant_spec.wires if self.plant_spec else ())}
-        return float(y[self.plant.index("output", wired[f"{valve}.load_flow"])])
 
     def option_input_values(self) -> dict[str, float]:
         """The valve options' inputs in force (K), read without computing an output."""

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from pcv_sim.device.device import Device, Recorder, ValveSpec
 from pcv_sim.device.device import Sample as DeviceSample
 from pcv_sim.device.inputs import Watchdog, WatchdogState
@@ -142,10 +140,3 @@ class ValveDevice(Device):
         v = s.values
         p, i, x, *options = v.tolist()
         return Sample(s.step, p, i, x, float(self.sim.u[self._duty_i[0]]), self.duties[VALVE], tuple(options))
-
-    def measure_valve(self, sample: Sample) -> tuple[float, float, float]:
-        """What the sensors show of `sample`'s pressure, current and spool position (`measure`:
-        sensor faults applied; NaN: no value, not to be published). Called once per sample, in order."""
-        values = np.array((sample.pressure, sample.current, sample.spool_position, *sample.options))
-        y = self.measure(DeviceSample(sample.step, values))
-        return float(y[0]), float(y[1]), float(y[2])

@@ -430,3 +430,19 @@ def test_clearing_a_fault_that_is_not_active_is_refused_when_due_and_a_reset_cle
     assert not dev.faults and not dev.sensors.active
     s = dev.run_to(dev.steps + 10)[-1]
     assert np.array_equal(dev.measure(s), s.values)
+
+
+def test_inputs_taken_between_prepare_and_install_act_on_the_new_model():
+    """`prepare` runs off the loop while inputs keep coming: those in force at `install` stay."""
+    dev = device(watchdog_timeout=0.0)
+    dev.submit('duty_cycle', 0.6)
+    dev.run(100)
+    prepared = dev.prepare(params_with(PARAMS, {'model.spool.mass': 0.05}))
+    dev.submit('load_flow', 2e-6)
+    dev.submit('supply_pressure', 150e5)
+    dev.submit('duty_cycle', 0.7)
+    dev.run(10)
+    dev.install(prepared)
+    assert dev.load_flow == dev.record_values()['load_flow'] == 2e-6
+    assert dev.input_values() == {'duty_cycle': 0.7, 'supply_pressure': 150e5}
+    assert dev.params.spool.mass == 0.05 and dev.fault is None
