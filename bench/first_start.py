@@ -4,8 +4,8 @@
         [--options]
 
 Each round starts, per tree, a fresh Python process with an empty `PCV_SIM_CACHE` that imports
-pcv_sim from that tree, builds the valve's stepper (its warm-up compiles every kernel the emulator
-steps with) and runs 10 steps; the wall time from the import to the last step is the figure
+pcv_sim from that tree, builds the emulator's device (its warm-up compiles every kernel it steps
+with) and runs 10 steps; the wall time from the import to the last step is the figure
 (compiling dominates it). Trees alternate within a round, so a before/after comparison (e.g. a
 `git worktree` of the main branch against this checkout) sees the same machine load. `--options`
 switches the valve's three options beyond the paper's bench on (docs/model.md R33-R35).
@@ -29,15 +29,14 @@ import sys, time
 sys.path.insert(0, {tree!r})
 t0 = time.perf_counter()
 from pcv_sim.params import load_params, replace_param
-from pcv_sim.simulation.stepper import RealTimeStepper
-p = load_params()
+from pcv_sim.device.valve import ValveDevice
+p = replace_param(load_params(), "simulation.model", {model!r})
 if {options!r}:
     for key, value in (("solenoid.coil_temperature", "lumped"), ("fluid.temperature", "input"),
                        ("spool.core", "separate")):
         p = replace_param(p, key, value)
-st = RealTimeStepper(p, duty=0.5, kind={model!r})
-st.warm_up()
-st.advance(10)
+dev = ValveDevice(p, safe_duty=0.5)      # loads (or compiles) every kernel the stepping uses
+dev.run(10)
 import pcv_sim
 assert pcv_sim.__file__.startswith({tree!r}), pcv_sim.__file__
 print(time.perf_counter() - t0)

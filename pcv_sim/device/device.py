@@ -268,6 +268,8 @@ class Device:
         self.record_every = 1
         #: The last step whose sample or record left (`run_to`, `present_sample`; -1: none yet).
         self.shown = -1
+        #: The last sample handed out (diagnostics), or None.
+        self.last_sample: Sample | None = None
         self.sample_every = _positive_int(sample_every, "sample_every")
         #: Whether `install(prepare())` is a fresh start's rest (the rig: initial duties, the plant at
         #: its start) or the rest at the present operating point (the emulator: the duty in force).
@@ -341,7 +343,8 @@ class Device:
         self._ranges = {v.name: v.params.command.duty_range for v in valves}
         self._limiters = [FallRateLimiter(v.params.command.duty_fall_rate_limit) for v in valves]
         self._limited = [k for k, v in enumerate(valves) if v.params.command.duty_fall_rate_limit is not None]
-        self._lim_step = [-1] * len(valves)
+        self._lim_step = [-1] * len(valves)     # the step each limiter's value was last taken at
+        self._ramp_at = [-1] * len(valves)      # the step each ramp's next step is queued for
         #: per valve: (its command.duty_range, its duty's input index): what the lockstep's fast path
         #: writes straight into the model; no range for a valve with a fall-rate limiter (its duty
         #: goes through `set_duty` and the limiter).
@@ -445,12 +448,9 @@ class Device:
         return self.origin_ns + (self.sim.steps if step is None else step) * self.dt_ns
 
     def next_due(self) -> int:
-        """The first step at which a queued input, a watchdog deadline or a ramping duty's next value
-        falls (`inputs.NEVER` if none): where a stretch of compiled steps must stop."""
-        nxt = min(self.queue.next_step, *(w.deadline for w in self.watchdogs.values()))
-        if self._limited and self._ramping():
-            return min(nxt, self.sim.steps + 1)
-        return nxt
+        """The first step at which a queued input (a ramping duty's next value among them) or a
+        watchdog deadline falls (`inputs.NEVER` if none): where a stretch of compiled steps must stop."""
+        return min(self.queue.next_step, *(w.deadline for w in self.watchdogs.values()))
 
     def skip(self, n: int) -> None:
         """Let n steps of model time pass without computing them (the model state is held): a real-time
@@ -542,6 +542,7 @@ class Device:
             self.shown = -1
             self.counts.clear()
             self.queue.clear()
+            self._ramp_at = [-1] * len(self.valve_specs)
             self._set_feed({})
         self._inputs_changed()
         return what
@@ -954,31 +955,22 @@ class Device:
             if self._lim_step[k] != sim.steps:
                 lim.value = float(sim.u[i])
                 self._lim_step[k] = sim.steps
-            duty = lim.peek(duty, self.dt)
+            target, duty = duty, lim.peek(duty, self.dt)
+            if duty != target and self._ramp_at[k] != sim.steps + 1:
+                # The next step's duty, one step further: queued, so that every stepping path
+                # (this device's, the lockstep's fast paths) stops there.
+                self._ramp_at[k] = sim.steps + 1
+                self.queue.push(sim.steps + 1, partial(self._ramp_step, k))
         sim.u[i] = duty
         if self.on_input is not None:
             self.on_input(sim.steps, f"{self._prefix[valve]}duty_cycle", duty)
 
-    def _ramping(self) -> bool:
-        """A fall-rate limiter is moving a duty toward the duty in force (stepping goes one step at a time)."""
-        u = self.sim.u
-        return any(u[self._duty_i[k]] != self.duties[self.valve_names[k]] for k in self._limited)
-
-    def _ramp(self) -> None:
-        """After a step: each limited valve's duty for the next one (`FallRateLimiter.peek`)."""
-        sim = self.sim
-        u, steps = sim.u, sim.steps
-        for k in self._limited:
-            i = self._duty_i[k]
-            lim = self._limiters[k]
-            lim.value = float(u[i])
-            self._lim_step[k] = steps
+    def _ramp_step(self, k: int) -> None:
+        """A step of a falling duty's ramp: valve k's duty for this step, from the last step's toward
+        the duty in force (`FallRateLimiter.peek`; the next step queued while it has not arrived)."""
+        if self._lim_step[k] != self.sim.steps:     # else an input at this step set it (and queued the next)
             name = self.valve_names[k]
-            d = lim.peek(self.duties[name], self.dt)
-            if d != u[i]:
-                u[i] = d
-                if self.on_input is not None:
-                    self.on_input(steps, f"{self._prefix[name]}duty_cycle", d)
+            self._put_duty(name, self.duties[name])
 
     def _check_watchdogs(self) -> None:
         """Fire the watchdogs whose deadline is the present step: their valves get the safe duty."""
@@ -1093,10 +1085,8 @@ class Device:
     # --- stepping ----------------------------------------------------------------------------
 
     def _advance(self, n: int) -> None:
-        """n compiled steps with the present inputs, then the limited duties' next values."""
+        """n compiled steps with the present inputs."""
         self.sim.advance(n)
-        if self._limited:
-            self._ramp()
 
     def advance_to(self, step: int) -> None:
         """Integrate to `step`, running queued and fed inputs and the watchdogs at their steps; those
@@ -1182,7 +1172,7 @@ class Device:
                 s = sim.steps
                 due = self._next_due()
                 stop = min(step, s + per - s % per, due)
-                if recorder is not None and (not traced or self._ramping()):
+                if recorder is not None and not traced:
                     stop = min(stop, s + every - s % every)
                 if traced and stop - s > 1:
                     # A recorder of every step takes the steps before `stop` as one block of outputs
@@ -1198,8 +1188,6 @@ class Device:
                         values = np.empty(len(self._signal_i))
                         if not math.isfinite(sim.advance_sample(stop - sim.steps, self._signal_i, values)):
                             self._check_finite()
-                        if self._limited:
-                            self._ramp()
                         self._outputs_taken(sim.Y)
                     else:
                         self._advance(stop - sim.steps)
@@ -1221,6 +1209,8 @@ class Device:
                         recorder(self.stamp_ns(stop), self._record_values(sim.Y))
         except ModelFault:
             self._idle_to(step)
+        if out:
+            self.last_sample = out[-1]
         return out
 
     def _traced_block(self, last: int) -> None:
@@ -1240,8 +1230,6 @@ class Device:
             sim.steps = first + k
             self._fail(problem)
         self.recorder.record_block(self.stamp_ns(first), self.dt_ns, rows)  # type: ignore[union-attr]
-        if self._limited:
-            self._ramp()
 
     def _rows_problem(self, rows: np.ndarray) -> tuple[int, str] | None:
         """The first row (step) no valve can show, and why; None when all are fine."""
@@ -1326,7 +1314,8 @@ class Device:
     def present_sample(self) -> Sample:
         """The sample at the present step (with the inputs in force from it on); it counts as shown."""
         self.shown = self.sim.steps
-        return Sample(self.sim.steps, self.sample())
+        self.last_sample = Sample(self.sim.steps, self.sample())
+        return self.last_sample
 
     def measure(self, sample: Sample) -> np.ndarray:
         """What the sensors show of `sample` (sensor faults applied; NaN: no value, not to be

@@ -19,19 +19,9 @@ from pcv_sim.device.device import Device, Recorder, ValveSpec
 from pcv_sim.device.device import Sample as DeviceSample
 from pcv_sim.device.inputs import Watchdog, WatchdogState
 from pcv_sim.device.limits import PhysicalLimits
-from pcv_sim.io.topics import INPUT_ROLES
 from pcv_sim.params import ValveParams
 
-__all__ = [
-    "INPUTS", "MEASURED", "OPTION_SIGNALS", "SIGNALS", "VALVE", "PhysicalLimits", "Recorder", "Sample", "ValveDevice",
-    "WatchdogState",
-]
-
-#: Input names, as the node's topics are called.
-INPUTS = INPUT_ROLES
-
-#: The measured signals of a sample (a sensor fault's targets), as the node's topics are called.
-MEASURED = ("pressure", "current", "spool_position")
+__all__ = ["OPTION_SIGNALS", "SIGNALS", "VALVE", "Recorder", "Sample", "ValveDevice", "WatchdogState"]
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
 SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
@@ -74,8 +64,7 @@ class ValveDevice(Device):
         if isinstance(record_every, bool) or not isinstance(record_every, int) or record_every < 1:
             raise ValueError(f"record_every {record_every!r}: accepted is an integer >= 1")
         self.record_every = record_every
-        #: The last sample shown (diagnostics), the device at rest before any.
-        self.last_good: Sample | None = self.valve_sample()
+        self.last_sample = DeviceSample(self.steps, self.sample())     # the device at rest before any
 
     def _valve_specs_of(self, params: ValveParams) -> tuple[ValveSpec, ...]:
         return (ValveSpec(VALVE, params),)
@@ -124,6 +113,11 @@ class ValveDevice(Device):
         return self._supply[0]
 
     @property
+    def last_good(self) -> Sample | None:
+        """The last sample handed out (diagnostics; the device at rest before any), in the valve's words."""
+        return None if self.last_sample is None else self._in_words(self.last_sample)
+
+    @property
     def physical_limits(self) -> PhysicalLimits:
         return self.limits[VALVE]
 
@@ -138,8 +132,6 @@ class ValveDevice(Device):
         while self.steps < end:
             stop = min(end, self.steps + per - self.steps % per)
             out += [self._in_words(s) for s in self.run_to(stop)]
-        if out:
-            self.last_good = out[-1]
         return out
 
     def valve_sample(self) -> Sample:
@@ -152,8 +144,8 @@ class ValveDevice(Device):
         return Sample(s.step, p, i, x, float(self.sim.u[self._duty_i[0]]), self.duties[VALVE], tuple(options))
 
     def measure_valve(self, sample: Sample) -> tuple[float, float, float]:
-        """What the sensors show of `sample` (`measure`; MEASURED, sensor faults applied; NaN: no
-        value, not to be published). Called once per sample, in order."""
+        """What the sensors show of `sample`'s pressure, current and spool position (`measure`:
+        sensor faults applied; NaN: no value, not to be published). Called once per sample, in order."""
         values = np.array((sample.pressure, sample.current, sample.spool_position, *sample.options))
         y = self.measure(DeviceSample(sample.step, values))
         return float(y[0]), float(y[1]), float(y[2])

@@ -8,7 +8,6 @@ controller); the duty passes the fall-rate limiter first.
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
@@ -105,9 +104,6 @@ def check_oil_step(params: ValveParams, p: np.ndarray, dt: float, exact: bool, t
                " (with spool.core: separate the spool and the core each have their own pole)"))
 
 
-_NO_STEPS = np.empty(0, dtype=np.int64)
-
-
 class RealTimeStepper:
     """One valve at the fixed step on the compiled core: the emulator's and replay's engine.
 
@@ -131,9 +127,6 @@ class RealTimeStepper:
         self.sim = Simulator(valve_system(params, self.kind), self.dt, name)
         if params.fluid.oil_temperature_model:
             self._check_oil(kelvin(params.fluid.oil_temperature_c))
-        self._select_current = np.array([1], dtype=np.int64)     # outputs()[1]: the coil current
-        self._current_out = np.zeros(1)
-        self._current_step = -1          # the step _current_out holds the current of (-1: none)
         self.reset(duty, load_flow, supply_pressure)
 
     # --- state -------------------------------------------------------------------------------
@@ -149,7 +142,6 @@ class RealTimeStepper:
         sim.x[:] = rest.state
         sim.W[0] = rest.current
         sim.steps = 0
-        self._current_step = -1
         # limiter.value: the duty of the last computed step; self.duty: the duty in force from
         # the present step on (what a sample at the present time shows: right-continuous).
         self.limiter = FallRateLimiter(self.params.command.duty_fall_rate_limit, self.command)
@@ -190,8 +182,6 @@ class RealTimeStepper:
     def current(self) -> float:
         """Coil current at the present state (A), Eqs. 1-8, with the duty in force from now on.
         Reading it changes nothing (the model's Newton start stays as stepping left it)."""
-        if self._current_step == self.sim.steps:
-            return float(self._current_out[0])
         return float(self.sim.outputs()[1])
 
     def finite(self) -> bool:
@@ -206,17 +196,14 @@ class RealTimeStepper:
         self.command = check_duty(duty, self.params.command.duty_range)
         self.duty = self.limiter.peek(self.command, self.dt)
         self.sim.u[DUTY] = self.duty
-        self._current_step = -1
 
     def set_load_flow(self, q: float) -> None:
         self.load_flow = check_load_flow(q)
         self.sim.u[LOAD_FLOW] = self.load_flow
-        self._current_step = -1
 
     def set_supply_pressure(self, p: float) -> None:
         self.supply_pressure = check_supply_pressure(p)
         self.sim.u[SUPPLY_PRESSURE] = self.supply_pressure
-        self._current_step = -1
 
     def set_input(self, name: str, value: float) -> None:
         """An option's input by its name (`ambient_temperature`, `oil_temperature`, K) from the
@@ -233,7 +220,6 @@ class RealTimeStepper:
                 self.sim.P[kernel.V_RATE] = kernel.spool_rate(value, self.sim.P[: kernel.N_PARAMS])
                 self.sim.refresh_rates()
         self.sim.u[inputs.index(f"valve.{name}")] = value
-        self._current_step = -1
 
     def _check_oil(self, temperature: float) -> None:
         check_oil_step(self.params, self.sim.P[: kernel.N_PARAMS], self.dt,
@@ -253,7 +239,6 @@ class RealTimeStepper:
         current solves Eq. 2) raised from here: callers treat both as a fault.
         """
         limiter, sim = self.limiter, self.sim
-        self._current_step = -1
         while n > 0:
             if limiter.rate is None or self.duty == self.command:
                 sim.advance(n)
@@ -264,43 +249,6 @@ class RealTimeStepper:
             limiter.value = self.duty
             self.duty = limiter.peek(self.command, self.dt)
             sim.u[DUTY] = self.duty
-
-    def advance_finite(self, n: int) -> bool:
-        """`advance(n)`; True while the state is finite (`finite()`). While the fall-rate limiter is
-        idle this is one compiled call that also computes the coil current at the step reached
-        (`current` then reads it): a loop that looks at every step (a recorder at the full rate)
-        makes one call per step instead of three (~3 us each)."""
-        if self.limiter.rate is not None and self.duty != self.command:
-            self.advance(n)
-            return self.finite()
-        norm = self.sim.advance_sample(n, self._select_current, self._current_out)
-        self.limiter.value = self.duty
-        self._current_step = self.sim.steps
-        return math.isfinite(norm)
-
-    @property
-    def ramping(self) -> bool:
-        """The fall-rate limiter is moving the duty (stepping then goes one step at a time)."""
-        return self.limiter.rate is not None and self.duty != self.command
-
-    def advance_traced(self, n: int) -> np.ndarray:
-        """`advance(n)` with the limiter idle (see `ramping`), in one compiled call, returning the
-        outputs (pressure Pa, current A, spool position m: rows) at each of the n steps reached."""
-        k = self.sim.steps
-        rows = self.sim.run(_NO_STEPS, np.empty((0, len(self.sim.u))), np.arange(k + 1, k + n + 1, dtype=np.int64))
-        self.limiter.value = self.duty
-        self._current_step = -1
-        return rows
-
-    def warm_up(self) -> None:
-        """Load (or compile) every kernel `advance`, `advance_finite`, `current` and `finite` use,
-        on a copy: this stepper's state is untouched."""
-        trial = copy.deepcopy(self)
-        trial.advance(1)
-        trial.advance_finite(1)
-        trial.advance_traced(2)
-        _ = trial.current
-        trial.finite()
 
     def run(self, profile: DutyProfile, t_end: float, *, sample_every: int = 1) -> Trajectory:
         """Drive the stepper with a duty profile from its present state; returns the samples.

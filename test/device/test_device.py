@@ -199,7 +199,7 @@ def test_run_to_hands_back_the_samples_due_in_the_order_of_signals(dev):
     samples = dev.run_to(3 * per + per // 2)
     assert [s.step for s in samples] == [per, 2 * per, 3 * per] and dev.steps == 3 * per + per // 2
     assert all(len(s.values) == len(dev.signals) for s in samples)
-    assert dev.run_to(dev.steps) == [] and dev.shown == 3 * per
+    assert dev.run_to(dev.steps) == [] and dev.shown == 3 * per and dev.last_sample is samples[-1]
     last = samples[-1]
     ref = _fresh(dev)
     ref.submit(_duty_input(ref), 0.6, at_step=per // 2)        # the same inputs on a fresh device

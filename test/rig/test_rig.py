@@ -190,7 +190,9 @@ def test_a_valve_with_a_fall_rate_limit_ramps_its_duty_as_the_single_valve_stepp
     data = yaml.safe_load(DEFAULT_RIG.read_text())
     data["valves"]["pilot"] = {"config": str(limited), "chamber": "none", "initial_duty": 0.5}
     rig = Rig(rig_from_mapping(data, base=DEFAULT_RIG.parent))
-    run = run_lockstep(rig, lambda t, m: {"pilot": 0.9 if t < 0.02 else 0.3, "left": 0.6}, 0.3)
+    # Every valve commanded (every watchdog armed): the lockstep takes its fast paths where it can,
+    # and the ramp's steps stop them.
+    run = run_lockstep(rig, lambda t, m: {"pilot": 0.9 if t < 0.02 else 0.3, "left": 0.6, "right": 0.55}, 0.3)
     pilot = run.duties[:, 2]
     assert pilot[19] == 0.9 and pilot[21] == 0.3        # the duty in force: the command
     st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
