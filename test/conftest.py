@@ -138,3 +138,38 @@ def options_rig_writer():
 def options_rig(tmp_path):
     """`write_options_rig` in the test's own directory."""
     return write_options_rig(tmp_path)
+
+
+#: The example controller whose array form raises from `fail_at` s on (never when < 0): a
+#: controller that fails mid-run, as a module a campaign names (`fragile:Fragile`).
+FRAGILE_CONTROLLER = '''
+from pcv_sim.control.steering import PositionController
+
+
+class Fragile(PositionController):
+    """The example controller whose array form raises from `fail_at` s on (never when < 0)."""
+
+    def __init__(self, fail_at):
+        super().__init__()
+        self.fail_at = fail_at
+
+    def lockstep_arrays(self, signals, valves):
+        step, commanded, flags = super().lockstep_arrays(signals, valves)
+
+        def fragile(t, y, out):
+            if 0 <= self.fail_at <= t:
+                raise ZeroDivisionError("the controller divided by zero")
+            step(t, y, out)
+
+        return fragile, commanded, flags
+'''
+
+
+@pytest.fixture
+def fragile_controller(tmp_path):
+    """`FRAGILE_CONTROLLER` written as `fragile.py` in the test's directory; returns its class."""
+    path = tmp_path / 'fragile.py'
+    path.write_text(FRAGILE_CONTROLLER)
+    namespace = {}
+    exec(compile(FRAGILE_CONTROLLER, str(path), 'exec'), namespace)
+    return namespace['Fragile']

@@ -65,28 +65,9 @@ def test_a_batched_campaign_gives_the_table_of_each_variant_alone(body, write_ca
         assert seen[0][1]["together"] > 0.8 * n, seen
 
 
-def test_a_controller_that_raises_inside_a_batch_is_a_failed_variant(write_campaign, tmp_path, capsys, monkeypatch):
-    (tmp_path / "fragile.py").write_text('''
-from pcv_sim.control.steering import PositionController
-
-
-class Fragile(PositionController):
-    """The example controller whose array form raises from `fail_at` s on (never when < 0)."""
-
-    def __init__(self, fail_at):
-        super().__init__()
-        self.fail_at = fail_at
-
-    def lockstep_arrays(self, signals, valves):
-        step, commanded, flags = super().lockstep_arrays(signals, valves)
-
-        def fragile(t, y, out):
-            if 0 <= self.fail_at <= t:
-                raise ZeroDivisionError("the controller divided by zero")
-            step(t, y, out)
-
-        return fragile, commanded, flags
-''')
+def test_a_controller_that_raises_inside_a_batch_is_a_failed_variant(write_campaign, tmp_path, capsys, monkeypatch,
+                                                                       fragile_controller):
+    # fragile_controller: fragile.py beside the campaign
     scenario = {**FAULTED, "controller": "fragile:Fragile", "controller_params": {"fail_at": -1.0}}
     path = write_campaign({"sweep": {"parameters": {"scenario.controller_params.fail_at": [-1.0, 0.15, -1.0, -1.0]}},
                            "worst": 0}, scenario)

@@ -120,25 +120,8 @@ def test_a_copy_that_runs_away_fails_alone_and_the_others_go_on(rig_params):
     assert counts["retaken"] >= 1          # it ran away inside a batched call: the period taken again alone
 
 
-class Fragile(PositionController):
-    """The example controller whose array form raises from `fail_at` s on."""
-
-    def __init__(self, fail_at):
-        super().__init__()
-        self.fail_at = fail_at
-
-    def lockstep_arrays(self, signals, valves):
-        step, commanded, flags = super().lockstep_arrays(signals, valves)
-
-        def fragile(t, y, out):
-            if t >= self.fail_at:
-                raise ZeroDivisionError("the controller divided by zero")
-            step(t, y, out)
-
-        return fragile, commanded, flags
-
-
-def test_a_controller_that_raises_stops_its_copy_alone(rig_params):
+def test_a_controller_that_raises_stops_its_copy_alone(rig_params, fragile_controller):
+    Fragile = fragile_controller
     setups = [SETUPS[1], SETUPS[0]]
     expected = alone(rig_params, setups, [Fragile(0.07), PositionController()])
     rigs = make_rigs(rig_params, setups)
