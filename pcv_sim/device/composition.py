@@ -180,23 +180,28 @@ class Composition:
         if plant_spec is not None:
             sampled += plant_spec.signals
             self.signals += plant_spec.signals
-        self._signal_i = np.array([plant.index("output", s) for s in sampled], dtype=np.int64)
+        #: Where each signal is among the composite's outputs (what the compiled sampling selects).
+        self.signal_outputs = np.array([plant.index("output", s) for s in sampled], dtype=np.int64)
         #: every output, in order: the outputs are the signals (no copy of a traced block's rows)
-        self._all_outputs = np.array_equal(self._signal_i, np.arange(len(plant.outputs)))
+        self._all_outputs = np.array_equal(self.signal_outputs, np.arange(len(plant.outputs)))
         self._ranges = {v.name: v.params.command.duty_range for v in valves}
         self._limiters = [FallRateLimiter(v.params.command.duty_fall_rate_limit) for v in valves]
         self._limited = [k for k, v in enumerate(valves) if v.params.command.duty_fall_rate_limit is not None]
         self._lim_step = [-1] * len(valves)     # the step each limiter's value was last taken at
         self._ramp_at = [-1] * len(valves)      # the step each ramp's next step is queued for
-        #: per valve: (its command.duty_range, its duty's input index): what the lockstep's fast path
-        #: writes straight into the model; no range for a valve with a fall-rate limiter (its duty
-        #: goes through `set_duty` and the limiter).
-        self._duty_slot = {v.name: ((math.nan, math.nan) if k in self._limited else self._ranges[v.name],
-                                    self._duty_i[k]) for k, v in enumerate(valves)}
         #: per valve: its limits and where its pressure and current are among the signals
         self.limits = {v.name: PhysicalLimits.of(v.params) for v in valves}
         self._limit_slots = [(sampled.index(f"{v.name}.pressure"), sampled.index(f"{v.name}.current"),
                               self.limits[v.name]) for v in valves]
+        #: The limits as bounds of the signals (lowest, highest; none on the others): what the
+        #: compiled sampling checks, in the order of `signals`.
+        lo, hi = np.full(len(sampled), -math.inf), np.full(len(sampled), math.inf)
+        for jp, ji, lim in self._limit_slots:
+            lo[jp], hi[jp] = lim.pressure_min, lim.pressure_max
+            lo[ji], hi[ji] = -lim.current_max, lim.current_max
+        self.signal_bounds = (lo, hi)
+        #: `Simulator.sample_entry` of the simulator: the planned stretch's compiled call.
+        self._sample_call = sim.sample_entry()
         #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
         #: values: (input index, value) per valve that has them.
         self._option_defaults = [(plant.index("input", f"{v.name}.{name}"), value) for v, lay in zip(valves, layouts)
@@ -262,7 +267,7 @@ class Composition:
         trial = self.sim.copy()
         trial.outputs()
         trial.advance(1)
-        trial.advance_sample(1, self._signal_i, np.empty(len(self._signal_i)), 1)
+        trial.advance_sample(1, self.signal_outputs, np.empty(len(self.signal_outputs)), 1, bounds=self.signal_bounds)
         trial.run(np.zeros(0, dtype=np.int64), np.empty((0, len(trial.u))),
                   np.arange(trial.steps + 1, trial.steps + 3, dtype=np.int64))
 

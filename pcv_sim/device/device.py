@@ -428,41 +428,90 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         `step` (in `out` when given: a float64 array of the signals' length); the device is then at
         `step + after`, or at `step` if an input fell due on the way (the caller checks `steps`).
         ModelFault (and `fault` set) if the state runs away or the sample is no valve's."""
-        sim = self.sim
-        now = sim.steps
-        fs = self._feed_steps
-        r = self._feed_next
-        fed = fs[r] if r < len(fs) else NEVER
+        now = self.sim.steps
         other = self._due_step(feed=False)
-        if other <= now or fed <= now:
+        if other <= now or self.planned_until() <= now:
             self._due()                                # inputs due now act over the whole stretch
-            fs = self._feed_steps
-            r = self._feed_next
-            fed = fs[r] if r < len(fs) else NEVER
             other = self._due_step(feed=False)
-        if step >= now:
-            # A fed row due at `step` itself goes into the same call (after the steps to it,
-            # before the sample); one due earlier, or up to step + after, takes the plain path.
-            last = step + after
-            if other > last and (fed > last or (fed == step and (r + 1 == len(fs) or fs[r + 1] > last))):
-                row = r if fed == step else -1
-                if out is None:
-                    out = np.empty(len(self._signal_i))
-                try:
-                    norm = sim.advance_sample(step - now, self._signal_i, out, after, (self._feed_i, self._feed_v, row))
-                except MODEL_FAILURES as err:
-                    self._fail(f"model step failed ({type(err).__name__}: {err})")
-                if row >= 0:
-                    self._feed_row(row, step)          # already in the model; for the hook and the bookkeeping
-                if not math.isfinite(norm):
-                    self._check_finite()               # raises, naming the time and the faults
-                self._check_limits(out)
-                return out
+        if step >= now and step + after < min(other, self.planned_until(step)):
+            # Nothing falls due on the way but a fed row at `step` itself (in the same call, after
+            # the steps to it, before the sample): the planned stretch's one compiled call.
+            if out is None:
+                out = np.empty(len(self.signal_outputs))
+            self.sample_planned(step, out, after)
+            return out
         self.advance_to(step)
         if out is None:
             return self.sample()
         out[:] = self.sample()
         return out
+
+    # --- the planned stretch: control periods in which nothing but duties falls due ---------
+
+    def planned_until(self, at: int | None = None) -> int:
+        """The first step at which a queued input or action (a ramping duty's next value among
+        them) or a fed input falls due, a fed input at step `at` itself excepted (a later one than
+        the present step: `sample_planned` takes it with the sample); `inputs.NEVER` if none. The
+        watchdogs' deadlines are `next_due`'s."""
+        fs = self._feed_steps
+        r = self._feed_next
+        fed = fs[r] if r < len(fs) else NEVER
+        if fed == at and fed > self.sim.steps:
+            fed = fs[r + 1] if r + 1 < len(fs) else NEVER
+        return min(self.queue.next_step, fed)
+
+    def direct_duties(self) -> dict[str, tuple[float, float, int]]:
+        """valve -> (lowest, highest duty, the index of its duty among the model inputs, `sim.u`)
+        for the valves whose valid duty may be written straight into the model in a planned
+        stretch: there it has `set_duty`'s effect once the valve's watchdog is told the command's
+        step (`watchdogs[valve].command(step)`) before the device's own path runs again, while
+        that watchdog is armed (neither waiting for a first command nor fired: a command changes
+        that state, `set_duty`). A valve with a fall-rate limiter is not among them: its duty
+        ramps step by step (`set_duty`)."""
+        out = {}
+        for k, name in enumerate(self.valve_names):
+            if k not in self._limited:
+                lo, hi = self._ranges[name]
+                out[name] = (lo, hi, self._duty_i[k])
+        return out
+
+    def sample_planned(self, at: int, out: np.ndarray, after: int = 0, taken: float | None = None) -> None:
+        """The steps to `at`, the sample at `at` into `out` (a float64 array of the signals'
+        length), then `after` more steps with the same inputs, in one compiled call (the lockstep's
+        hot path, and `advance_sample`'s); a fed input due at `at` goes in before the sample. The
+        caller has made sure nothing else falls due before `at + after` is passed
+        (`planned_until(at)`, the watchdogs' `next_due`). `taken`: a batch made that call over
+        this device's arrays (`pcv_sim.rig.batch`: the sample in `out`) and returned `taken`; here
+        only what follows it. ModelFault (and `fault` set) when the model runs away or the sample
+        is none a valve can show (its physical limits, checked in the compiled call): the same
+        error as on every path of the device."""
+        sim = self.sim
+        now = sim.steps
+        row = -1
+        if taken is None:
+            fs = self._feed_steps
+            r = self._feed_next
+            if r < len(fs) and fs[r] == at:
+                row = r
+            fn, (S, Fa, FL) = self._sample_call
+            lo, hi = self.signal_bounds
+            try:
+                norm = fn(S, Fa, FL, at - now, now, self.dt, self.signal_outputs, out, after, self._feed_i, self._feed_v,
+                          row, lo, hi)
+            except MODEL_FAILURES as err:
+                self._fail(f"model step failed ({type(err).__name__}: {err})")
+        else:
+            norm = taken
+        sim.steps = at + after
+        if row >= 0:
+            self._feed_row(row, at)                    # already in the model; for the hook and the bookkeeping
+        if not math.isfinite(norm):
+            # The sample first (at its step: none a valve cannot show leaves), then the state reached;
+            # each raises, naming the time and the active faults.
+            sim.steps = at
+            self._check_limits(out)
+            sim.steps = at + after
+            self._check_finite()
 
     def run_to(self, step: int) -> list[Sample]:
         """Advance to `step` (inputs, fault commands and watchdog deadlines acting at their steps;
@@ -503,9 +552,11 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
                     if (sampled or recorded) and due > stop:
                         # Nothing falls due at `stop`: the steps and its outputs in one compiled call
                         # (the same numbers as advance, then sample).
-                        values = np.empty(len(self._signal_i))
-                        if not math.isfinite(sim.advance_sample(stop - sim.steps, self._signal_i, values)):
+                        values = np.empty(len(self.signal_outputs))
+                        if not math.isfinite(sim.advance_sample(stop - sim.steps, self.signal_outputs, values,
+                                                                bounds=self.signal_bounds)):
                             self._check_finite()
+                            self._check_limits(values)
                         self._outputs_taken(sim.Y)
                     else:
                         self._advance(stop - sim.steps)
@@ -518,8 +569,8 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
                     self._due()
                     if sampled or recorded:
                         values = self.sample()
+                        self._check_limits(values)  # nothing a valve cannot produce leaves the device
                 if values is not None:
-                    self._check_limits(values)      # nothing a valve cannot produce leaves the device
                     self.shown = stop
                     if sampled:
                         out.append(Sample(stop, values))
@@ -541,7 +592,7 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         except MODEL_FAILURES as err:
             self._fail(f"model step failed ({type(err).__name__}: {err})")
         if not self._all_outputs:
-            rows = rows[:, self._signal_i]
+            rows = rows[:, self.signal_outputs]
         bad = self._rows_problem(rows)
         if bad is not None:
             k, problem = bad

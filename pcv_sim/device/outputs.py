@@ -21,7 +21,7 @@ class Outputs(Composition):
         force from now on. A new array."""
         y = self.sim.outputs()
         self._outputs_taken(y)
-        return y.copy() if self._all_outputs else y[self._signal_i]
+        return y.copy() if self._all_outputs else y[self.signal_outputs]
 
     def _outputs_taken(self, y: np.ndarray) -> None:
         """What a sample's outputs `y` (every output) tell besides the signals: the load volumes,

@@ -187,8 +187,8 @@ class Restarts(Composition):
             supply, supply0, flow = list(self._supply), list(self._supply0), list(self._load_flow)
             steps = self.sim.steps
             new = prepared.sim
-            if self._same_layout(new):
-                self.sim._S[:] = new._S            # the simulator's arrays stay (a lockstep holds them)
+            if self.sim.runs_like(new):
+                self.sim.arena[:] = new.arena      # the simulator's arrays stay (their compiled call is kept)
                 sim = self.sim
             else:
                 sim = new
@@ -239,12 +239,6 @@ class Restarts(Composition):
                     self.set_temperature(valve, name, inputs[full])
                 except CommandError as err:     # too cold for the new step: the YAML's stays
                     self.counts.last_rejection = f"after a model restart: {err}"
-
-    def _same_layout(self, sim: Simulator) -> bool:
-        """`sim` runs the same compiled code on arrays of the same layout and tables as the device's."""
-        old = self.sim
-        return (sim._module is old._module and sim._S.shape == old._S.shape and sim.integrator == old.integrator
-                and np.array_equal(sim._Fa, old._Fa) and np.array_equal(sim._FL, old._FL))
 
 
 def _trial_run(sim: Simulator, limits: Sequence[tuple[int, int, PhysicalLimits]], steps: int = TRIAL_STEPS) -> str | None:

@@ -67,8 +67,8 @@ def _structure(rig: Rig) -> tuple[Any, ...]:
     if found is None:
         sim = rig.sim
         found = _STRUCTURES[rig.plant] = (generate_source(rig.plant), sim.integrator, sim.dt,
-                                          rig.params.steps_per_period, rig.signals, tuple(rig._signal_i.tolist()),
-                                          tuple(sim._FL.tolist()))
+                                          rig.params.steps_per_period, rig.signals, tuple(rig.signal_outputs.tolist()),
+                                          sim.table_layout)
     return found
 
 
@@ -119,26 +119,26 @@ def compiled_before(rig: Rig, copies: int) -> bool:
     return found
 
 
-#: The arrays of a `Simulator` that are views of its arena, by their place in `ARENA`.
-_BOUND = {"x": "x", "u": "u", "P": "P", "W": "W", "Y": "Y", "U": "U", "E": "_E", "A": "_A", "B": "_B"}
-
 #: Batch simulators by (the copy's plant source, copies, integrator, step), per thread (a Dask
 #: worker may run batches on several): one compile each, a batch's arrays never shared.
 _KEPT = threading.local()
 
 
 def _simulators() -> dict[tuple[str, int, str, float],
-                          tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray]]:
+                          tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray,
+                                tuple[np.ndarray, np.ndarray]]]:
     kept = getattr(_KEPT, "simulators", None)
     if kept is None:
         kept = _KEPT.simulators = {}
     return kept
 
 
-def _simulator(rig: Rig, copies: int) -> tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray]:
+def _simulator(rig: Rig, copies: int) -> tuple[Simulator, list[np.ndarray], list[dict[str, np.ndarray]], np.ndarray,
+                                               tuple[np.ndarray, np.ndarray]]:
     """The batch's simulator for `copies` rigs like `rig`; per copy the place in its arena of
-    each element of the copy's own arena, and the copy's arrays as views of it (`Simulator`
-    attribute -> view); the outputs the batch samples (each copy's signals, in copy order)."""
+    each element of the copy's own arena, and the copy's parts as views of it (what
+    `Simulator.bind` takes); the outputs the batch samples (each copy's signals, in copy order)
+    and their bounds (each copy's physical limits)."""
     sim = Simulator(batch_plant(rig.plant, copies), rig.sim.dt, rig.sim.integrator)
     one = arena_layout(rig.plant)
     many = arena_layout(sim.plant)
@@ -150,13 +150,13 @@ def _simulator(rig: Rig, copies: int) -> tuple[Simulator, list[np.ndarray], list
             a, b = one[name]
             start = many[name][0] + c * (b - a)
             index.append(np.arange(start, start + b - a))
-            if name in _BOUND:
-                own[_BOUND[name]] = sim._S[start:start + b - a]
+            own[name] = sim.arena[start:start + b - a]
         indices.append(np.concatenate(index))
         views.append(own)
     ny = len(rig.plant.outputs)
-    select = np.concatenate([rig._signal_i + c * ny for c in range(copies)]).astype(np.int64)
-    return sim, indices, views, select
+    select = np.concatenate([rig.signal_outputs + c * ny for c in range(copies)]).astype(np.int64)
+    lo, hi = rig.signal_bounds
+    return sim, indices, views, select, (np.tile(lo, copies), np.tile(hi, copies))
 
 
 class RigBatch:
@@ -176,34 +176,30 @@ class RigBatch:
             if len(kept) >= 4:
                 kept.pop(next(iter(kept)))
             made = kept[key] = _simulator(rigs[0], copies)
-        self.sim, self._index, self._views, self.select = made
+        self.sim, self._index, self._views, self.select, self.bounds = made
         # Each copy's tables (its valves' curve fits), one after the other as the systems are.
-        self.sim._Fa[:] = np.concatenate([r.sim._Fa for r in rigs])
+        self.sim.tables[:] = np.concatenate([r.sim.tables for r in rigs])
         self.bound = [False] * copies
 
     def bind(self, c: int) -> None:
         """Copy c's state into the batch; its simulator's arrays become views of the batch's."""
         if self.bound[c]:
             return
-        sim = self.rigs[c].sim
-        self.sim._S[self._index[c]] = sim._S
-        for attr, view in self._views[c].items():
-            setattr(sim, attr, view)
+        self.rigs[c].sim.bind(self._views[c])
         self.bound[c] = True
 
     def unbind(self, c: int) -> None:
         """Copy c's state back into its own simulator's arrays, which are its own again."""
         if not self.bound[c]:
             return
-        sim = self.rigs[c].sim
-        sim._S[:] = self.sim._S[self._index[c]]
-        sim._views()
+        self.rigs[c].sim.unbind()
         self.bound[c] = False
 
     def mirror(self, c: int, source: int) -> None:
         """Copy c's place in the batch takes copy `source`'s state (a copy whose run ended: its
         place is still stepped, and must neither run away nor cost more than a live one)."""
-        self.sim._S[self._index[c]] = self.sim._S[self._index[source]]
+        arena = self.sim.arena
+        arena[self._index[c]] = arena[self._index[source]]
 
 
 def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | None], duration: float, *,
@@ -234,6 +230,7 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
     fused, (S, Fa, FL) = sim.sample_entry()
     before = np.empty_like(S)
     select = batch.select
+    lo, hi = batch.bounds
     dt = sim.dt
     feed_i, feed_v = np.zeros(0, dtype=np.int64), np.zeros((0, 0))
     stale: list[int] = []               # places of copies whose run ended, not yet mirroring a live one
@@ -270,7 +267,7 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
                 at = k0 + k * per
                 before[:] = S
                 try:
-                    norm = fused(S, Fa, FL, at - now, now, dt, select, rows[k], 1, feed_i, feed_v, -1)
+                    norm = fused(S, Fa, FL, at - now, now, dt, select, rows[k], 1, feed_i, feed_v, -1, lo, hi)
                 except MODEL_FAILURES:
                     norm = math.nan
                 if math.isfinite(norm):

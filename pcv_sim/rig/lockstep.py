@@ -43,8 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from pcv_sim.device.device import MODEL_FAILURES
-from pcv_sim.device.inputs import NEVER, WatchdogState
+from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
 from pcv_sim.rig.profiles import Profile
 from pcv_sim.rig.rig import InputHook, Rig
@@ -146,21 +145,21 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
     advance_sample = rig.advance_sample
     measure = sensors.measure
     sim = rig.sim
-    isfinite = math.isfinite
     # The periods in which nothing but the controller's commands falls due (no scheduled input,
     # watchdog deadline, or fed input other than one at the sampled step) take the fast path:
-    # the compiled call directly, the commands written into the inputs; every other period the
-    # rig's own (rig.advance_sample, rig.set_duty). Both give the same numbers bit for bit.
-    fused, (S, Fa, FL) = sim.sample_entry()
-    select = rig._signal_i
-    queue = rig.queue
+    # the rig's planned stretch (one compiled call, `rig.sample_planned`), the commands of the
+    # valves the rig lets write their duty straight into the model (`rig.direct_duties`) written
+    # there; every other period the rig's own (rig.advance_sample, rig.set_duty). Both give the
+    # same numbers bit for bit.
+    sample_planned = rig.sample_planned
+    planned_until = rig.planned_until
     watchdogs = [rig.watchdogs[v] for v in valves]
     duty_name = [f"{v}.duty_cycle" for v in valves]
-    #: valve -> (lowest, highest duty, input index, position): what set_duty checks and writes
-    slots: dict[str, tuple[float, float, int, int]] = {}
-    for j, v in enumerate(valves):
-        (lo, hi), i = rig._duty_slot[v]
-        slots[v] = (lo, hi, i, j)
+    valve_names = set(valves)
+    #: valve -> (lowest, highest duty, input index, position) of the valves whose duty is written
+    #: straight into the model: what set_duty checks and writes
+    slots: dict[str, tuple[float, float, int, int]] = {
+        v: (*direct, valves.index(v)) for v, direct in rig.direct_duties().items()}
     u = sim.u
     # The watchdogs hear the fast path's commands when it ends (`sync`): their deadlines only move
     # later with each command, so a horizon computed from them is early, never late, meanwhile.
@@ -181,8 +180,11 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
     horizon, in_command, in_force_now, hook, active = sync()
     array_step, commanded, flag_rows = _array_form(controller, names, valves, flags, n)
     out = [math.nan] * (len(commanded) + len(flag_rows))
+    #: Whether the array form commands only valves whose duty is written straight into the model
+    #: (else each period's duties go through the rig's set_duty: its stretches are one period).
+    direct = all(v in slots for v in commanded)
     #: the array form's valves with their slots, and each flag's row with its place in `out`
-    out_slots = [(v, *slots[v]) for v in commanded]
+    out_slots = [(v, *slots[v]) for v in commanded] if direct else []
     out_flags = [(row, len(commanded) + f) for f, row in enumerate(flag_rows)]
     # The setpoint at every instant before the run, where it is a profile (its segments evaluated
     # in one pass: the same numbers as calling it at each instant).
@@ -205,14 +207,14 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
         k = 0
         while k <= n:
             end = k
-            if array_step is not None and hook is None and not active and k < n and sim.steps <= k0 + k * per:
+            if array_step is not None and direct and hook is None and not active and k < n \
+                    and sim.steps <= k0 + k * per:
                 # A stretch of periods in which nothing but the array form's duties falls due (the
                 # fast path's tests below, made once for the stretch: the step before which a fed
                 # input, a queued one or a watchdog deadline falls; the array form's step sees only
-                # its samples, so nothing it does can queue one). The same numbers as below.
-                fs = rig._feed_steps
-                r = rig._feed_next
-                due = min(horizon, queue.next_step, fs[r] if r < len(fs) else NEVER)
+                # its samples and its duties are written straight, so nothing it does can queue
+                # one). The same numbers as below.
+                due = min(horizon, planned_until())
                 end = min(n, (due - 2 - k0) // per + 1)       # each k0 + k per + 1 < due
             if batched and end <= k:
                 # Not in the batch: this period alone. (The batch may have bound the simulator's
@@ -221,8 +223,6 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                 u = sim.u
             if end > k:
                 start = k
-                now = sim.steps
-                feed_i, feed_v = rig._feed_i, rig._feed_v
                 assert array_step is not None
                 for k in range(start, end):
                     at = k0 + k * per
@@ -230,16 +230,8 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                     if batched:             # each period in the batch (got: its norm) or alone (None)
                         got = yield end
                         u = sim.u
-                    if got is None:
-                        try:
-                            norm = fused(S, Fa, FL, at - now, now, dt, select, y, 1, feed_i, feed_v, -1)
-                        except MODEL_FAILURES as err:
-                            rig._fail(f"model step failed ({type(err).__name__}: {err})")
-                    else:
-                        norm = got
-                    sim.steps = now = at + 1
-                    if not isfinite(norm):
-                        rig._check_finite()
+                    sample_planned(at, y, 1, got)
+                    now = at + 1
                     t = at * dt
                     measure(t, y)                   # no sensor fault: y itself (kept for a later fault)
                     samples = y.tolist()
@@ -267,24 +259,10 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
             last = at + 1 if answer else at
             # With a controller the step after the sample (still the old inputs: the answer acts
             # from at + 1) is taken in the same compiled call, when nothing else falls due there.
-            now = sim.steps
-            fs = rig._feed_steps
-            r = rig._feed_next
-            fed = fs[r] if r < len(fs) else NEVER
-            fast = (now <= at and last < horizon and queue.next_step > last
-                    and (fed > last or (fed == at and fed > now and (r + 1 == len(fs) or fs[r + 1] > last))))
+            fast = sim.steps <= at and last < horizon and last < planned_until(at)
             if fast:
-                row = r if fed == at else -1
                 y = true[k]
-                try:
-                    norm = fused(S, Fa, FL, at - now, now, dt, select, y, last - at, rig._feed_i, rig._feed_v, row)
-                except MODEL_FAILURES as err:
-                    rig._fail(f"model step failed ({type(err).__name__}: {err})")
-                sim.steps = last
-                if row >= 0:
-                    rig._feed_row(row, at)          # already in the model; for the hook and the bookkeeping
-                if not isfinite(norm):
-                    rig._check_finite()             # raises, naming the time and the faults
+                sample_planned(at, y, last - at)
             else:
                 horizon, in_command, in_force_now, hook, active = sync()
                 y = advance_sample(at, last - at, true[k])
@@ -309,7 +287,7 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                     array_step((at * dt_ns) * 1e-9, samples, out)
                     for flag_row, f in out_flags:
                         flag_row[k] = float(out[f])
-                    if fast:
+                    if fast and direct:
                         # rig.set_duty's effect for each valid duty (its watchdog told at the next sync)
                         for (key, lo, hi, i, j), value in zip(out_slots, out):
                             if type(value) is float and lo <= value <= hi:
@@ -340,19 +318,19 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                 taken = sim.steps == at + 1       # the step after the sample was taken with it
                 for key, value in commands:
                     slot = slots.get(key)
-                    if slot is not None:
-                        if fast:
-                            lo, hi, i, j = slot
-                            if type(value) is float and lo <= value <= hi:
-                                # rig.set_duty's effect, its watchdog told at the next sync
-                                in_command[key] = in_force_now[key] = u[i] = value
-                                heard[j] = last
-                                if hook is not None:
-                                    hook(last, duty_name[j], value)
-                                continue
-                            if (step := heard[j]) is not None:      # its last valid command first
-                                watchdogs[j].command(step)
-                                heard[j] = None
+                    if slot is not None and fast:
+                        lo, hi, i, j = slot
+                        if type(value) is float and lo <= value <= hi:
+                            # rig.set_duty's effect, its watchdog told at the next sync
+                            in_command[key] = in_force_now[key] = u[i] = value
+                            heard[j] = last
+                            if hook is not None:
+                                hook(last, duty_name[j], value)
+                            continue
+                        if (step := heard[j]) is not None:      # its last valid command first
+                            watchdogs[j].command(step)
+                            heard[j] = None
+                    if slot is not None or key in valve_names:
                         if taken:             # nothing else falls due at at + 1: it acts from now
                             try:              # (not contextlib.suppress: ~1 us a call on the hot path)  # noqa: SIM105
                                 rig.set_duty(key, value)

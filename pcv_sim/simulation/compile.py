@@ -176,7 +176,7 @@ _SAMPLE = '''
 
 @jit(nrt=False)
 def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
-                         feed_i, feed_v, row):
+                         feed_i, feed_v, row, lo, hi):
     # n steps, then the inputs of row `row` of feed_v (u[feed_i[j]] = feed_v[row, j]; NaN: left
     # as it is; row < 0: none) and the outputs at the step reached (inputs in force from there
     # on): out[i] = Y[select[i]], then `after` more steps with the same inputs. One call where
@@ -192,12 +192,20 @@ def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, 
     outputs((k0 + n) * h, x, u, P, F, W, Y, U)
     for i in range(len(select)):
         out[i] = Y[select[i]]
+    # The bounds of the first len(lo) sampled outputs (lo[i] <= out[i] <= hi[i]; NaN is outside).
+    inside = True
+    for i in range(len(lo)):
+        if not (lo[i] <= out[i] and out[i] <= hi[i]):
+            inside = False
     if after > 0:
         advance_{name}(after, k0 + n, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
-    # Returns sum(x^2): not finite iff the state ran away (the caller's check, without another call).
+    # Returns sum(x^2): not finite iff the state ran away or a sampled output is outside its
+    # bounds (the caller's check, without another call).
     acc = 0.0
     for i in range(NX):
         acc += x[i] * x[i]
+    if not inside:
+        acc = np.nan
     return acc
 '''
 
@@ -241,10 +249,10 @@ def sim_advance_{name}(S, Fa, FL, n, k0, h):
 
 
 @jit(nrt=False)
-def sim_advance_sample_{name}(S, Fa, FL, n, k0, h, select, out, after, feed_i, feed_v, row):
+def sim_advance_sample_{name}(S, Fa, FL, n, k0, h, select, out, after, feed_i, feed_v, row, lo, hi):
 {views}
     return advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
-                                 feed_i, feed_v, row)
+                                 feed_i, feed_v, row, lo, hi)
 
 
 @jit(nrt=False)

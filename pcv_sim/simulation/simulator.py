@@ -8,7 +8,7 @@ every output at the present time with the inputs in force from now on (right-con
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -17,8 +17,10 @@ from pcv_sim.simulation.system import Composite, System, compose
 
 __all__ = ["Simulator"]
 
-#: `advance_sample`'s feed when there is none (always these types: one compiled specialisation).
+#: `advance_sample`'s feed and bounds when there are none (always these types: one compiled
+#: specialisation).
 _NO_FEED = (np.zeros(0, dtype=np.int64), np.zeros((0, 0)), -1)
+_NO_BOUNDS = (np.zeros(0), np.zeros(0))
 
 
 class Simulator:
@@ -56,9 +58,54 @@ class Simulator:
 
     def _views(self) -> None:
         """x, u, P, W, Y, U, the scratch and the weights as views of the arena."""
-        v = {name: self._S[a:b] for name, (a, b) in self._layout.items()}
+        self._use({name: self._S[a:b] for name, (a, b) in self._layout.items()})
+
+    def _use(self, v: Mapping[str, np.ndarray]) -> None:
         self.x, self.u, self.P, self.W, self.Y, self.U = v["x"], v["u"], v["P"], v["W"], v["Y"], v["U"]
         self._E, self._A, self._B = v["E"], v["A"], v["B"]
+        self._parts = v
+
+    @property
+    def arena(self) -> np.ndarray:
+        """The one array the compiled code steps (`compile.arena_layout`: state, inputs, parameters,
+        workspace, outputs, scratch, weights): a copy of it is the whole state, and writing a copy
+        back restores it. The same array for the simulator's life (`copy` makes a new one)."""
+        return self._S
+
+    @property
+    def tables(self) -> np.ndarray:
+        """The systems' fit tables, flat (`compile.pack_tables`); written in place, e.g. by a batch
+        that holds the tables of several copies one after the other."""
+        return self._Fa
+
+    @property
+    def table_layout(self) -> tuple[int, ...]:
+        """Where each table is in `tables` and its shape (the structure of the systems' tables)."""
+        return tuple(self._FL.tolist())
+
+    def runs_like(self, other: Simulator) -> bool:
+        """Whether `other` runs the same compiled code on an arena of the same layout and tables:
+        its arena's values may then be written into this one's (`arena[:] = other.arena`)."""
+        return (other._module is self._module and other._S.shape == self._S.shape
+                and other.integrator == self.integrator and np.array_equal(other._Fa, self._Fa)
+                and np.array_equal(other._FL, self._FL))
+
+    def bind(self, parts: Mapping[str, np.ndarray]) -> None:
+        """Hand the arrays to another arena that is stepped in this simulator's place (a batch's:
+        `parts` are views there, one per part of `compile.arena_layout`, of its length): the
+        values go there and x, u, P, ... become those views, so what is written to them is where
+        that arena is stepped. Nothing steps this simulator itself until `unbind`."""
+        for name, (a, b) in self._layout.items():
+            parts[name][:] = self._S[a:b]
+        self._use(parts)
+
+    def unbind(self) -> None:
+        """After `bind`: the values back into the simulator's own arena, its arrays its own again."""
+        if self._parts["x"].base is self._S:
+            return
+        for name, (a, b) in self._layout.items():
+            self._S[a:b] = self._parts[name]
+        self._views()
 
     def rates(self) -> np.ndarray:
         """Each state's linear decay rate (1/s) for the exponential integrator: the declared stiff
@@ -96,26 +143,29 @@ class Simulator:
         self.steps += n
 
     def advance_sample(self, n: int, select: np.ndarray, out: np.ndarray, after: int = 0,
-                       feed: tuple[np.ndarray, np.ndarray, int] | None = None) -> float:
+                       feed: tuple[np.ndarray, np.ndarray, int] | None = None,
+                       bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
         """`advance(n)`, `outputs()[select]` into `out`, then `advance(after)`, in one compiled
         call: what a loop that samples every few steps (the rig's lockstep) runs. `feed` =
         (indices, values, row): before the outputs, `u[indices[j]] = values[row, j]` (indices
         int64, values a C-contiguous float64 matrix; NaN leaves that input as it is), the inputs
-        due at the sampled step. Returns the sum of the squared states: not finite if and only if
-        the state ran away."""
+        due at the sampled step. `bounds` = (lo, hi), float64: lo[i] <= out[i] <= hi[i] for the
+        first len(lo) sampled outputs. Returns the sum of the squared states: not finite if and
+        only if the state ran away or a sampled output is outside its bounds."""
         n, after = max(int(n), 0), max(int(after), 0)
         feed_i, feed_v, row = feed if feed is not None else _NO_FEED
+        lo, hi = bounds if bounds is not None else _NO_BOUNDS
         norm = self._advance_sample(self._S, self._Fa, self._FL, n, self.steps, self.dt, select, out, after,
-                                    feed_i, feed_v, row)
+                                    feed_i, feed_v, row, lo, hi)
         self.steps += n + after
         return float(norm)
 
     def sample_entry(self) -> tuple[Callable[..., float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """`advance_sample`'s compiled function and its first three arguments (the arena, the tables
         and their layout), for a loop that calls it every few steps and cannot afford the method's
-        Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row)` with n, after
-        >= 0 and the argument types `advance_sample` passes; the caller then adds n + after to
-        `steps`. The arrays stay the simulator's for its life (`copy` makes new ones)."""
+        Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row, lo, hi)` with
+        n, after >= 0 and the argument types `advance_sample` passes; the caller then adds
+        n + after to `steps`. The arrays stay the simulator's for its life (`copy` makes new ones)."""
         return self._advance_sample, (self._S, self._Fa, self._FL)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:

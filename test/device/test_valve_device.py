@@ -211,7 +211,7 @@ def test_a_model_exception_is_a_fault_not_a_crash(monkeypatch):
         raise ArithmeticError('no coil current solves Eq. 2')
 
     monkeypatch.setattr(dev.sim, 'advance', broken)   # the device's stepping calls
-    monkeypatch.setattr(dev.sim, 'advance_sample', lambda n, *args: broken(n))
+    monkeypatch.setattr(dev.sim, 'advance_sample', lambda n, *args, **kwargs: broken(n))
     assert dev.run(20) == []
     assert dev.fault.startswith('model step failed (ArithmeticError: no coil current solves Eq. 2) before t = 0 s')
     assert dev.steps == 20

@@ -570,3 +570,96 @@ def test_the_array_forms_stretches_give_the_numbers_of_the_rigs_own_path(rig):
     safe = rig.params.timing.safe_duty
     assert [text for _, text in planned.log if "watchdog" in text] == [f"left: watchdog fired, duty -> {safe:g}"]
     assert len(planned.rejected) == 1 and planned.duties[-1, planned.valves.index("left")] == safe
+
+
+class _Holding:
+    """A controller that holds each valve's duty (its array form: the lockstep's planned stretch);
+    keeps what it was shown."""
+
+    def __init__(self, duties):
+        self.duties = duties
+        self.seen = []
+
+    def __call__(self, t, m):
+        self.seen.append(dict(m))
+        return dict(self.duties)
+
+    def lockstep_arrays(self, signals, valves):
+        names = list(signals)
+
+        def step(t, samples, out):
+            self.seen.append(dict(zip(names, samples)))
+            out[:] = list(self.duties.values())
+        return step, tuple(self.duties), ()
+
+
+def _dict_form(controller):
+    """`controller` without its array form (a plain function)."""
+    def plain(t, m):
+        return controller(t, m)
+    return plain
+
+
+@pytest.mark.parametrize("form", ["array", "dict"])
+def test_a_model_diverging_on_the_lockstep_fast_path_stops_as_on_the_devices_own_path(form):
+    """The lockstep's fast path is the rig's planned stretch (`Rig.sample_planned`), which checks
+    each sample against the valves' physical limits as `run_to` does: a model driven beyond what a
+    valve can show (3e5 N on the rod: a chamber pressure past 2 x 400 bar, finite) stops with the
+    same error at the same sample, and no such sample reaches the controller."""
+    from pcv_sim.rig import RigError
+    from pcv_sim.rig.params import load_rig
+
+    def pushed():
+        rig = Rig(load_rig())
+        rig.set_external_force(3e5)
+        return rig
+
+    own = pushed()
+    for valve in ("left", "right"):
+        own.submit(f"{valve}.duty_cycle", 0.5, at_step=1)      # as the controller's answer to the first sample
+    own.run_to(own.params.steps_per_period * 1000)
+    assert own.fault is not None and "outside the physical range" in own.fault, own.fault
+
+    rig = pushed()
+    controller = _Holding({"left": 0.5, "right": 0.5})
+    with pytest.raises(RigError) as err:
+        run_lockstep(rig, controller if form == "array" else _dict_form(controller), 1.0)
+    assert str(err.value) == own.fault and rig.fault == own.fault
+    assert len(controller.seen) >= 2 and all(
+        rig.limits[v].problem(m[f"{v}.pressure"], m[f"{v}.current"]) is None for m in controller.seen for v in ("left", "right"))
+
+
+def test_an_array_form_commanding_a_valve_with_a_fall_rate_limit_gives_its_dict_forms_numbers(tmp_path):
+    """A valve with a fall-rate limiter is not among the rig's direct duties (`direct_duties`): its
+    duty ramps step by step, so an array form that commands it takes no stretch of periods in one
+    go, and the run is its dict form's to the last bit (the ramp's steps included)."""
+    import yaml
+
+    from pcv_sim.params import DEFAULT_CONFIG
+    from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
+
+    limited = tmp_path / "limited.yaml"
+    limited.write_text(DEFAULT_CONFIG.read_text().replace("duty_fall_rate_limit: null", "duty_fall_rate_limit: 2.0"))
+    data = yaml.safe_load(DEFAULT_RIG.read_text())
+    data["valves"]["left"]["config"] = str(limited)
+    params = rig_from_mapping(data, base=DEFAULT_RIG.parent)
+
+    class Stepped(_Holding):
+        def step(self, t):
+            self.duties["left"] = 0.9 if t < 0.02 else 0.3
+            return self.duties
+
+        def __call__(self, t, m):
+            return dict(self.step(t))
+
+        def lockstep_arrays(self, signals, valves):
+            def step(t, samples, out):
+                out[:] = list(self.step(t).values())
+            return step, tuple(self.duties), ()
+
+    rig = Rig(params)
+    assert set(rig.direct_duties()) == {"right"}
+    array = run_lockstep(rig, Stepped({"left": 0.9, "right": 0.55}), 0.3)
+    plain = run_lockstep(Rig(params), _dict_form(Stepped({"left": 0.9, "right": 0.55})), 0.3)
+    assert np.array_equal(array.true, plain.true) and np.array_equal(array.duties, plain.duties)
+    assert array.signal("left.duty")[-1] == 0.3 and rig.input_values()["left.duty_cycle"] > 0.33   # still ramping
