@@ -4,10 +4,11 @@
 the model: inputs at their steps, watchdogs, the fall-rate limiter, faults, physical limits
 (`limits`), restarts, samples, the recorder hook); `valve`: the emulator's configuration of it,
 one valve and no plant (the rig's, valves on the cylinder, is `pcv_sim.rig.rig`); `settings`:
-the node's settings, declared once and validated like the valve YAML; `parameters`: the
+the node's settings, declared once and validated like the valve YAML; `recording`: a device's
+bag layout and its recorder, live and offline; `parameters`: the
 command-line and params-file checks rcl does not do; `diagnostics`: the device's health per
 concern. A new system plugs into a device here without touching ROS code (the node only moves
 messages). Covered by the test that nothing outside `pcv_sim/node` imports ROS.
 """
 
-__all__ = ["device", "diagnostics", "limits", "parameters", "settings", "valve"]
+__all__ = ["device", "diagnostics", "limits", "parameters", "recording", "settings", "valve"]

@@ -20,8 +20,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
+from pcv_sim.device.recording import RECORDABLE, check_signals
 from pcv_sim.errors import BagError, ParameterError
-from pcv_sim.io.recorder import RECORDABLE, check_signals
 from pcv_sim.params import (
     ValveParams,
     any_value,

@@ -15,14 +15,13 @@ from functools import partial
 from typing import Any
 
 from pcv_sim.device.diagnostics import DiagnosticsBuilder
+from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.device.settings import MODEL_PREFIX, NodeSettings, SettingsSchema, model_parameters, params_with
 from pcv_sim.device.settings import SCHEMA as EMULATOR_SCHEMA
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import CommandError, ParameterError
-from pcv_sim.io.recorder import BagRecorder
 from pcv_sim.params import ValveParams, check_value, load_params
 from pcv_sim.rig import Rig, load_rig
-from pcv_sim.rig.bag import RigRecorder
 from pcv_sim.rig.diagnostics import RigDiagnostics
 from pcv_sim.rig.params import RigParams, TimingParams
 from pcv_sim.rig.settings import SCHEMA as RIG_SCHEMA
@@ -92,9 +91,17 @@ def _valve_settings(dev: ValveDevice, s: NodeSettings) -> None:
 
 
 def _valve_recorder(node: Any) -> Callable[..., Any]:
+    """The emulator's bag: the selected roles at model steps (record.rate_hz), the fault commands with faults.enabled."""
     s, dev = node.settings, node.device
-    return partial(BagRecorder, signals=s.record_signals, options=(*dev.option_inputs, *dev.option_outputs),
-                   every=s.record_every(dev.dt), dt_ns=dev.dt_ns, frame_id=s.frame_id, faults=s.faults_enabled)
+    return partial(_device_recorder, dev, every=s.record_every(dev.dt), record=s.record_signals, frame_id=s.frame_id,
+                   faults=s.faults_enabled, events=False)
+
+
+def _device_recorder(dev: Any, directory: str, *, namespace: str, name: str | None, writing: Any,
+                     **layout: Any) -> DeviceRecorder:
+    """`open_recorder`'s maker: the device's bag layout in the node's namespace, and its recorder."""
+    return DeviceRecorder(directory, BagLayout.of(dev, namespace=namespace, **layout), name=name, dt_ns=dev.dt_ns,
+                          namespace=namespace, writing=writing)
 
 
 def _describe_valve(node: Any) -> str:
@@ -175,9 +182,9 @@ def _rig_install(rig: Rig, params: RigParams) -> str:
 
 
 def _rig_recorder(node: Any) -> Callable[..., Any]:
+    """The rig's bag: every sample as published, the chambers, the fault commands and the rig's events."""
     rig = node.device
-    return partial(RigRecorder, valves=[(v.name, v.chamber) for v in rig.params.valves], signals=rig.signals,
-                   options=(*rig.option_inputs, *rig.option_outputs))
+    return partial(_device_recorder, rig, chambers=node.kind.chambers(rig))
 
 
 def _describe_rig(node: Any) -> str:
