@@ -29,8 +29,8 @@ gives; its log (watchdogs, faults, resets) forwarded once per event; parameter c
 prepared off the loop and installed at a step boundary (in real time at the step an input received
 with the request acts at).
 
-Recording (`record.enabled`): the device's bag recorder (`kind.recorder`: the emulator's
-`pcv_sim.io.recorder.BagRecorder`, the rig's `pcv_sim.rig.bag.RigRecorder`), attached to the
+Recording (`record.enabled`): the device's bag recorder (`kind.recorder`: the one
+`pcv_sim.device.recording.DeviceRecorder` on the device's `BagLayout`), attached to the
 device's hooks, started with the first sample, told of every published sample and of resets,
 finalized by SIGINT/SIGTERM.
 """
