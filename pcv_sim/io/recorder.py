@@ -325,15 +325,7 @@ class QueuedBag:
         if self._proc is not None:
             return self._process_status()
         assert self._writer is not None
-        files = self._writer.files
-        size = 0
-        for f in files:
-            with contextlib.suppress(OSError):
-                size += f.stat().st_size
-        state: Literal["recording", "failed", "closed"] = (
-            "failed" if self._error else "closed" if self._closed else "recording")
-        return RecorderStatus(state, self.path, len(files), self._writer.message_count, size,
-                              len(self._queue), self._dropped, self._error)
+        return self._status(self._writer.files, self._writer.message_count, len(self._queue), self._dropped)
 
     def _process_status(self) -> RecorderStatus:
         proc = self._proc
@@ -344,16 +336,19 @@ class QueuedBag:
             self._ship()                         # the loop may be idle (a fault): the batch still goes
         # A writer that failed loses what it had not written: handed over, neither written nor dropped there.
         lost = max(0, proc.shipped_messages - proc.messages - proc.dropped) if self._error else 0
-        files = sorted(self.path.glob("*.mcap"))
+        queued = 0 if self._error else len(self._local) + proc.shipped - proc.taken
+        return self._status(sorted(self.path.glob("*.mcap")), proc.messages, queued,
+                            self._dropped + proc.dropped + lost)
+
+    def _status(self, files: list[Path], messages: int, queued: int, dropped: int) -> RecorderStatus:
+        """The status with the bag's files (their size on disk now) and these counts."""
         size = 0
         for f in files:
             with contextlib.suppress(OSError):
                 size += f.stat().st_size
         state: Literal["recording", "failed", "closed"] = (
             "failed" if self._error else "closed" if self._closed else "recording")
-        queued = 0 if self._error else len(self._local) + proc.shipped - proc.taken
-        return RecorderStatus(state, self.path, len(files), proc.messages, size, queued,
-                              self._dropped + proc.dropped + lost, self._error)
+        return RecorderStatus(state, self.path, len(files), messages, size, queued, dropped, self._error)
 
     def close(self) -> RecorderStatus:
         """Write what is queued and finalize the bag (summary, footer, metadata.yaml). Idempotent."""
