@@ -7,6 +7,7 @@ emulator's `BagRecorder`, the rig's `RigRecorder`, `pcv-sim scenario run --bag`)
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -67,28 +68,40 @@ def assert_same_bag(new: Path, old: Path) -> None:
     assert metadata(new) == metadata(old)
 
 
+def replayed(bag: Path, capsys: pytest.CaptureFixture[str], *args: str) -> dict:
+    """What `pcv-sim replay --json` says of a bag (its path and the wall time it took left out)."""
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--model", "simplified", "--json", *args]) == 0
+    out = json.loads(capsys.readouterr().out)
+    return {k: v for k, v in out.items() if k not in ("bag", "elapsed_s", "real_time_factor")}
+
+
 def emulator() -> ValveDevice:
     return ValveDevice(load_params(), safe_duty=0.0, watchdog_timeout=0.0, sample_every=10, seed=1)
 
 
-def test_the_emulators_bags_are_as_before(tmp_path: Path) -> None:
+def test_the_emulators_bags_are_as_before(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     dev = emulator()
     st = emulator_run(recorder, tmp_path, "emulator_all", dev, device=dev, every=1, namespace="/left",
                       frame_id="load_port", faults=True, events=False)
     assert st.dropped == 0 and st.error == "" and st.messages == 1812
     assert_same_bag(tmp_path / "emulator_all", DATA / "emulator_all")
+    assert replayed(tmp_path / "emulator_all", capsys) == replayed(DATA / "emulator_all", capsys)
     dev = emulator()
     emulator_run(recorder, tmp_path, "emulator_every10", dev, device=dev, every=10, record=["duty", "pressure", "flow"],
                  frame_id="", faults=False, events=False)
     assert_same_bag(tmp_path / "emulator_every10", DATA / "emulator_every10")
 
 
-def test_the_rigs_live_bag_is_as_before(tmp_path: Path) -> None:
+def test_the_rigs_live_bag_is_as_before(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rig = Rig(load_rig(), seed=1)
     chambers = {v.name: v.chamber for v in rig.params.valves if v.chamber in ("a", "b")}
     st = rig_run(recorder, tmp_path, "rig", rig, device=rig, namespace="/bench", chambers=chambers)
     assert st.dropped == 0 and st.error == ""
     assert_same_bag(tmp_path / "rig", DATA / "rig")
+    for valve in ("left", "right"):
+        assert replayed(tmp_path / "rig", capsys, "--namespace", valve) == replayed(DATA / "rig", capsys,
+                                                                                   "--namespace", valve)
 
 
 def test_the_scenario_runners_bag_is_as_before(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
