@@ -315,7 +315,8 @@ class DeviceRecorder(QueuedBag):
         super().__init__(
             directory, name, topics=self.topics,
             qos={t.topic: t.qos for t in layout.topics} if offered_qos else {},
-            max_items=max_items, writing=writing, item_bytes=9 * len(layout.row) + 48,
+            # Pickled bytes per item: a row of the emulator's three outputs ~48, else ~9 per value.
+            max_items=max_items, writing=writing, item_bytes=48 if layout.every is not None else 9 * len(layout.row) + 48,
             build={"layout": layout, "dt_ns": dt_ns, "namespace": namespace, "max_queue_s": max_queue_s,
                    "max_items": max_items, "offered_qos": offered_qos})
 
