@@ -175,7 +175,7 @@ def main() -> None:
     import rclpy
 
     from pcv_sim.jit import backend
-    from pcv_sim.node.base import tighten_timer_slack
+    from pcv_sim.node.tuning import tighten_timer_slack
 
     tighten_timer_slack()       # the controller polls in 20 us sleeps, as the rig node does
     domain = 150 + os.getpid() % 50

@@ -21,8 +21,9 @@ also `cylinder/pressure_<chamber>`.
     in   /clock                   rosgraph_msgs/Clock (use_sim_time only: the model follows it)
     srv  reset                    std_srvs/Trigger: the device back to rest, a fault cleared; model time goes on
 
-The loops, parameters, services and QoS events are `pcv_sim.node.base.NodeBase`'s. Here: the
-device's samples published as measured (sensor faults applied; a non-finite value is not), one
+The loops, parameters, inputs, services and QoS events are `pcv_sim.node.base.NodeBase`'s (a
+module per idea). Here: the device's samples published as measured (sensor faults applied; a
+non-finite value is not), one
 sample period at a time so that the hook (a scenario) and the recorder see the device at the
 sample's step; its inputs checked by the device on arrival and acting at the step `acting_step`
 gives; its log (watchdogs, faults, resets) forwarded once per event; parameter changes and reset
@@ -51,8 +52,10 @@ from pcv_sim.device.diagnostics import Shown, Status
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
-from pcv_sim.node.base import COMMAND_HINT, COMMAND_QOS, DIAGNOSTICS_QOS, SAMPLE_HINT, NodeBase
+from pcv_sim.node.base import DIAGNOSTICS_QOS, NodeBase
+from pcv_sim.node.inputs import COMMAND_QOS
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
+from pcv_sim.node.qos_events import COMMAND_HINT, SAMPLE_HINT
 from pcv_sim.node.samples import SamplePublisher
 
 __all__ = ["DeviceNode"]

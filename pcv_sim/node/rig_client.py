@@ -53,6 +53,7 @@ from pcv_sim.io.topics import (
     valve_topic,
 )
 from pcv_sim.node.client import DeviceClient, diagnostic_level, sample_qos, stamp_ns
+from pcv_sim.node.inputs import drain
 from pcv_sim.node.lockstep_channel import (
     COMMAND_TOPIC,
     DUTY_SUFFIX,
@@ -62,7 +63,7 @@ from pcv_sim.node.lockstep_channel import (
     decode,
     measurement,
 )
-from pcv_sim.node.polling import Waiter, drain
+from pcv_sim.node.polling import Waiter
 
 __all__ = ["Period", "RigClient"]
 

@@ -118,9 +118,9 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
 
     from pcv_sim.control.steering import PositionController
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.base import freeze_heap, tighten_timer_slack
     from pcv_sim.node.polling import linger_for_rosout
     from pcv_sim.node.rig_client import RigClient, _ignore
+    from pcv_sim.node.tuning import freeze_heap, tighten_timer_slack
 
     class SteeringControllerNode(Node):
         """PositionController between the rig's samples and its duty commands; `run(stop)`."""
