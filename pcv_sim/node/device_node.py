@@ -48,7 +48,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.device import Sample
-from pcv_sim.device.diagnostics import Shown, Status
+from pcv_sim.device.diagnostics import DiagnosticsBuilder, Shown, Status
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
@@ -64,8 +64,6 @@ __all__ = ["DeviceNode"]
 class DeviceNode(NodeBase):
     """ROS parameters in, the device of `kind` (`pcv_sim.node.kinds.NodeKind`) out. Construct, then
     `run(stop)`."""
-
-    _diag: Any          # the kind's diagnostics builder (`build(now, device=, settings=, ...)`)
 
     def __init__(self, kind: Any, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         self.kind = kind
@@ -105,7 +103,7 @@ class DeviceNode(NodeBase):
         self.follow_clock()
         self.create_service(Trigger, RESET, self._on_reset)
         self._deferred_callbacks += (self._on_reset,)       # rest states are computed off the loop
-        self._diag = kind.diagnostics(self.get_fully_qualified_name(), time.monotonic())
+        self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic(), kind.chambers(dev))
         self.recorder = self.open_recorder(kind.recorder(self))
         if self.recorder is not None:
             self.recorder.attach(dev)
@@ -273,13 +271,12 @@ class DeviceNode(NodeBase):
     # --- diagnostics -----------------------------------------------------------------------------
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
-        """The device's statuses, one per concern (`kind.diagnostics`)."""
+        """The device's statuses, one per concern and one per named valve (`DiagnosticsBuilder`)."""
         dev, s = self.device, self.settings
         waiting = tuple(v for v in dev.valve_names if v not in self._answered) \
             if self.simulated and s.lockstep else ()
-        last = dict(zip(dev.signals, self._last[1])) if self._last is not None else {}
         shown = Shown("external_clock" if self.external_clock else s.time_mode, self.samples_published, self.resets,
-                      last, waiting)
+                      waiting)
         statuses: list[Status] = self._diag.build(now, device=dev, settings=s, schedule=self._schedule,
                                                   recorder=recorder, shown=shown)
         return statuses

@@ -18,7 +18,7 @@ from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
 from pcv_sim.device.device import Device
-from pcv_sim.device.diagnostics import PeriodDiagnostics
+from pcv_sim.device.diagnostics import DiagnosticsBuilder
 from pcv_sim.errors import ParameterError
 from pcv_sim.io.recorder import SWITCH_INTERVAL
 from pcv_sim.io.topics import CLOCK
@@ -54,7 +54,7 @@ class TimeModeLoops(Node):
     simulated: bool                 # time_mode simulated (else real: the wall clock, or an external /clock)
     external_clock: bool            # use_sim_time (pcv_sim.node.parameters)
     hook: Any                       # a scenario's hook (pcv_sim.node.base)
-    _diag: PeriodDiagnostics
+    _diag: DiagnosticsBuilder
     _external: ExternalClock
     _pub_clock: Any                 # the /clock publisher (simulated time), or None
     # pcv_sim.node.inputs

@@ -143,10 +143,10 @@ def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
     right = [i for _, i in client.currents['right'][-20:]]
     assert max(abs(i) for i in left) < 0.02 * i_before             # the open coil carries no current
     assert min(right) > 0.9 * i_before                             # the other valve is untouched
-    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: inputs', (0, '', {}))[2]
                        .get('faults_active', ''))
     assert diag is not None, rig.output()
-    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: rig']
+    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: inputs']
     assert rig_level == 1 and 'coil_open@left' in rig_message
     assert rig_values['rejected.faults'] == '1'
     left_level, left_message, _ = diag[f'{ros.ns("rig")}/rig: left']

@@ -68,7 +68,7 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
     diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: probe', (0, '', {}))[2].get('rejected.oil_temperature')
                        == '1', timeout=10)
     assert diag is not None, (client.diagnostics[-1:], rig.output())
-    assert 'the unit is K, not degC' in diag[f'{ns}/rig: rig'][2]['last_rejection']
+    assert 'the unit is K, not degC' in diag[f'{ns}/rig: inputs'][2]['last_rejection']
     for valve in ('left', 'right'):
         for e in ('coil_temperature', 'coil_resistance', 'core_position'):
             assert node.count_publishers(f'{ns}/{valve}/{e}') == 0, (valve, e)
