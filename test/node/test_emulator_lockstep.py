@@ -4,7 +4,8 @@ node (`python -m pcv_sim.node.emulator`, time_mode simulated, lockstep) in anoth
 
 The promise is the rig's (test_rig_node.py): every sample period in order from model time 0, each
 answer acting from the step after the sample it answers, so that the run is bit for bit the run of
-the same device stepped in this process with the same controller, and the run over the duty topic.
+the same device stepped in this process with the same controller, and the run over the duty topic. The controller is the one client's lockstep
+(`pcv_sim.node.client.DeviceClient.run`), the rig's.
 """
 
 from pcv_sim.device.settings import NodeSettings
@@ -38,44 +39,30 @@ def in_process(periods):
     return out
 
 
-def channel_run(ros, name):
-    from pcv_sim.node.rig_client import RigClient
+def lockstep_run(ros, name, channel):
+    """The controller run by the one client's lockstep (`DeviceClient.run`, the rig's), on the
+    lockstep channel or on the emulator's topics (its `pressure` completes a period)."""
+    from pcv_sim.node.client import DeviceClient
 
     emulator = ros.start(name, params={'time_mode': 'simulated', 'lockstep': True})
-    client = RigClient(ros.ns(name), (VALVE,), context=ros.context, node_name=f'lockstep_ctl_{len(ros.clients)}',
-                       channel=True)
+    client = DeviceClient(ros.ns(name), context=ros.context, node_name=f'lockstep_ctl_{len(ros.clients)}',
+                          lockstep=True, channel=channel)
     ros.clients.append(client)
-    assert client.wait_for_rig(60), emulator.output()
+    assert client.wait_for_device(60), emulator.output()
     run = client.run(controller, PERIODS, timeout=120)
     assert emulator.stop() == 0, emulator.output()
     assert 'published again' not in emulator.output()     # the premise of bit for bit: no lost command
     return [(p.stamp_ns, p.measured, p.duties) for p in run]
 
 
-def topic_run(ros, name):
-    """The same controller answering each pressure sample on the duty topic (every copy of a sample
-    published again answered the same way)."""
-    ros.start(name, params={'time_mode': 'simulated', 'lockstep': True})
-    answered = {}
-
-    def answer(sample):
-        duty = controller(sample.stamp_ns * 1e-9, {'pressure': sample.pressure})[VALVE]
-        c.send_duty(duty)
-        answered.setdefault(sample.stamp_ns, sample.pressure)
-
-    c = ros.client(name, on_pressure=answer)
-    assert c.spin_until(lambda: len(answered) >= PERIODS, 120), f'lockstep stalled after {len(answered)} samples'
-    assert ros.emulators[-1].stop() == 0, ros.emulators[-1].output()
-    return sorted(answered.items())[:PERIODS]
-
-
 def test_the_emulators_lockstep_channel_runs_bit_for_bit_as_in_process_and_as_the_duty_topic_under_load(
         ros, cpu_load):
-    channel = channel_run(ros, 'chan')
+    channel = lockstep_run(ros, 'chan', channel=True)
     assert [stamp for stamp, _, _ in channel] == [k * 1_000_000 for k in range(PERIODS)]   # every period, in order
     assert set(channel[0][1]) == {'pressure', 'current', 'spool_position'}                 # the emulator's signals
     assert channel == in_process(PERIODS)                                                  # == on floats: bit for bit
-    pressures = [p for _, p in topic_run(ros, 'topic')]
-    assert pressures == [m['pressure'] for _, m, _ in channel]
+    topics = lockstep_run(ros, 'topic', channel=False)
+    assert [(stamp, m['pressure'], d) for stamp, m, d in topics] == \
+        [(stamp, m['pressure'], d) for stamp, m, d in channel]
     # The run is a regulation, not a constant: the answers took effect.
     assert channel[-1][1]['pressure'] > channel[1][1]['pressure'] + 5e5

@@ -1,7 +1,7 @@
 """The rig node's interface beside the samples and duty commands, over real DDS (the node a separate
 process): recording (record.*), the reset service, cylinder/external_force, use_sim_time.
 
-A lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period; each test
+A lockstep controller (`pcv_sim.node.client.RigClient`) answers every control period; each test
 has its own ROS domain and namespace (test/node/conftest.py).
 """
 import dataclasses

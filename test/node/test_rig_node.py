@@ -1,6 +1,6 @@
 """The rig node (`python -m pcv_sim.node.rig`) as a separate process over real DDS.
 
-A small lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period
+A small lockstep controller (`pcv_sim.node.client.RigClient`) answers every control period
 for both valves. Each test has its own ROS domain and namespace (test/node/conftest.py).
 """
 import itertools
@@ -27,7 +27,7 @@ def start_rig(ros, name='rig', *, params=None, args=()):
 
 
 def rig_client(ros, name='rig', **kw):
-    from pcv_sim.node.rig_client import RigClient
+    from pcv_sim.node.client import RigClient
 
     client = RigClient(ros.ns(name), VALVES, context=ros.context, node_name=f'rig_ctl_{len(ros.clients)}', **kw)
     ros.clients.append(client)
@@ -117,12 +117,12 @@ def test_the_lockstep_channel_runs_bit_for_bit_as_the_topics_under_load_and_the_
 
 def _rig_status(client, predicate, timeout=10.0):
     """The first diagnostics message (from now) whose statuses satisfy predicate."""
-    start = len(client.diagnostics)
+    start = len(client.statuses)
     found = []
 
     def check():
         client.poll()
-        found[:] = [d for d in client.diagnostics[start:] if predicate(d)]
+        found[:] = [d for d in client.statuses[start:] if predicate(d)]
         return bool(found)
 
     return found[0] if wait_until(check, timeout) else None
