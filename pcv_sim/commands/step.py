@@ -1,6 +1,7 @@
 """A duty step at zero load flow (the paper's dynamic test, Sec. 3.2): pressure, current and
 spool position over time (Fig. 11 style) with rise time, overshoot, settling time and steady
-state. `--model simplified` runs the real-time stepper the emulator uses; `--model full` runs
+state. `--model simplified` runs the emulator's device (`ValveDevice`: its stepping, fall-rate
+limiter and physical limits); `--model full` runs
 the full model (with damping chamber) on scipy's stiff Radau solver. The steady state is the
 static solution at the final duty (the zero-flow equilibrium), not the window's end: a --duration
 shorter than the settling is warned about. --damping names the simplified model's damping
@@ -12,17 +13,19 @@ import argparse
 import math
 import sys
 
+import numpy as np
+
 from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
-from pcv_sim.errors import UsageError
+from pcv_sim.device.valve import ValveDevice
+from pcv_sim.errors import PcvSimError, UsageError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.plotting import pyplot
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.simulation.trajectory import Trajectory
 from pcv_sim.units import MM_PER_M, PA_PER_BAR
 
@@ -39,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--at", type=positive, default=0.02, help="step time [s] (default: %(default)s)")
     p.add_argument("--duration", type=positive, default=0.4, help="simulated time [s] (default: %(default)s)")
     p.add_argument("--model", choices=("simplified", "full"), default="simplified",
-                   help="simplified: the real-time stepper; full: stiff reference with chamber (default: %(default)s)")
+                   help="simplified: the emulator's device; full: stiff reference with chamber (default: %(default)s)")
     p.add_argument("--fall-rate", type=positive, default=None, metavar="PER_S",
                    help="rate-limit decreasing duty to this many duty units per second (default: the config's)")
     p.add_argument("--damping", type=damping_option, default=None, metavar="equivalent|paper|NS_PER_M",
@@ -61,8 +64,24 @@ def simulate_step(args: argparse.Namespace) -> Trajectory:
         return simulate_reference(ValveModel(params, "full"), profile, args.duration)
     from pcv_sim.params import replace_param
 
-    stepper = RealTimeStepper(replace_param(params, "command.duty_fall_rate_limit", rate), duty=args.start)
-    return stepper.run(profile, args.duration)
+    return device_step(replace_param(params, "command.duty_fall_rate_limit", rate), profile, args.duration)
+
+
+def device_step(params: ValveParams, profile: DutyProfile, duration: float) -> Trajectory:
+    """The emulator's device at rest at the profile's first duty, each command acting from the
+    first step at or after its time, sampled at every step to `duration` (from 0; a sample shows
+    the duty in force from its step on). PcvSimError when the model stops (the device's fault)."""
+    dev = ValveDevice(params, safe_duty=profile.values[0], watchdog_timeout=0.0, sample_every=1)
+    dt = dev.dt
+    for t, duty in zip(profile.times, profile.values, strict=True):
+        dev.submit("duty_cycle", duty, at_step=math.ceil(t / dt - 1e-9))
+    dev.run_to(0)                                      # what is due at step 0 acts before its sample
+    samples = [dev.valve_sample(), *dev.run(round(duration / dt))]
+    if dev.fault is not None:
+        raise PcvSimError(f"the model stopped: {dev.fault}")
+    return Trajectory(np.array([s.step * dt for s in samples]), np.array([s.duty for s in samples]),
+                      np.array([s.current for s in samples]), np.array([s.pressure for s in samples]),
+                      np.array([s.spool_position for s in samples]))
 
 
 def steady_state(args: argparse.Namespace) -> dict[str, float] | None:
