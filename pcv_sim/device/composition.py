@@ -36,14 +36,15 @@ from pcv_sim.io.topics import FAULTS
 from pcv_sim.model import kernel
 from pcv_sim.simulation.duty import FallRateLimiter, check_duty
 from pcv_sim.simulation.simulator import Simulator
-from pcv_sim.simulation.stepper import (
+from pcv_sim.simulation.system import Composite, compose
+from pcv_sim.simulation.valve import (
     check_load_flow,
     check_oil_step,
     check_supply_pressure,
     check_temperature,
+    valve_integrator,
+    valve_system,
 )
-from pcv_sim.simulation.system import Composite, compose
-from pcv_sim.simulation.valve import valve_integrator, valve_system
 from pcv_sim.units import kelvin
 
 __all__ = ["Composition"]

@@ -108,7 +108,7 @@ from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import FAULTS
 from pcv_sim.model import kernel
 from pcv_sim.simulation.duty import check_duty
-from pcv_sim.simulation.stepper import (
+from pcv_sim.simulation.valve import (
     check_oil_step,
     check_temperature,
 )

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pcv_sim.params import ValveParams
-from pcv_sim.simulation.stepper import MAX_SUPPLY_PRESSURE
+from pcv_sim.simulation.valve import MAX_SUPPLY_PRESSURE
 from pcv_sim.units import PA_PER_BAR, bar
 
 __all__ = ["TRIAL_STEPS", "PhysicalLimits"]

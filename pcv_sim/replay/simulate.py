@@ -40,8 +40,8 @@ from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Series
 from pcv_sim.simulation.reference import VALVE_ATOL, ReferenceError, integrate_reference
 from pcv_sim.simulation.rest import rest_state
-from pcv_sim.simulation.stepper import RealTimeStepper, check_load_flow, check_supply_pressure
-from pcv_sim.simulation.valve import valve_system
+from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.simulation.valve import check_load_flow, check_supply_pressure, valve_system
 
 __all__ = ["InputTimeline", "ModelRun", "Solver", "input_timeline", "run_model"]
 

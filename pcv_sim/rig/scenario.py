@@ -97,7 +97,7 @@ from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, ValveChanges, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
 from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, rig_signals
-from pcv_sim.simulation.stepper import MAX_TEMPERATURE, MIN_TEMPERATURE
+from pcv_sim.simulation.valve import MAX_TEMPERATURE, MIN_TEMPERATURE
 from pcv_sim.units import KINDS, UnitError, fmt, quantity
 
 __all__ = [

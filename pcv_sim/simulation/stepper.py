@@ -8,8 +8,6 @@ controller); the duty passes the fall-rate limiter first.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from pcv_sim.errors import CommandError
@@ -22,86 +20,23 @@ from pcv_sim.simulation.duty import DutyProfile, FallRateLimiter, check_duty
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.trajectory import Trajectory
-from pcv_sim.simulation.valve import KINDS, valve_inputs, valve_integrator, valve_system
-from pcv_sim.units import KELVIN_AT_0C, M3S_PER_LPM, PA_PER_BAR, bar, kelvin
+from pcv_sim.simulation.valve import (
+    KINDS,
+    check_load_flow,
+    check_oil_step,
+    check_supply_pressure,
+    check_temperature,
+    valve_inputs,
+    valve_integrator,
+    valve_system,
+)
+from pcv_sim.units import kelvin
 
-__all__ = ["RealTimeStepper", "check_load_flow", "check_oil_step", "check_supply_pressure", "check_temperature"]
+__all__ = ["RealTimeStepper"]
 
-# Beyond these the input is not a plant any rig could produce: refuse rather than integrate it.
-MAX_LOAD_FLOW = 100.0 * M3S_PER_LPM     # the valve passes ~50 L/min fully open
-MAX_SUPPLY_PRESSURE = 400.0 * PA_PER_BAR
-MIN_SUPPLY_PRESSURE = 1.0 * PA_PER_BAR   # below 1 bar a value is far more likely bar than Pa
 #: Where the valve's inputs sit in `Simulator.u` (the model's input order).
 DUTY, LOAD_FLOW, SUPPLY_PRESSURE, LOAD_VOLUME = (
     INPUTS.index(name) for name in ("duty_cycle", "load_flow", "supply_pressure", "load_volume"))
-
-
-def check_load_flow(value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CommandError(f"load flow {value!r}: accepted is a finite number in m^3/s")
-    if abs(value) > MAX_LOAD_FLOW:
-        # Name L/min only when the number read as L/min is a flow this valve can see.
-        looks_lpm = abs(value) * M3S_PER_LPM <= MAX_LOAD_FLOW
-        hint = f"; the unit is m^3/s, not L/min: {value:g} L/min is {value * M3S_PER_LPM:.4g} m^3/s" if looks_lpm else ""
-        raise CommandError(
-            f"load flow {value:g} m^3/s is beyond +-{MAX_LOAD_FLOW:.4g} m^3/s (100 L/min){hint}"
-        )
-    return float(value)
-
-
-def check_supply_pressure(value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CommandError(f"supply pressure {value!r}: accepted is a finite number in Pa")
-    if not MIN_SUPPLY_PRESSURE <= value <= MAX_SUPPLY_PRESSURE:
-        # Name bar only when the number read as bar is in range (200 -> 200 bar), not for 5e8.
-        looks_bar = MIN_SUPPLY_PRESSURE <= value * PA_PER_BAR <= MAX_SUPPLY_PRESSURE
-        hint = f" (the unit is Pa, not bar: {value:g} bar is {value * PA_PER_BAR:.4g} Pa)" if looks_bar else ""
-        raise CommandError(
-            f"supply pressure {value:g} Pa: accepted is {MIN_SUPPLY_PRESSURE:.4g} .. {MAX_SUPPLY_PRESSURE:.4g} Pa "
-            f"({bar(MIN_SUPPLY_PRESSURE):g} .. {bar(MAX_SUPPLY_PRESSURE):g} bar){hint}"
-        )
-    return float(value)
-
-
-MIN_TEMPERATURE, MAX_TEMPERATURE = 213.15, 473.15    # K: -60 .. 200 degC, what a valve in a vehicle sees
-
-
-def check_temperature(what: str, value: float) -> float:
-    """A temperature input (K): refused beyond -60 .. 200 degC, with a hint when it reads as degC."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CommandError(f"{what} {value!r}: accepted is a finite number in K")
-    if not MIN_TEMPERATURE <= value <= MAX_TEMPERATURE:
-        looks_c = MIN_TEMPERATURE <= value + KELVIN_AT_0C <= MAX_TEMPERATURE
-        hint = f" (the unit is K, not degC: {value:g} degC is {value + KELVIN_AT_0C:.5g} K)" if looks_c else ""
-        raise CommandError(f"{what} {value:g} K: accepted is {MIN_TEMPERATURE:g} .. {MAX_TEMPERATURE:g} K "
-                           f"(-60 .. 200 degC){hint}")
-    return float(value)
-
-
-def check_oil_step(params: ValveParams, p: np.ndarray, dt: float, exact: bool, temperature: float) -> None:
-    """Cold oil multiplies the laminar damping (R34): the spool's pole B_eq mu/mu_ref / m then
-    outgrows an explicit step (Heun's bound on the real axis is h lambda = 2). With `exact` (erk2
-    takes the pole, the core attached: `valve_system`) any temperature runs; otherwise one beyond
-    the bound is refused (CommandError) with what would run it, rather than integrated into a
-    diverging state. `p`: the valve's packed parameters."""
-    if exact:
-        return
-    mu_ratio = float(kernel.oil_properties(temperature, p)[3])
-    sp = params.spool
-    mass = sp.mass - sp.core_mass if sp.core_separation else sp.mass
-    z = params.equivalent_damping * mu_ratio / mass * dt
-    if z > 2.0:
-        exact_dt = dt * 2.0 / z
-        scale = 10.0 ** (math.floor(math.log10(exact_dt)) - 1)
-        limit = math.floor(exact_dt / scale) * scale        # two digits, rounded down: a step that runs
-        raise CommandError(
-            f"oil temperature {temperature - KELVIN_AT_0C:.1f} degC: the oil's viscosity ({mu_ratio:.3g}x the "
-            f"reference's) makes the spool's damping pole {z / dt:.3g} 1/s, beyond what the "
-            f"{dt:g} s step integrates (h lambda = {z:.2f} > 2); accepted is warmer oil, "
-            f"simulation.time_step <= {limit:.2g} s for this temperature"
-            + (", or simulation.integrator: erk2 (or auto), which takes the pole exactly"
-               if not sp.core_separation else
-               " (with spool.core: separate the spool and the core each have their own pole)"))
 
 
 class RealTimeStepper:

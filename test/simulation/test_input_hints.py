@@ -8,7 +8,7 @@ import pytest
 
 from pcv_sim.errors import CommandError
 from pcv_sim.simulation.duty import check_duty
-from pcv_sim.simulation.stepper import check_load_flow, check_supply_pressure
+from pcv_sim.simulation.valve import check_load_flow, check_supply_pressure
 
 
 @pytest.mark.parametrize(("value", "hint"), [(70.0, "0.7"), (2.0, "0.02"), (100.0, "1")])

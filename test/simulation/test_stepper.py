@@ -18,7 +18,8 @@ from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import default_params, replace_param
 from pcv_sim.simulation.duty import DutyProfile, FallRateLimiter, check_duty
 from pcv_sim.simulation.reference import simulate_reference
-from pcv_sim.simulation.stepper import RealTimeStepper, check_load_flow, check_supply_pressure
+from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.simulation.valve import check_load_flow, check_supply_pressure
 
 BAR = 1e5
 LPM = 1e-3 / 60.0
