@@ -201,8 +201,10 @@ class Composition:
             lo[jp], hi[jp] = lim.pressure_min, lim.pressure_max
             lo[ji], hi[ji] = -lim.current_max, lim.current_max
         self.signal_bounds = (lo, hi)
-        #: `Simulator.sample_entry` of the simulator: the planned stretch's compiled call.
-        self._sample_call = sim.sample_entry()
+        #: The planned stretch's compiled call (`Simulator.sample_entry`) and its fixed arguments:
+        #: the arena, the tables, their layout, the step, the signals and their bounds.
+        fn, arrays = sim.sample_entry()
+        self._planned_call = (fn, *arrays, self.dt, self.signal_outputs, lo, hi)
         #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
         #: values: (input index, value) per valve that has them.
         self._option_defaults = [(plant.index("input", f"{v.name}.{name}"), value) for v, lay in zip(valves, layouts)

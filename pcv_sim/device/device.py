@@ -489,15 +489,12 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         now = sim.steps
         row = -1
         if taken is None:
-            fs = self._feed_steps
+            fn, S, Fa, FL, dt, select, lo, hi = self._planned_call
             r = self._feed_next
-            if r < len(fs) and fs[r] == at:
+            if r < len(self._feed_steps) and self._feed_steps[r] == at:
                 row = r
-            fn, (S, Fa, FL) = self._sample_call
-            lo, hi = self.signal_bounds
             try:
-                norm = fn(S, Fa, FL, at - now, now, self.dt, self.signal_outputs, out, after, self._feed_i, self._feed_v,
-                          row, lo, hi)
+                norm = fn(S, Fa, FL, at - now, now, dt, select, out, after, self._feed_i, self._feed_v, row, lo, hi)
             except MODEL_FAILURES as err:
                 self._fail(f"model step failed ({type(err).__name__}: {err})")
         else:
