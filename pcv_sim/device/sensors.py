@@ -32,6 +32,8 @@ class Sensors:
         #: signal index -> kind -> (fault, start time, value at start)
         self._active: dict[int, dict[str, tuple[Fault, float, float]]] = {}
         self._history: deque[np.ndarray] = deque(maxlen=1)
+        #: Whether `_history` keeps more than the last sample (a delay fault was active).
+        self._keeps = False
         self._last: np.ndarray | None = None
 
     @property
@@ -41,7 +43,7 @@ class Sensors:
     @property
     def keeps_history(self) -> bool:
         """A delay fault has been active: `measure` keeps the samples it needs (call it every period)."""
-        return bool(self._history.maxlen and self._history.maxlen > 1)
+        return self._keeps
 
     def add(self, fault: Fault, t: float) -> None:
         j = self.signals.index(fault.target)
@@ -51,6 +53,7 @@ class Sensors:
             n = self.delay_periods(fault.values["delay"])
             if self._history.maxlen is None or self._history.maxlen < n + 1:
                 self._history = deque(self._history, maxlen=n + 1)
+                self._keeps = True
 
     def clear(self, target: str, kind: str) -> bool:
         j = self.signals.index(target)
@@ -67,7 +70,7 @@ class Sensors:
         """The measured samples at time t for the true samples `true` (not modified)."""
         self._last = true
         if not self._active:
-            if self._history.maxlen and self._history.maxlen > 1:
+            if self._keeps:
                 self._history.append(true.copy())
             return true
         self._history.append(true.copy())
