@@ -166,3 +166,51 @@ def test_compiled_and_plain_python_paths_agree_to_rounding():
         # Same arithmetic; numba may fuse multiply-adds (one rounding instead of two), so agreement
         # is to rounding amplified over 300 steps of a stable system, not bit for bit.
         assert np.allclose(a, b, rtol=1e-9, atol=1e-15), (key, a, b)
+
+
+def _valve_at_rest() -> Simulator:
+    from pcv_sim.simulation.valve import valve_inputs
+
+    params = default_params()
+    sim = Simulator(valve_system(params), params.simulation.time_step, "rk2")
+    rest = rest_state(params, "simplified", 0.5, 0.0, params.circuit.supply_pressure, integrator="rk2")
+    sim.u[:] = valve_inputs(params, 0.5, 0.0, params.circuit.supply_pressure)
+    sim.x[:] = rest.state
+    sim.W[0] = rest.current
+    sim.u[0] = 0.7                  # a duty step: the outputs move
+    return sim
+
+
+def test_advance_sample_checks_the_sampled_outputs_against_their_bounds() -> None:
+    """`bounds` (lo, hi) on the first sampled outputs: a sample outside them (or NaN) makes the
+    returned norm NaN, as a state that ran away does; the sample is written and the steps taken
+    all the same, the same numbers as without bounds."""
+    select = np.arange(3, dtype=np.int64)
+    free, inside, outside = _valve_at_rest(), _valve_at_rest(), _valve_at_rest()
+    y_free, y_in, y_out = np.empty(3), np.empty(3), np.empty(3)
+    norm = free.advance_sample(50, select, y_free, 1)
+    assert math.isfinite(norm)
+    assert inside.advance_sample(50, select, y_in, 1, bounds=(y_free - 1.0, y_free + 1.0)) == norm
+    lo, hi = np.full(2, -np.inf), np.full(2, np.inf)
+    hi[1] = y_free[1] * 0.5         # the current: half of what it is
+    assert math.isnan(outside.advance_sample(50, select, y_out, 1, bounds=(lo, hi)))
+    assert np.array_equal(y_in, y_free) and np.array_equal(y_out, y_free)
+    assert inside.steps == outside.steps == free.steps == 51 and np.array_equal(outside.x, free.x)
+
+
+def test_bind_hands_the_arrays_to_another_arena_and_unbind_takes_them_back() -> None:
+    """What a batch does with a copy's simulator: bound, its arrays are views of another arena
+    (stepped there), unbound they are its own again with the values the other arena reached."""
+    from pcv_sim.simulation.compile import arena_layout
+
+    sim, other = _valve_at_rest(), _valve_at_rest()
+    assert sim.runs_like(other)
+    big = np.zeros(2 * len(sim.arena))
+    parts = {name: big[len(sim.arena) + a:len(sim.arena) + b] for name, (a, b) in arena_layout(sim.plant).items()}
+    sim.bind(parts)
+    assert np.array_equal(big[len(sim.arena):], sim.arena) and sim.x.base is big
+    sim.u[0] = 0.3                                  # written where the other arena is
+    assert parts["u"][0] == 0.3 and sim.arena[arena_layout(sim.plant)["u"][0]] == 0.7
+    parts["x"][3] += 1.0                            # stepped there
+    sim.unbind()
+    assert sim.x.base is sim.arena and sim.u[0] == 0.3 and sim.x[3] == other.x[3] + 1.0
