@@ -21,6 +21,7 @@ valve YAML key, a `model.*` ROS parameter or a node setting, is converted and ch
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from collections.abc import Callable, Mapping
@@ -31,7 +32,8 @@ from typing import Any, TypeVar
 import yaml
 
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.units import quantity, si_kind
+from pcv_sim.keys import unknown_message
+from pcv_sim.units import KINDS, quantity, si_kind
 
 __all__ = [
     "DEFAULT_CONFIG",
@@ -47,13 +49,19 @@ __all__ = [
     "SpoolParams",
     "ValveParams",
     "any_value",
+    "at_least",
+    "between",
     "check_field",
+    "check_mapping",
     "check_value",
+    "declarations",
     "default_params",
     "duty_fraction",
     "fraction",
     "int_range",
+    "key_table",
     "load_params",
+    "non_empty",
     "non_negative",
     "one_of",
     "parameter",
@@ -61,6 +69,7 @@ __all__ = [
     "params_to_mapping",
     "plausible_range",
     "positive",
+    "read",
     "read_yaml",
     "replace_param",
     "section_from_mapping",
@@ -121,6 +130,30 @@ def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
     return check
 
 
+def between(lo: float, hi: float, what: str = "a value") -> Check:
+    """lo <= value <= hi (inclusive), in the message's words `what` ("a duration", "a position")."""
+
+    def check(v: float) -> str | None:
+        return None if lo <= v <= hi else f"{what} in {lo:g} .. {hi:g}"
+
+    check.lo, check.hi = lo, hi  # type: ignore[attr-defined]  # the range, for the tables of keys
+    return check
+
+
+def at_least(lo: float, what: str = "a value", *, strict: bool = False) -> Check:
+    """value >= lo (> lo when `strict`), in the message's words `what`."""
+
+    def check(v: float) -> str | None:
+        return None if (v > lo if strict else v >= lo) else f"{what} {'>' if strict else '>='} {lo:g}"
+
+    return check
+
+
+def non_empty(v: Any) -> str | None:
+    """A list or mapping with at least one entry."""
+    return None if len(v) else "not empty"
+
+
 def speed_factor(name: str, v: Any) -> float:
     """Converter of a real-time factor: a number >= 0, where 0 and inf both mean as fast as possible."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0.0:
@@ -164,16 +197,26 @@ _one_of = one_of
 
 def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "float", default: Any = dataclasses.MISSING,
               source: str = "", name: str | None = None, read_only: bool = False,
-              convert: Callable[[str, Any], Any] | None = None) -> Any:
+              convert: Callable[[str, Any], Any] | None = None, item: Any = None, section: type | None = None,
+              role: str = "") -> Any:
     """One parameter, declared once: its unit, one line of doc, its check (a plausible range, a
-    choice...), its type (`kind`: float, int, str, bool, float_or_null, vectorN, ...) and its default
-    (none: required). `source`: where the value comes from (the paper's table or section); `name`:
-    the parameter's name if not the field's (`record.enabled`); `read_only`: a node setting that
-    cannot change while the node runs; `convert`: a converter `(name, value) -> value` raising
-    ParameterError, for values no kind describes."""
+    choice...), its type (`kind`) and its default (none: required). `source`: where the value
+    comes from (the paper's table or section); `name`: the parameter's name if not the field's
+    (`record.enabled`, `from`); `read_only`: a node setting that cannot change while the node runs;
+    `convert`: a converter `(name, value) -> value` raising ParameterError, for values no kind
+    describes.
+
+    Kinds: float, int, str, bool, float_or_null, float_or_equivalent, vectorN, matrix4x4,
+    matrixNx3; a kind of `pcv_sim.units.KINDS` (time, pressure, length, fraction...): a bare SI
+    number or a value with a unit ("20 ms"), read by `units.quantity` (`role` words its hint for
+    a bare number of the wrong size); value: the same with the kind the loader names (`of=` of
+    `check_value`: a profile's quantity, an assertion's signal's); list and mapping (each entry
+    checked as `item`, a declaration, when given); section: a mapping of the keys declared by the
+    dataclass `section`; any: taken as written (the loader checks it)."""
     return field(default=default, metadata={"unit": unit, "source": source or doc, "description": doc,
                                             "check": check, "kind": kind, "name": name, "read_only": read_only,
-                                            "convert": convert})
+                                            "convert": convert, "role": role, "section": section,
+                                            "item": item.metadata if isinstance(item, dataclasses.Field) else item})
 
 
 def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float", default: Any = dataclasses.MISSING) -> Any:
@@ -515,18 +558,33 @@ def validate_section_value(section: str, key: str, value: Any, *, prefix: str = 
 _WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[^\d\s.+eE-]")
 
 
-def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check | None = None,
+                of: str | None = None) -> Any:
     """Convert and check one value of a declared parameter (its field's metadata: kind, unit, check,
-    convert); ParameterError naming `path` and what is accepted."""
-    kind, check, unit = meta["kind"], meta["check"], meta["unit"]
+    convert); ParameterError naming `path`, what was wrong and what is accepted. `check`: the
+    check in force instead of the declared one (a range the rest of the file narrows: a scenario's
+    duration at least the rig's control period); `of`: the units kind of a `value` parameter."""
+    kind, unit = meta["kind"], meta["unit"]
+    check = check or meta["check"]
+    if kind == "value":
+        kind = of or "number"
+        unit = KINDS[kind].si
     in_unit = f" in {unit}" if unit not in ("", "-") else ""
     if meta.get("convert") is not None:
         return meta["convert"](path, value)
     if isinstance(value, str) and kind.startswith("float") and si_kind(unit) is not None \
             and _WITH_UNIT.match(value):
         value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
-    if kind == "float":
-        out: Any = _number(path, value, f"a number{in_unit}")
+    if kind in KINDS:
+        out: Any = quantity(value, kind, path, role=meta.get("role") or "")
+    elif kind in ("list", "mapping"):
+        out = _entries(path, meta, value)
+    elif kind == "section":
+        return section_from_mapping(meta["section"], value, path, defaults=True)
+    elif kind == "any":
+        out = value
+    elif kind == "float":
+        out = _number(path, value, f"a number{in_unit}")
     elif kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
@@ -561,6 +619,85 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     return out
 
 
+def _entries(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+    """A list (kind list) or a mapping (kind mapping) with each entry checked as `meta["item"]`."""
+    item = meta.get("item")
+    if meta["kind"] == "list":
+        if not isinstance(value, list):
+            raise ParameterError(f"{path}: got {value!r}; accepted is a list ({meta['description']})")
+        return value if item is None else [check_value(f"{path}[{k}]", item, v) for k, v in enumerate(value)]
+    if not isinstance(value, Mapping):
+        raise ParameterError(f"{path}: got {value!r}; accepted is a mapping ({meta['description']})")
+    return value if item is None else {k: check_value(f"{path}.{k}", item, v) for k, v in value.items()}
+
+
+@functools.cache
+def declarations(cls: type) -> dict[str, dataclasses.Field[Any]]:
+    """The declared keys of `cls` (a dataclass declared with `parameter`), as a file names them."""
+    return {f.metadata.get("name") or f.name: f for f in dataclasses.fields(cls)}
+
+
+def _required(f: dataclasses.Field[Any]) -> bool:
+    return f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+
+
+def check_mapping(cls: type, data: Any, where: str, prefix: str | None = None, *,
+                  also: tuple[str, ...] = ()) -> Mapping[str, Any]:
+    """`data` as a mapping of the keys `cls` declares (and `also`, keys the caller reads itself);
+    ParameterError naming `where` when it is none, for an unknown key (with the key it was likely
+    meant as) or a missing required one (`prefix.key`; prefix defaults to `where`)."""
+    keys = (*declarations(cls), *also)
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{where}: got {data!r}; accepted is a mapping with {', '.join(keys)}")
+    msg = unknown_message(where, data, keys)
+    if msg:
+        raise ParameterError(msg)
+    for key, f in declarations(cls).items():
+        if key not in data and _required(f):
+            raise ParameterError(f"{_join(where if prefix is None else prefix, key)}: missing; accepted is "
+                                 f"{_accepted(f.metadata)}")
+    return data
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _accepted(meta: Mapping[str, Any]) -> str:
+    """A declaration in words: its doc and unit ("the run's length (s)")."""
+    unit = meta["unit"]
+    return f"{meta['description']}{f' ({unit})' if unit not in ('', '-') else ''}"
+
+
+def read(cls: type, data: Mapping[str, Any], key: str, prefix: str = "", *, check: Check | None = None,
+         of: str | None = None) -> Any:
+    """The value of the declared key `key` of `cls` in `data` (checked: `check_value`; its
+    default when absent), named `prefix.key` in a refusal."""
+    f = declarations(cls)[key]
+    if key not in data:
+        if _required(f):
+            raise ParameterError(f"{_join(prefix, key)}: missing; accepted is {_accepted(f.metadata)}")
+        return f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+    return check_value(_join(prefix, key), f.metadata, data[key], check=check, of=of)
+
+
+def key_table(cls: type) -> str:
+    """The keys `cls` declares as a Markdown table (key, unit, default, meaning): the tables of
+    the docs are these, and a test holds them equal."""
+    rows = ["| key | unit | default | meaning |", "|---|---|---|---|"]
+    for key, f in declarations(cls).items():
+        meta = f.metadata
+        unit = "the signal's" if meta["kind"] == "value" else meta["unit"]
+        if _required(f):
+            default = "required"
+        elif f.default_factory is not dataclasses.MISSING or f.default is None:
+            default = "none"
+        else:
+            default = f"`{f.default}`"
+        rows.append(f"| `{key}` | {unit} | {default} | {meta['description']} |")
+    return "\n".join(rows)
+
+
 def check_field(path: str, f: dataclasses.Field[Any], value: Any) -> Any:
     """`check_value` for a declared field; a refusal also says what the parameter is (its doc)."""
     try:
@@ -575,16 +712,15 @@ def section_from_mapping(cls: type[T], data: Any, path: str, *, defaults: bool =
     unknown keys and missing ones (with `defaults`, only those without a default), naming `path.key`."""
     if not isinstance(data, Mapping):
         raise ParameterError(f"{path}: got {data!r}; accepted is a mapping of key: value")
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = sorted(str(k) for k in data if k not in fields)
+    fields = declarations(cls)  # type: ignore[arg-type]  # a dataclass type (hashable)
+    unknown = unknown_message(path, data, fields)
     if unknown:
-        raise ParameterError(f"{path}: unknown key(s) {', '.join(f'{path}.{k}' for k in unknown)}; "
-                             f"accepted: {', '.join(fields)}")
+        raise ParameterError(unknown)
     missing = [k for k, f in fields.items() if k not in data
                and not (defaults and (f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING))]
     if missing:
         raise ParameterError(f"{path}: missing key(s) {', '.join(f'{path}.{k}' for k in missing)}")
-    values = {k: check_field(f"{path}.{k}", fields[k], v) for k, v in data.items()}
+    values = {fields[k].name: check_field(f"{path}.{k}", fields[k], v) for k, v in data.items()}
     try:
         return cls(**values)
     except ParameterError as err:
