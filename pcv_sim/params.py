@@ -53,6 +53,7 @@ __all__ = [
     "between",
     "check_field",
     "check_mapping",
+    "check_si",
     "check_value",
     "declarations",
     "default_params",
@@ -127,6 +128,7 @@ def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
     def check(v: int) -> str | None:
         return None if lo <= v <= hi else (accepted or f"an integer {lo}..{hi}")
 
+    check.lo, check.hi = lo, hi  # type: ignore[attr-defined]  # the range, for the tables of keys
     return check
 
 
@@ -146,12 +148,13 @@ def at_least(lo: float, what: str = "a value", *, strict: bool = False) -> Check
     def check(v: float) -> str | None:
         return None if (v > lo if strict else v >= lo) else f"{what} {'>' if strict else '>='} {lo:g}"
 
+    check.accepted = f"{'>' if strict else '>='} {lo:g}"  # type: ignore[attr-defined]  # for the tables of keys
     return check
 
 
 def non_empty(v: Any) -> str | None:
-    """A list or mapping with at least one entry."""
-    return None if len(v) else "not empty"
+    """A list or mapping with at least one entry (a string with at least one character)."""
+    return None if len(v) else ("a non-empty string" if isinstance(v, str) else "at least one entry")
 
 
 def speed_factor(name: str, v: Any) -> float:
@@ -189,6 +192,7 @@ def one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
 
+    check.accepted = " \\| ".join(choices)  # type: ignore[attr-defined]  # for the tables of keys
     return check
 
 
@@ -198,7 +202,7 @@ _one_of = one_of
 def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "float", default: Any = dataclasses.MISSING,
               source: str = "", name: str | None = None, read_only: bool = False,
               convert: Callable[[str, Any], Any] | None = None, item: Any = None, section: type | None = None,
-              role: str = "") -> Any:
+              role: str = "", difference: bool = False) -> Any:
     """One parameter, declared once: its unit, one line of doc, its check (a plausible range, a
     choice...), its type (`kind`) and its default (none: required). `source`: where the value
     comes from (the paper's table or section); `name`: the parameter's name if not the field's
@@ -209,13 +213,15 @@ def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "flo
     Kinds: float, int, str, bool, float_or_null, float_or_equivalent, vectorN, matrix4x4,
     matrixNx3; a kind of `pcv_sim.units.KINDS` (time, pressure, length, fraction...): a bare SI
     number or a value with a unit ("20 ms"), read by `units.quantity` (`role` words its hint for
-    a bare number of the wrong size); value: the same with the kind the loader names (`of=` of
+    a bare number of the wrong size; `difference`: an amplitude, to which degC's zero does not
+    apply); value: the same with the kind the loader names (`of=` of
     `check_value`: a profile's quantity, an assertion's signal's); list and mapping (each entry
     checked as `item`, a declaration, when given); section: a mapping of the keys declared by the
     dataclass `section`; any: taken as written (the loader checks it)."""
     return field(default=default, metadata={"unit": unit, "source": source or doc, "description": doc,
                                             "check": check, "kind": kind, "name": name, "read_only": read_only,
                                             "convert": convert, "role": role, "section": section,
+                                            "difference": difference,
                                             "item": item.metadata if isinstance(item, dataclasses.Field) else item})
 
 
@@ -576,9 +582,9 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check 
             and _WITH_UNIT.match(value):
         value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
     if kind in KINDS:
-        out: Any = quantity(value, kind, path, role=meta.get("role") or "")
+        out: Any = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False))
     elif kind in ("list", "mapping"):
-        out = _entries(path, meta, value)
+        return _entries(path, meta, value)
     elif kind == "section":
         return section_from_mapping(meta["section"], value, path, defaults=True)
     elif kind == "any":
@@ -619,16 +625,33 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check 
     return out
 
 
+def check_si(path: str, meta: Mapping[str, Any], value: float, *, check: Check | None = None,
+             of: str | None = None) -> float:
+    """An SI value the loader worked out from what the file holds (the reach of a profile: offset
+    +- amplitude, a table's values) against the declared check (or `check`), named `path`."""
+    problem = (check or meta["check"])(value)
+    if problem is not None:
+        unit = KINDS[of].si if meta["kind"] == "value" and of else meta["unit"]
+        shown = f" {unit}" if unit not in ("", "-") else ""
+        raise ParameterError(f"{path}: {value:g}{shown}; accepted is {problem}{f' ({unit})' if shown else ''}")
+    return value
+
+
 def _entries(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     """A list (kind list) or a mapping (kind mapping) with each entry checked as `meta["item"]`."""
-    item = meta.get("item")
+    item, what = meta.get("item"), _accepted(meta)
     if meta["kind"] == "list":
         if not isinstance(value, list):
-            raise ParameterError(f"{path}: got {value!r}; accepted is a list ({meta['description']})")
-        return value if item is None else [check_value(f"{path}[{k}]", item, v) for k, v in enumerate(value)]
-    if not isinstance(value, Mapping):
-        raise ParameterError(f"{path}: got {value!r}; accepted is a mapping ({meta['description']})")
-    return value if item is None else {k: check_value(f"{path}.{k}", item, v) for k, v in value.items()}
+            raise ParameterError(f"{path}: got {value!r}; accepted is {what}")
+        out: Any = value if item is None else [check_value(f"{path}[{k}]", item, v) for k, v in enumerate(value)]
+    else:
+        if not isinstance(value, Mapping):
+            raise ParameterError(f"{path}: got {value!r}; accepted is {what}")
+        out = value if item is None else {k: check_value(f"{path}.{k}", item, v) for k, v in value.items()}
+    problem = meta["check"](out)
+    if problem is not None:
+        raise ParameterError(f"{path}: got {value!r}; accepted is {what}, {problem}")
+    return out
 
 
 @functools.cache
@@ -664,9 +687,12 @@ def _join(prefix: str, key: str) -> str:
 
 
 def _accepted(meta: Mapping[str, Any]) -> str:
-    """A declaration in words: its doc and unit ("the run's length (s)")."""
-    unit = meta["unit"]
-    return f"{meta['description']}{f' ({unit})' if unit not in ('', '-') else ''}"
+    """A declaration in words: its doc and unit ("the run's length (s)"); a list's or mapping's
+    doc says what of ("a list of segments {t, ...}")."""
+    unit, doc = meta["unit"], meta["description"]
+    if meta["kind"] in ("list", "mapping"):
+        doc = f"a {meta['kind']} {doc}"
+    return f"{doc}{f' ({unit})' if unit not in ('', '-') else ''}"
 
 
 def read(cls: type, data: Mapping[str, Any], key: str, prefix: str = "", *, check: Check | None = None,
@@ -674,27 +700,41 @@ def read(cls: type, data: Mapping[str, Any], key: str, prefix: str = "", *, chec
     """The value of the declared key `key` of `cls` in `data` (checked: `check_value`; its
     default when absent), named `prefix.key` in a refusal."""
     f = declarations(cls)[key]
-    if key not in data:
+    if key not in data or (data[key] is None and f.default is None):     # YAML's `key:` (null): not given
         if _required(f):
             raise ParameterError(f"{_join(prefix, key)}: missing; accepted is {_accepted(f.metadata)}")
         return f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
     return check_value(_join(prefix, key), f.metadata, data[key], check=check, of=of)
 
 
+def _range_words(check: Check) -> str:
+    """What a check accepts, in a table's cell ("0 .. 1", ">= 0", "product | zip"; '' for none)."""
+    lo, hi = getattr(check, "lo", None), getattr(check, "hi", None)
+    if lo is not None and hi is not None:
+        return f"{lo:g} .. {hi:g}"
+    return str(getattr(check, "accepted", ""))
+
+
+_KIND_WORDS = {"str": "a string", "bool": "true, false", "int": "an integer", "list": "a list", "mapping": "a mapping",
+               "section": "a mapping"}
+
+
 def key_table(cls: type) -> str:
-    """The keys `cls` declares as a Markdown table (key, unit, default, meaning): the tables of
-    the docs are these, and a test holds them equal."""
-    rows = ["| key | unit | default | meaning |", "|---|---|---|---|"]
+    """The keys `cls` declares as a Markdown table (key, unit, accepted, default, meaning): the
+    tables of the docs are these, and a test holds them equal."""
+    rows = ["| key | unit | accepted | default | meaning |", "|---|---|---|---|---|"]
     for key, f in declarations(cls).items():
         meta = f.metadata
-        unit = "the signal's" if meta["kind"] == "value" else meta["unit"]
+        unit = "the quantity's" if meta["kind"] == "value" else meta["unit"]
         if _required(f):
             default = "required"
         elif f.default_factory is not dataclasses.MISSING or f.default is None:
             default = "none"
         else:
-            default = f"`{f.default}`"
-        rows.append(f"| `{key}` | {unit} | {default} | {meta['description']} |")
+            default = f"`{str(f.default).lower() if isinstance(f.default, bool) else f.default or repr(f.default)}`"
+        doc = _accepted({**meta, "unit": "-"}).replace("|", "\\|")
+        accepted = _range_words(meta["check"]) or _KIND_WORDS.get(meta["kind"], "")
+        rows.append(f"| `{key}` | {unit} | {accepted} | {default} | {doc} |")
     return "\n".join(rows)
 
 
