@@ -152,7 +152,7 @@ def _where(mc: Path, k: int) -> dict[str, float]:
     """Median seconds per part of a Monte Carlo variant (see the module docstring, 2)."""
     from pcv_sim.campaign.runner import Worker
     from pcv_sim.campaign.spec import load_campaign
-    from pcv_sim.device import device as rig_module  # where the rig solves its valves' rest states
+    from pcv_sim.device import restarts as rig_module  # where the rig solves its valves' rest states
     from pcv_sim.rig.lockstep import run_lockstep
     from pcv_sim.rig.rig import Rig
     from pcv_sim.rig.scenario import resolve_controller, scenario_result, schedule_timeline

@@ -45,12 +45,13 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.io.topics import OUTPUT_ROLES, ROLE_UNITS
+from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, ROLE_UNITS, SPOOL_POSITION
 from pcv_sim.params import ValveParams, replace_param
 from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
+from pcv_sim.units import PA_PER_BAR
 
 __all__ = [
     "CORRELATION_LIMIT",
@@ -81,7 +82,7 @@ NOISE_RATIO_LIMIT = 1.5
 #: Sensor offsets larger than these (SI) are more than a sensor's zero error: they likely absorb a
 #: model error (a pressure transducer's zero is within ~0.5 % of 200 bar, a current shunt's within
 #: tens of mA, a position sensor's within tens of um).
-PLAUSIBLE_OFFSET = {"pressure": 1e5, "current": 0.03, "spool_position": 2e-5}
+PLAUSIBLE_OFFSET = {PRESSURE: 1.0 * PA_PER_BAR, CURRENT: 0.03, SPOOL_POSITION: 20e-6}
 #: A sensor delay plus time constant above this (s) is slower than a valve's pressure, current or
 #: position sensor: it likely absorbs a model's slow dynamics.
 PLAUSIBLE_LAG = 0.01
@@ -603,10 +604,9 @@ def calibrate(
                                 f"--sensor) to narrow it")
     # What the fit leaves: a signal well above its noise, a sensor that had to be implausibly
     # off or slow, and the parameters not fitted whose effect matches the residual.
-    display = {"pressure": (1e-5, "bar"), "current": (1.0, "A"), "spool_position": (1e3, "mm")}
     unexplained = []
     for sf, d in zip(signals, data):
-        scale, unit = display[sf.role]
+        scale, unit = DISPLAY[sf.role].scale, DISPLAY[sf.role].unit
         if sf.rmse_after > NOISE_RATIO_LIMIT * sf.noise_sigma:
             unexplained.append(sf.role)
             spread = float(np.linalg.norm(d.value - d.value.mean()))
@@ -620,7 +620,7 @@ def calibrate(
     for e, d in zip(off_est, data):
         limit = PLAUSIBLE_OFFSET.get(d.role, math.inf)
         if abs(e.value) > limit:
-            scale, unit = display[d.role]
+            scale, unit = DISPLAY[d.role].scale, DISPLAY[d.role].unit
             span = float(np.ptp(d.value))
             warnings.append(
                 f"the {d.role} offset of {recordings[d.bag].path} is {e.value * scale:+.3g} {unit} "

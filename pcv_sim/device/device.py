@@ -1,7 +1,7 @@
 """The one device: valves and an optional plant in one `Simulator` at one fixed step, and what a
 device is around the model. No ROS.
 
-What it composes is data (`ValveSpec` per valve, an optional `PlantSpec`): each valve is the
+What it composes is data (`ValveSpec` per valve, an optional `PlantSpec`; `spec`): each valve is the
 paper's model (`pcv_sim.simulation.valve.valve_system`); a valve wired to the plant (its pressure
 state into the plant, the plant's flow and volume into its `load_flow` and `load_volume`, Eq. 15)
 is integrated together with it at one step by one integrator (erk2 when any valve needs it), so
@@ -12,26 +12,27 @@ device of one valve and no plant names its inputs and signals by their role alon
 `pressure`); any other prefixes them with the valve's name (`left.duty_cycle`, `left.pressure`)
 and names the plant's by the plant's (`cylinder.external_force`, `cylinder.position`).
 
-Around the model, written once for every device:
+Around the model, written once for every device (here: inputs, duties and watchdogs, stepping;
+its other parts are modules beside it, named below):
 - inputs (`submit`; per valve `duty_cycle`, `supply_pressure`, `load_flow` on its own volume, the
   options' temperatures; the plant's own): checked on arrival (refused with what is accepted,
   counted; the last valid value stays), queued to the step they act from (`InputTiming` gives
   it from the reception time), in the order they came; `schedule` runs an action at a step and
-  `feed` puts a plain input's values in at given steps inside the compiled calls;
+  `feed` puts a plain input's values in at given steps inside the compiled calls (`feed`);
 - one watchdog per valve in model time: waiting (the valve's initial duty) before a first
   command, `watchdog_timeout` s after the last valid command the duty falls to `safe_duty`, the
   next valid command resumes;
 - the duty fall-rate limiter per valve (`command.duty_fall_rate_limit`, Sec. 3.2): the duty a
   valve's model gets falls at most that fast (stepping goes one step at a time while it ramps);
-- injected faults (`pcv_sim.device.faults`): physical ones change a valve's (or the plant's)
-  parameters and supply, sensor faults what `measure` makes of a sample;
+- injected faults (`injection`; what a fault is: `pcv_sim.device.faults`): physical ones change
+  a valve's (or the plant's) parameters and supply, sensor faults what `measure` makes of a sample;
 - the fault state: a state that runs away (non-finite), a step that raises, or a sample or record
   a valve cannot show (`PhysicalLimits`, checked before anything leaves) stops the model
-  (`fault`) until a restart: nothing is shown of a diverging model;
-- rest states (`pcv_sim.simulation.rest.rest_state`): at a start (`reset`) each valve at rest at
+  (`fault`, `composition`) until a restart: nothing is shown of a diverging model;
+- rest states (`restarts`; `pcv_sim.simulation.rest.rest_state`): at a start (`reset`) each valve at rest at
   its initial duty and the plant at its rest state (solved once); `prepare`/`install` restart
   the model at rest at a step boundary, with new parameters when given, after a trial run;
-- outputs: `run_to` hands back the `Sample`s due (values in the order of `signals`) and calls a
+- outputs (`outputs`): `run_to` hands back the `Sample`s due (values in the order of `signals`) and calls a
   recorder (`recorder(t_ns, record_values())` every `record_every`-th step, or, where it takes
   them, `record_block(t0_ns, dt_ns, rows)` for a stretch of steps at the full rate); `on_input`
   hears every change of a model input with the step it acts from; the log of what happened.
@@ -69,422 +70,67 @@ device (what differs between devices is data: the names in `input_names` and `si
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from functools import partial
-from typing import Any, NamedTuple, NoReturn, Protocol
+from typing import Any
 
 import numpy as np
 
+from pcv_sim.device.composition import Composition
 from pcv_sim.device.faults import (
     CYLINDER,
     CYLINDER_FAULTS,
     SENSOR_FAULTS,
     VALVE_FAULTS,
-    Fault,
-    FaultCommand,
     FaultError,
     parse_fault_command,
-    valve_fault_parameters,
 )
-from pcv_sim.device.inputs import NEVER, InputQueue, InputTiming, Watchdog, WatchdogState
-from pcv_sim.device.limits import TRIAL_STEPS, PhysicalLimits
-from pcv_sim.device.sensors import Sensors
-from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.device.feed import FedInputs
+from pcv_sim.device.injection import FaultInjection
+from pcv_sim.device.inputs import NEVER, WatchdogState
+from pcv_sim.device.outputs import Outputs
+from pcv_sim.device.restarts import Restarts
+from pcv_sim.device.spec import (
+    MODEL_FAILURES,
+    TEMPERATURE_INPUTS,
+    DeviceStatus,
+    InputCounts,
+    InputHook,
+    InputKind,
+    ModelFault,
+    PlantSpec,
+    Prepared,
+    Recorder,
+    Sample,
+    ValveSpec,
+)
+from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import FAULTS
 from pcv_sim.model import kernel
-from pcv_sim.params import ValveParams
-from pcv_sim.simulation.duty import FallRateLimiter, check_duty
-from pcv_sim.simulation.rest import rest_state
-from pcv_sim.simulation.simulator import Simulator
+from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.stepper import (
-    check_load_flow,
     check_oil_step,
-    check_supply_pressure,
     check_temperature,
 )
-from pcv_sim.simulation.system import Composite, System, compose
-from pcv_sim.simulation.valve import valve_integrator, valve_system
-from pcv_sim.units import bar, kelvin
 
 __all__ = [
     "MODEL_FAILURES", "TEMPERATURE_INPUTS", "Device", "DeviceStatus", "InputCounts", "InputHook", "InputKind",
-    "ModelFault", "PlantSpec", "Recorder", "Sample", "ValveSpec",
+    "ModelFault", "PlantSpec", "Prepared", "Recorder", "Sample", "ValveSpec",
 ]
 
-#: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
-MODEL_FAILURES = (ArithmeticError, ValueError)
 
-#: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
-TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
-                      "oil_temperature": "fluid.temperature: input"}
-
-#: What a recorder gets of each valve besides its outputs (`Device.record_values`): the duty in force
-#: (the command, or the watchdog's), the duty after the fall-rate limiter, load flow, supply pressure.
-RECORD_INPUTS = ("duty_command", "duty", "load_flow", "supply_pressure")
-
-#: `Device.on_input(step, name, value)`: an input of the model changed, acting from `step` on.
-InputHook = Callable[[int, str, float], None]
-
-
-class ModelFault(PcvSimError, RuntimeError):
-    """The device cannot go on: its model ran away (the fault state, `Device.fault`, until a restart)."""
-
-
-class Recorder(Protocol):
-    """Receives one model sample: t_ns (stamp of the sample's model time), values by `record_values` name."""
-
-    def __call__(self, t_ns: int, signals: Mapping[str, float]) -> None: ...
-
-
-@dataclass(frozen=True)
-class ValveSpec:
-    """One valve of a device: its name (its namespace, a fault's target), its parameters, and the
-    duty it holds at a start until a first command (None: the device's safe duty)."""
-
-    name: str
-    params: ValveParams
-    initial_duty: float | None = None
-
-
-@dataclass(frozen=True)
-class PlantSpec:
-    """What the valves act on: its system, the wires between it and the valves (`compose`'s
-    `(a.output, b.input)`), its state at a start (at rest), the inputs a device takes for it
-    (composite name -> check; 0 at a start) and its sampled outputs (composite names)."""
-
-    system: System
-    wires: tuple[tuple[str, str], ...]
-    rest: tuple[float, ...]
-    inputs: Mapping[str, Callable[[Any], float]]
-    signals: tuple[str, ...]
-    #: How the log says it is at its start state.
-    at_rest: str = "the plant at its start state"
-
-
-@dataclass(frozen=True)
-class Prepared:
-    """What `Device.prepare` made: new parameters and their valves (None: the present ones) and a
-    simulator at rest (None: the device's start state, put in by `install`)."""
-
-    params: Any
-    valves: tuple[ValveSpec, ...] | None
-    sim: Simulator | None
-    what: str
-
-
-@dataclass(frozen=True)
-class InputKind:
-    """One input a device takes: `check(value)` on arrival (the value as the model takes it, or
-    CommandError saying what is accepted), `apply(value)` at the step it acts from (may raise
-    CommandError or FaultError when what was valid on arrival no longer is: refused then)."""
-
-    check: Callable[[Any], Any]
-    apply: Callable[[Any], None]
-
-
-@dataclass
-class InputCounts:
-    """Inputs accepted and refused per input name (and `FAULTS`), and the last refusal's reason."""
-
-    accepted: dict[str, int] = field(default_factory=dict)
-    rejected: dict[str, int] = field(default_factory=dict)
-    last_rejection: str = ""
-
-    def declare(self, names: Sequence[str]) -> None:
-        for name in names:
-            self.accepted.setdefault(name, 0)
-            self.rejected.setdefault(name, 0)
-
-    def clear(self) -> None:
-        """Every count back to 0 (a fresh start)."""
-        self.accepted = dict.fromkeys(self.accepted, 0)
-        self.rejected = dict.fromkeys(self.rejected, 0)
-        self.last_rejection = ""
-
-
-class Sample(NamedTuple):
-    """A device's true outputs at model step `step` (stamp `stamp_ns(step)`): `values` in the order of
-    its `signals`, SI units."""
-
-    step: int
-    values: np.ndarray
-
-
-@dataclass(frozen=True)
-class DeviceStatus:
-    """What diagnostics show of a device at one instant (model time `time`, s); per valve where keyed
-    by valve name."""
-
-    time: float
-    commands: dict[str, float]            # the last valid duty command
-    duties: dict[str, float]              # the duty in force (the safe duty once the watchdog fired)
-    watchdogs: dict[str, str]             # `WatchdogState`
-    watchdog_fired: dict[str, int]        # how often each watchdog fired
-    faults: tuple[str, ...]               # active injected faults, "kind@target"
-    fault: str | None                     # why the model stands still (it ran away), or None
-    accepted: dict[str, int]              # inputs accepted per input name (and FAULTS)
-    rejected: dict[str, int]              # refused
-    last_rejection: str
-
-
-class Device:
+class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
     """Valves and an optional plant at one fixed step, with everything around the model (see the
     module docstring). Its queue holds inputs (`submit`), fault commands (`submit_fault`) and
-    actions (`schedule`)."""
-
-    #: The device's parameters (its YAML: a valve's, a rig's), set by its configuration.
-    params: Any
-
-    def __init__(self, dt: float, valves: Sequence[ValveSpec], plant: PlantSpec | None = None, *,
-                 watchdog_timeout: float = 0.0, safe_duty: float = 0.0, sample_every: int = 1, seed: int = 0,
-                 keep_rejections: bool = True, restart_at_start: bool = False) -> None:
-        self.dt = dt
-        self.dt_ns = round(dt * 1e9)
-        self.origin_ns = 0                  # stamp of model time 0 (a node anchors it to its clock)
-        self.timing = InputTiming(self.dt_ns)
-        #: Queued: an input (name, value), a fault command (FAULTS, FaultCommand), or an action to run.
-        self.queue: InputQueue[Any] = InputQueue()
-        self.valve_names = tuple(v.name for v in valves)
-        self.watchdogs = {name: Watchdog(0) for name in self.valve_names}
-        #: Per valve: the last valid duty command, and the duty in force (what a holding watchdog
-        #: puts in place of the command; the fall-rate limiter's target).
-        self.commands: dict[str, float] = {}
-        self.duties: dict[str, float] = {}
-        #: Why the model stands still (it ran away): nothing is stepped or shown until a restart.
-        self.fault: str | None = None
-        self.fault_step: int | None = None
-        self.inputs: dict[str, InputKind] = {}
-        self.counts = InputCounts()
-        #: (model time, what happened): faults set and cleared, watchdogs firing and cleared, resets.
-        self.log: list[tuple[float, str]] = []
-        #: (model time, why) per refused input, kept with `keep_rejections` (a run of bounded length;
-        #: a long-running device counts them in `counts` only).
-        self.rejected: list[tuple[float, str]] = []
-        self.keep_rejections = keep_rejections
-        #: Called with (step, the command as given) when a fault command acted (a recorder's hook).
-        self.on_fault_command: Callable[[int, str], None] | None = None
-        #: Called whenever an input of the model (a duty in force, a supply pressure, a plant input)
-        #: changes, with the step it acts from (a recorder's hook); None: nobody listens.
-        self.on_input: InputHook | None = None
-        #: `recorder(t_ns, record_values())` at every `record_every`-th step of `run_to`.
-        self.recorder: Recorder | None = None
-        self.record_every = 1
-        #: The last step whose sample or record left (`run_to`, `present_sample`; -1: none yet).
-        self.shown = -1
-        #: The last sample handed out (diagnostics), or None.
-        self.last_sample: Sample | None = None
-        self.sample_every = _positive_int(sample_every, "sample_every")
-        #: Whether `install(prepare())` is a fresh start's rest (the rig: initial duties, the plant at
-        #: its start) or the rest at the present operating point (the emulator: the duty in force).
-        self.restart_at_start = restart_at_start
-        self.plant_spec = plant
-        #: Active faults by (target, kind).
-        self.faults: dict[tuple[str, str], Fault] = {}
-        self._rest: dict[tuple[int, float, float, float], tuple[np.ndarray, float]] = {}   # rest states solved
-        #: Fed inputs (`feed`): their names, input indices, and one row per step at which any of
-        #: them changes (NaN: that input does not change there); rows from _feed_next on are pending.
-        self._feed_names: tuple[str, ...] = ()
-        self._feed_i = np.zeros(0, dtype=np.int64)
-        self._feed_steps: list[int] = []
-        self._feed_v = np.zeros((0, 0))
-        self._feed_next = 0
-        self._configure(tuple(valves), None)
-        self.safe_duty = safe_duty
-        for name in self.valve_names:
-            self.safe_duty = check_duty(safe_duty, self.duty_range(name))
-        self.sensors = Sensors(self.signals, self.sample_every * dt, seed)
-        self.reset()
-        self.set_watchdog_timeout(watchdog_timeout)
-        self._warm_up()
-
-    # --- what it composes --------------------------------------------------------------------
-
-    def _configure(self, valves: tuple[ValveSpec, ...], sim: Simulator | None) -> None:
-        """Build (or, with `sim`, take) the simulator of `valves` and the plant, and everything
-        read off its layout: input and output indices, names, limits, limiters, inputs taken."""
-        plant_spec = self.plant_spec
-        self.valve_specs = valves
-        kind = valves[0].params.simulation.model
-        self.kind = kind
-        systems = [valve_system(v.params, kind, v.name) for v in valves]
-        if plant_spec is not None:
-            systems.append(plant_spec.system)
-        self.plant: Composite = compose(systems, plant_spec.wires if plant_spec is not None else ())
-        plant = self.plant
-        if sim is None:
-            # One integrator for all: erk2 when a valve's spool pole needs it (oil temperature, R34).
-            methods = {valve_integrator(v.params, kind) for v in valves}
-            sim = Simulator(plant, self.dt, "erk2" if "erk2" in methods else valves[0].params.simulation.method)
-        self.sim = sim
-        lone = len(valves) == 1 and plant_spec is None
-        #: A valve's names: its role alone on a device of one valve and no plant, else `<valve>.<role>`.
-        self._prefix = {v.name: "" if lone else f"{v.name}." for v in valves}
-        names = self.valve_names
-        self._k = {n: k for k, n in enumerate(names)}
-        self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in names]
-        self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in names]
-        self._flow_i = [plant.inputs.index(f"{n}.load_flow") if f"{n}.load_flow" in plant.inputs else -1
-                        for n in names]
-        self._volume_in_i = [plant.inputs.index(f"{n}.load_volume") if f"{n}.load_volume" in plant.inputs else -1
-                             for n in names]
-        wired = {dst: src for src, dst in (plant_spec.wires if plant_spec is not None else ())}
-        #: per valve: the output its load volume is wired from (the plant's), or -1 (its own, constant)
-        self._volume_i = [plant.index("output", wired[f"{n}.load_volume"]) if f"{n}.load_volume" in wired else -1
-                          for n in names]
-        self._volumes = [v.params.circuit.load_volume for v in valves]
-        self._wired_volumes = any(i >= 0 for i in self._volume_i)
-        #: per valve, what `record_values` reads: its name, its keys, the indices of its duty input, load flow
-        #: (its own: input; a chamber's: the plant's output), supply input and its three outputs
-        self._record_slots = [
-            (n, tuple(f"{self._prefix[n]}{r}" for r in (*RECORD_INPUTS, *kernel.OUTPUTS)), self._duty_i[k],
-             self._flow_i[k], plant.index("output", wired[f"{n}.load_flow"]) if f"{n}.load_flow" in wired else -1,
-             self._supply_i[k], tuple(plant.index("output", f"{n}.{r}") for r in kernel.OUTPUTS))
-            for k, n in enumerate(names)]
-        self._plant_signal_i = [(name, plant.index("output", name)) for name in
-                                (plant_spec.signals if plant_spec is not None else ())]
-        layouts = [kernel.layout(v.params, kind) for v in valves]
-        sampled = [f"{v.name}.{o}" for v, lay in zip(valves, layouts) for o in lay.outputs]
-        self.signals: tuple[str, ...] = tuple(
-            f"{self._prefix[v.name]}{o}" for v, lay in zip(valves, layouts) for o in lay.outputs)
-        if plant_spec is not None:
-            sampled += plant_spec.signals
-            self.signals += plant_spec.signals
-        self._signal_i = np.array([plant.index("output", s) for s in sampled], dtype=np.int64)
-        #: every output, in order: the outputs are the signals (no copy of a traced block's rows)
-        self._all_outputs = np.array_equal(self._signal_i, np.arange(len(plant.outputs)))
-        self._ranges = {v.name: v.params.command.duty_range for v in valves}
-        self._limiters = [FallRateLimiter(v.params.command.duty_fall_rate_limit) for v in valves]
-        self._limited = [k for k, v in enumerate(valves) if v.params.command.duty_fall_rate_limit is not None]
-        self._lim_step = [-1] * len(valves)     # the step each limiter's value was last taken at
-        self._ramp_at = [-1] * len(valves)      # the step each ramp's next step is queued for
-        #: per valve: (its command.duty_range, its duty's input index): what the lockstep's fast path
-        #: writes straight into the model; no range for a valve with a fall-rate limiter (its duty
-        #: goes through `set_duty` and the limiter).
-        self._duty_slot = {v.name: ((math.nan, math.nan) if k in self._limited else self._ranges[v.name],
-                                    self._duty_i[k]) for k, v in enumerate(valves)}
-        #: per valve: its limits and where its pressure and current are among the signals
-        self.limits = {v.name: PhysicalLimits.of(v.params) for v in valves}
-        self._limit_slots = [(sampled.index(f"{v.name}.pressure"), sampled.index(f"{v.name}.current"),
-                              self.limits[v.name]) for v in valves]
-        #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
-        #: values: (input index, value) per valve that has them.
-        self._option_defaults = [(plant.index("input", f"{v.name}.{name}"), value) for v, lay in zip(valves, layouts)
-                                 for name, value in zip(lay.inputs[len(kernel.INPUTS):], kernel.option_inputs(v.params),
-                                                        strict=True)]
-        #: The valve options' signals (io.topics.OPTION_INTERFACE): inputs (temperatures, K:
-        #: `set_temperature`) and outputs, which are among `signals` (their true values at the last
-        #: `sample()`: `option_sample`).
-        self._option_in = [(v.name, name) for v, lay in zip(valves, layouts) for name in lay.inputs[len(kernel.INPUTS):]]
-        self.option_inputs = tuple(f"{self._prefix[v]}{name}" for v, name in self._option_in)
-        self._option_in_i = [plant.index("input", f"{v}.{name}") for v, name in self._option_in]
-        option_out = [(v.name, name) for v, lay in zip(valves, layouts) for name in lay.outputs[len(kernel.OUTPUTS):]]
-        self.option_outputs = tuple(f"{self._prefix[v]}{name}" for v, name in option_out)
-        self._option_out_i = np.array([plant.index("output", f"{v}.{name}") for v, name in option_out], dtype=np.int64)
-        self.option_sample: list[float] = []
-        #: per valve: whether the erk2 step takes its spool's damping pole exactly (set_temperature)
-        self._exact_spool = [sim.integrator == "erk2" and bool(s.rate_parameters) for s in systems[:len(valves)]]
-        for k, v in enumerate(valves):
-            if v.params.fluid.oil_temperature_model:      # the YAML's oil, as set_temperature checks one
-                try:
-                    check_oil_step(v.params, systems[k].p, self.dt, self._exact_spool[k],
-                                   kelvin(v.params.fluid.oil_temperature_c))
-                except CommandError as err:
-                    where = "" if lone else f"valves.{v.name}: "
-                    raise ParameterError(f"{where}fluid.oil_temperature_c: {err}") from None
-        self._state_off = plant.offsets("states")
-        self._p_off = plant.offsets("p")
-        self._configured = [s.p.copy() for s in systems[:len(valves)]]     # the valves' YAML (at reset)
-        self._healthy = [p.copy() for p in self._configured]                # and the temperatures set since
-        self._healthy_plant = systems[-1].p.copy() if plant_spec is not None else np.zeros(0)
-        self._supply0 = [v.params.circuit.supply_pressure for v in valves]
-        #: per valve: the supply pressure input in force without faults (Pa), the own load volume's flow
-        self._supply = list(self._supply0)
-        self._load_flow = [0.0] * len(valves)
-        self._plant_i = {name: plant.index("input", name) for name in (plant_spec.inputs if plant_spec else {})}
-        self._declare_inputs({
-            **{f"{self._prefix[v.name]}duty_cycle": InputKind(partial(check_duty, duty_range=self._ranges[v.name]),
-                                                              partial(self._take_command, v.name)) for v in valves},
-            **{f"{self._prefix[v.name]}load_flow": InputKind(check_load_flow, partial(self._set_load_flow, k))
-               for k, v in enumerate(valves) if self._flow_i[k] >= 0},
-            **{f"{self._prefix[v.name]}supply_pressure": InputKind(check_supply_pressure, partial(self._set_supply, k))
-               for k, v in enumerate(valves)},
-            **{f"{self._prefix[v]}{name}": InputKind(partial(check_temperature, name.replace("_", " ")),
-                                                     partial(self.set_temperature, v, name))
-               for v, name in self._option_in if name in TEMPERATURE_INPUTS},
-            **{name: InputKind(check, partial(self._put_plant_input, name))
-               for name, check in (plant_spec.inputs.items() if plant_spec else ())}})
-
-    def _what(self, valve: str, name: str) -> str:
-        """How an error names a valve's input (`oil temperature`, `left: oil temperature`)."""
-        return f"{self._prefix[valve]}{name}".replace(".", ": ").replace("_", " ") if self._prefix[valve] \
-            else name.replace("_", " ")
-
-    def _warm_up(self) -> None:
-        """Load (or compile) every compiled function the stepping calls, now and on a copy (the state
-        stays): compiled on first use in a loop's first wake it would hold the loop (and its stop
-        check) for seconds, a minute on a busy machine with an empty kernel cache."""
-        trial = self.sim.copy()
-        trial.outputs()
-        trial.advance(1)
-        trial.advance_sample(1, self._signal_i, np.empty(len(self._signal_i)), 1)
-        trial.run(np.zeros(0, dtype=np.int64), np.empty((0, len(trial.u))),
-                  np.arange(trial.steps + 1, trial.steps + 3, dtype=np.int64))
-
-    @property
-    def has_cylinder(self) -> bool:
-        """Whether the device composes a cylinder (a target of the cylinder faults)."""
-        return False
-
-    def duty_range(self, valve: str) -> tuple[float, ...]:
-        """The duties `valve` takes (its command.duty_range)."""
-        return self._ranges[valve]
-
-    # --- time --------------------------------------------------------------------------------
-
-    @property
-    def steps(self) -> int:
-        """Model steps since the start (model time = steps * dt)."""
-        return self.sim.steps
-
-    @steps.setter
-    def steps(self, steps: int) -> None:
-        self.sim.steps = steps
-
-    @property
-    def time(self) -> float:
-        """Model time, s (an integer count of steps: it never drifts)."""
-        return self.sim.steps * self.dt
-
-    def stamp_ns(self, step: int | None = None) -> int:
-        """The stamp of model step `step` (default: the present one)."""
-        return self.origin_ns + (self.sim.steps if step is None else step) * self.dt_ns
+    actions (`schedule`). What it composes, its restarts, fed inputs, injected faults and outputs
+    are its parts (`composition`, `restarts`, `feed`, `injection`, `outputs`); here its inputs,
+    duties and watchdogs, and its stepping.
+    """
 
     def next_due(self) -> int:
         """The first step at which a queued input (a ramping duty's next value among them) or a
         watchdog deadline falls (`inputs.NEVER` if none): where a stretch of compiled steps must stop."""
         return min(self.queue.next_step, *(w.deadline for w in self.watchdogs.values()))
-
-    def skip(self, n: int) -> None:
-        """Let n steps of model time pass without computing them (the model state is held): a real-time
-        loop that fell too far behind, an external clock that jumped."""
-        self.sim.steps += n
-
-    def set_fault(self, reason: str) -> None:
-        """Enter the fault state (the first reason stays until it is cleared)."""
-        if self.fault is None:
-            self.fault = reason
-            self.fault_step = self.sim.steps
-
-    def clear_fault(self) -> str | None:
-        """Leave the fault state; the reason it had, or None."""
-        was, self.fault, self.fault_step = self.fault, None, None
-        return was
-
-    @property
-    def input_names(self) -> tuple[str, ...]:
-        """The inputs `submit` takes, by name."""
-        return tuple(self.inputs)
 
     def status(self) -> DeviceStatus:
         """Diagnostics' view of the device now (copies: it stays as it was when taken)."""
@@ -495,226 +141,8 @@ class Device:
             {name: w.fired for name, w in self.watchdogs.items()},
             tuple(f"{kind}@{target}" for target, kind in self.faults), self.fault,
             dict(c.accepted), dict(c.rejected), c.last_rejection)
+    # --- inputs --------------------------------------------------------------------------------
 
-    # --- restarts ----------------------------------------------------------------------------
-
-    def reset(self, *, keep_time: bool = False) -> str:
-        """A fresh start: each valve at rest at its initial duty (its YAML's supply, no load flow), the
-        plant at its start state, no faults, the watchdogs waiting for a first command; t = 0 and
-        the log, counts and queue cleared, or with `keep_time` the present time goes on (the log
-        and the refused inputs are kept, inputs queued for later still act, and the reset is
-        logged). Returns what was done."""
-        sim = self.sim
-        steps = sim.steps
-        x, w = [], []
-        initial = [self._initial_duty(v) for v in self.valve_specs]
-        for k, v in enumerate(self.valve_specs):
-            state, current = self._rest_state(k, v.params, initial[k], 0.0, self._supply0[k], sim.integrator)
-            x.append(state)
-            w.append(current)
-        if self.plant_spec is not None:
-            x.append(np.array(self.plant_spec.rest))
-        sim.x[:] = np.concatenate(x)
-        sim.W[:] = 0.0
-        sim.W[:len(w)] = w
-        sim.steps = steps if keep_time else 0
-        self._healthy = [p.copy() for p in self._configured]
-        self.commands = {v.name: d for v, d in zip(self.valve_specs, initial)}
-        self.duties = dict(self.commands)
-        self._supply = list(self._supply0)
-        self._load_flow = [0.0] * len(self.valve_specs)
-        for k, d in enumerate(initial):
-            sim.set_parameters(k, self._healthy[k])
-            sim.u[self._duty_i[k]] = d
-            sim.u[self._supply_i[k]] = self._supply0[k]
-            if self._flow_i[k] >= 0:
-                sim.u[self._flow_i[k]] = 0.0
-            if self._volume_in_i[k] >= 0:
-                sim.u[self._volume_in_i[k]] = self._volumes[k]
-            self._limiters[k].value = d
-            self._lim_step[k] = sim.steps
-        if self.plant_spec is not None:
-            sim.set_parameters(len(self.valve_specs), self._healthy_plant)
-        for i in self._plant_i.values():
-            sim.u[i] = 0.0
-        for i, value in self._option_defaults:
-            sim.u[i] = value
-        sim.refresh_rates()
-        for watchdog in self.watchdogs.values():
-            watchdog.restart()
-        self.clear_fault()
-        self.faults = {}
-        self.sensors.reset()
-        what = "valves at rest at their initial duty" + (
-            f", {self.plant_spec.at_rest}" if self.plant_spec is not None else "") + ", faults cleared"
-        if keep_time:
-            self._note(f"reset: {what}")
-        else:
-            self.rejected = []
-            self.log = []
-            self.shown = -1
-            self.counts.clear()
-            self.queue.clear()
-            self._ramp_at = [-1] * len(self.valve_specs)
-            self._set_feed({})
-        self._inputs_changed()
-        return what
-
-    def _initial_duty(self, v: ValveSpec) -> float:
-        return self.safe_duty if v.initial_duty is None else v.initial_duty
-
-    def _rest_state(self, k: int, params: ValveParams, duty: float, load_flow: float, supply: float,
-                    integrator: str) -> tuple[np.ndarray, float]:
-        """Valve k's rest state (and coil current) at these inputs: solved once per inputs (a restart
-        to the same rest is the same numbers, and costs nothing)."""
-        key = (k, duty, load_flow, supply)
-        found = self._rest.get(key) if params is self.valve_specs[k].params else None
-        if found is None:
-            rest = rest_state(params, self.kind, duty, load_flow, supply, integrator=integrator)
-            found = (rest.state, rest.current)
-            if params is self.valve_specs[k].params:
-                self._rest[key] = found
-        return found
-
-    def prepare(self, params: Any = None) -> Prepared:
-        """What `install` needs to put the model back at rest: at the present operating point (the
-        duties in force, load flows, supplies and temperatures), or for a device that restarts at
-        its start (`restart_at_start`) at its start; with `params` (the device's own kind, e.g. a
-        `ValveParams`) new parameters. Reads the device and changes nothing, so it may run off the
-        stepping thread (a new rest state takes 25-60 ms). Raises (ValueError, ParameterError,
-        CommandError) for what cannot run, e.g. a model that diverges within TRIAL_STEPS at rest."""
-        if params is None and self.restart_at_start:
-            return Prepared(None, None, None, "")
-        valves = self.valve_specs if params is None else self._valve_specs_of(params)
-        if params is not None and valves[0].params.simulation.time_step != self.dt:
-            raise ValueError("the model time step cannot change while the device runs")
-        kind = valves[0].params.simulation.model
-        systems = [valve_system(v.params, kind, v.name) for v in valves]
-        if self.plant_spec is not None:
-            systems.append(self.plant_spec.system)
-        methods = {valve_integrator(v.params, kind) for v in valves}
-        sim = Simulator(compose(systems, self.plant_spec.wires if self.plant_spec else ()), self.dt,
-                        "erk2" if "erk2" in methods else valves[0].params.simulation.method)
-        at_start = self.restart_at_start
-        duties = [self._initial_duty(v) if at_start else self.duty_held(v.name) for v in valves]
-        x, w = [], []
-        for k, v in enumerate(valves):
-            check_duty(duties[k], v.params.command.duty_range)
-            flow = 0.0 if at_start else self._load_flow[k]
-            supply = self._supply0[k] if at_start else self._supply[k]
-            if params is not None and not at_start and self._supply[k] == self._supply0[k]:
-                supply = v.params.circuit.supply_pressure        # the new YAML's, unless an input set it
-            state, current = self._rest_state(k, v.params, duties[k], flow, supply, sim.integrator)
-            x.append(state)
-            w.append(current)
-            i = sim.plant.index
-            sim.u[i("input", f"{v.name}.duty_cycle")] = duties[k]
-            sim.u[i("input", f"{v.name}.supply_pressure")] = supply
-            if f"{v.name}.load_flow" in sim.plant.inputs:
-                sim.u[i("input", f"{v.name}.load_flow")] = flow
-                sim.u[i("input", f"{v.name}.load_volume")] = v.params.circuit.load_volume
-            lay = kernel.layout(v.params, kind)
-            for name, configured in zip(lay.inputs[len(kernel.INPUTS):], kernel.option_inputs(v.params), strict=True):
-                now = f"{v.name}.{name}"
-                keep = not at_start and now in self.plant.inputs
-                sim.u[i("input", now)] = float(self.sim.u[self.plant.index("input", now)]) if keep else configured
-        if self.plant_spec is not None:
-            x.append(np.array(self.plant_spec.rest))
-        sim.x[:] = np.concatenate(x)
-        sim.W[:] = 0.0
-        sim.W[:len(w)] = w
-        problem = _trial_run(sim, [(sim.plant.index("output", f"{v.name}.pressure"),
-                                    sim.plant.index("output", f"{v.name}.current"), PhysicalLimits.of(v.params))
-                                   for v in valves])
-        if problem is not None:
-            at = ", ".join(f"{d:g}" for d in duties)
-            raise ValueError(f"the model faults again at once at rest at duty {at}: {problem}")
-        pressures = ", ".join(f"{bar(float(sim.x[o + 3])):.2f}" for o in sim.plant.offsets("states")[:len(valves)])
-        what = f"model at rest at duty {', '.join(f'{d:g}' for d in duties)}, {pressures} bar"
-        return Prepared(params, None if params is None else valves, sim, what)
-
-    def _valve_specs_of(self, params: Any) -> tuple[ValveSpec, ...]:
-        """The valves of new parameters of the device's kind (its configuration says; none takes any)."""
-        raise ParameterError(f"{type(self).__name__}: its parameters cannot change while it runs")
-
-    def install(self, prepared: Prepared) -> str:
-        """Swap in what `prepare` made, at a step boundary (between two `run_to`): the model at rest,
-        injected faults and a fault state cleared, model time going on; inputs taken since `prepare`
-        act from now. Returns what was done (for the log)."""
-        was = self.fault
-        if prepared.sim is None:
-            what = self.reset(keep_time=True)
-        else:
-            # The inputs in force now (taken since `prepare` too) act on the new model from now on.
-            inputs = self.input_values()
-            supply, supply0, flow = list(self._supply), list(self._supply0), list(self._load_flow)
-            steps = self.sim.steps
-            new = prepared.sim
-            if self._same_layout(new):
-                self.sim._S[:] = new._S            # the simulator's arrays stay (a lockstep holds them)
-                sim = self.sim
-            else:
-                sim = new
-            sim.steps = steps
-            if prepared.valves is not None:
-                self.params = prepared.params
-                self._rest.clear()
-                self._configure(prepared.valves, sim)
-                if self.sensors.signals != self.signals:
-                    self.sensors = Sensors(self.signals, self.sensors.period, self.sensors.seed)
-            self._healthy = [p.copy() for p in self._configured]
-            self.faults = {}
-            self.sensors.reset()
-            if self.restart_at_start:
-                self.reset(keep_time=True)
-            else:
-                self._put_inputs(inputs, [s if s != s0 else new0 for s, s0, new0 in zip(supply, supply0, self._supply0)],
-                                 flow)
-            what = prepared.what
-            self._inputs_changed()
-        self.clear_fault()
-        return f"{what} (cleared fault: {was})" if was else what
-
-    def _put_inputs(self, inputs: Mapping[str, float], supply: Sequence[float], flow: Sequence[float]) -> None:
-        """After a restart at the present operating point: the duties in force (the limiters at rest
-        there), supplies, load flows and the options' and plant's inputs of `inputs` (as
-        `input_values` names them) into the model."""
-        u = self.sim.u
-        for k, name in enumerate(self.valve_names):
-            try:
-                check_duty(self.duties[name], self._ranges[name])
-            except CommandError as err:      # e.g. duty_range narrowed: keep what prepare() checked
-                self.counts.last_rejection = f"after a model restart: {err}"
-            else:
-                u[self._duty_i[k]] = self.duties[name]
-            self._limiters[k].value = float(u[self._duty_i[k]])
-            self._lim_step[k] = self.sim.steps
-            self._supply[k] = supply[k]
-            u[self._supply_i[k]] = supply[k]
-            if self._flow_i[k] >= 0:
-                self._load_flow[k] = flow[k]
-                u[self._flow_i[k]] = flow[k]
-        for name, i in self._plant_i.items():
-            u[i] = inputs.get(name, 0.0)
-        for (valve, name), full in zip(self._option_in, self.option_inputs):
-            if full in inputs:
-                try:    # the oil's: the spool's pole follows it (R34)
-                    self.set_temperature(valve, name, inputs[full])
-                except CommandError as err:     # too cold for the new step: the YAML's stays
-                    self.counts.last_rejection = f"after a model restart: {err}"
-
-    def _same_layout(self, sim: Simulator) -> bool:
-        """`sim` runs the same compiled code on arrays of the same layout and tables as the device's."""
-        old = self.sim
-        return (sim._module is old._module and sim._S.shape == old._S.shape and sim.integrator == old.integrator
-                and np.array_equal(sim._Fa, old._Fa) and np.array_equal(sim._FL, old._FL))
-
-    # --- inputs ------------------------------------------------------------------------------
-
-    def _declare_inputs(self, inputs: Mapping[str, InputKind]) -> None:
-        """The inputs `submit` takes, by name (counted from now on)."""
-        self.inputs = dict(inputs)
-        self.counts.declare((*inputs, FAULTS))
 
     def submit(self, name: str, value: Any, at_step: int | None = None) -> str | None:
         """Check an input now; if valid it takes effect at step max(at_step, `first_open_step()`).
@@ -783,13 +211,6 @@ class Device:
                 self._reject(name, str(err))           # changed since, a fault cleared that is not active)
                 continue
             self.counts.accepted[name] = self.counts.accepted.get(name, 0) + 1
-
-    def _fault_command(self, command: FaultCommand) -> None:
-        if command.clear:
-            self.clear(command.target, command.kind)
-        else:
-            assert command.fault is not None     # a command that is not a clear carries its fault
-            self.inject(command.fault)
 
     def schedule(self, t: float, action: Callable[[], None]) -> int:
         """Run `action` (e.g. `lambda: device.inject(f)`) at the first step at or after time t (s);
@@ -878,76 +299,8 @@ class Device:
         self.sim.u[self.plant.index("input", f"{valve}.{name}")] = value
         if self.on_input is not None:
             self.on_input(self.sim.steps, f"{self._prefix[valve]}{name}", value)
+    # --- duties and watchdogs ------------------------------------------------------------------
 
-    # --- fed inputs --------------------------------------------------------------------------
-
-    def feed(self, name: str, steps: Sequence[int], values: Sequence[float]) -> None:
-        """The input `name` (a plant's input, or a valve's load flow on its own volume) takes
-        `values[j]` from step `steps[j]` on (increasing steps; one before the present step acts at
-        the present step), in place of any earlier feed of it; CommandError for a value `submit`
-        refuses. The values are put into the model inside the compiled calls (a profile of the
-        timeline, sampled at the control instants); `on_input` hears each one as it acts."""
-        fed = self._feedable()
-        if name not in fed:
-            raise CommandError(f"feed {name!r}: accepted {'is' if len(fed) == 1 else 'are'} {', '.join(fed) or 'none'}")
-        st = np.asarray(steps, dtype=np.int64)
-        vs = np.asarray(values, dtype=np.float64)
-        if st.ndim != 1 or st.shape != vs.shape or np.any(np.diff(st) < 0):
-            raise CommandError(f"feed {name}: accepted are as many values as steps, the steps increasing")
-        check = self.inputs[name].check
-        for v in vs:
-            check(float(v))                         # raises, naming the value
-        pending = self._pending_feed()
-        now = self.sim.steps
-        pending[name] = {int(k): float(v) for k, v in zip(np.maximum(st, now), vs)}   # a later value at a step wins
-        self._set_feed(pending)
-
-    def _feedable(self) -> dict[str, int]:
-        """The inputs `feed` takes (plain model inputs: nothing happens on a change but the value)."""
-        out = dict(self._plant_i)
-        for k, name in enumerate(self.valve_names):
-            if self._flow_i[k] >= 0:
-                out[f"{self._prefix[name]}load_flow"] = self._flow_i[k]
-        return out
-
-    def _pending_feed(self) -> dict[str, dict[int, float]]:
-        """The feed's rows not yet applied, per input: step -> value."""
-        out: dict[str, dict[int, float]] = {n: {} for n in self._feed_names}
-        for r in range(self._feed_next, len(self._feed_steps)):
-            for j, n in enumerate(self._feed_names):
-                v = float(self._feed_v[r, j])
-                if not math.isnan(v):
-                    out[n][self._feed_steps[r]] = v
-        return out
-
-    def _set_feed(self, tracks: dict[str, dict[int, float]]) -> None:
-        tracks = {n: t for n, t in tracks.items() if t}
-        fed = self._feedable()
-        self._feed_names = tuple(tracks)
-        self._feed_i = np.array([fed[n] for n in tracks], dtype=np.int64)
-        self._feed_steps = sorted({k for t in tracks.values() for k in t})
-        v = np.full((len(self._feed_steps), len(tracks)), np.nan)
-        where = {k: r for r, k in enumerate(self._feed_steps)}
-        for j, t in enumerate(tracks.values()):
-            for k, x in t.items():
-                v[where[k], j] = x
-        self._feed_v = np.ascontiguousarray(v)
-        self._feed_next = 0
-
-    def _feed_row(self, r: int, step: int) -> None:
-        """Row r of the feed is in force from `step` (it is put into the model by the caller or here)."""
-        u, hook = self.sim.u, self.on_input
-        for j, name in enumerate(self._feed_names):
-            v = float(self._feed_v[r, j])
-            if not math.isnan(v):
-                u[self._feed_i[j]] = v
-                if name.endswith("load_flow"):
-                    self._load_flow[self._flow_i.index(int(self._feed_i[j]))] = v
-                if hook is not None:
-                    hook(step, name, v)
-        self._feed_next = r + 1
-
-    # --- duties and watchdogs ----------------------------------------------------------------
 
     def set_duty(self, valve: str, duty: Any) -> None:
         """The duty command of `valve` from the present step on; CommandError (logged, the last
@@ -1046,74 +399,8 @@ class Device:
                 if held != self.duties[name]:
                     self.duties[name] = held
                     self._put_duty(name, held)
+    # --- stepping ------------------------------------------------------------------------------
 
-    # --- injected faults ---------------------------------------------------------------------
-
-    def inject(self, fault: Fault) -> None:
-        """Start `fault` at the present step (a second fault of the same kind on the same target
-        replaces the first); FaultError for a target this device does not have."""
-        if fault.sensor:
-            if fault.target not in self.sensors.signals:
-                raise FaultError(f"sensor fault on {fault.target!r}: accepted are {', '.join(self.sensors.signals)}")
-            self.sensors.add(fault, self.time)
-        elif (accepted := self._fault_targets(fault)) is not None:
-            raise FaultError(f"{fault.kind} on {fault.target!r}: accepted {accepted}")
-        self.faults[fault.key] = fault
-        if not fault.sensor:
-            self._apply_physical_faults(fault)
-        self._note(f"fault {fault.kind} on {fault.target} {dict(fault.values) or ''}".rstrip())
-
-    def clear(self, target: str, kind: str) -> None:
-        """End a fault: the target is back to normal from the present step on."""
-        fault = self.faults.pop((target, kind), None)
-        if fault is None:
-            active = ", ".join(f"{k}@{t}" for t, k in self.faults) or "none"
-            raise FaultError(f"no active fault {kind} on {target}; active: {active}")
-        if fault.sensor:
-            self.sensors.clear(target, kind)
-        else:
-            self._apply_physical_faults(fault)
-        self._note(f"cleared {kind} on {target}")
-
-    def _fault_targets(self, fault: Fault) -> str | None:
-        """What a physical fault's target may be, when `fault`'s is not one (None: it is)."""
-        if fault.on_cylinder:
-            return None if self.has_cylinder and fault.target == CYLINDER else (
-                f"is {CYLINDER}" if self.has_cylinder else f"are none: this device has no {CYLINDER}")
-        if fault.target in self.valve_names:
-            return None
-        return f"is the valve {self.valve_names[0]}" if len(self.valve_names) == 1 else \
-            f"are the valves {', '.join(self.valve_names)}"
-
-    def _apply_physical_faults(self, fault: Fault) -> None:
-        """Re-apply every active physical fault on `fault`'s target (after one was set or cleared)."""
-        if fault.on_cylinder:
-            self._apply_plant_faults()
-        else:
-            self._apply_valve_faults(fault.target)
-
-    def _apply_valve_faults(self, valve: str) -> None:
-        """The valve's parameters and supply: healthy, then every active physical fault on it."""
-        k = self.valve_names.index(valve)
-        p, supply, stuck = valve_fault_parameters(
-            self._healthy[k], self._supply[k],
-            (f for (target, _), f in self.faults.items() if target == valve and not f.sensor))
-        if stuck:
-            self.sim.x[self._state_off[k] + 2] = 0.0
-        self.sim.set_parameters(k, p)
-        self.sim.u[self._supply_i[k]] = supply
-        if self.on_input is not None:
-            self.on_input(self.sim.steps, f"{self._prefix[valve]}supply_pressure", supply)
-
-    def _apply_plant_faults(self) -> None:
-        """The plant's parameters: healthy, then every active fault on it (a device with a plant)."""
-        raise FaultError("this device has no plant")
-
-    def _note(self, text: str) -> None:
-        """Something for the device's log (faults, watchdogs, resets), at the present model time."""
-        self.log.append((self.time, text))
-
-    # --- stepping ----------------------------------------------------------------------------
 
     def _advance(self, n: int) -> None:
         """n compiled steps with the present inputs."""
@@ -1262,28 +549,6 @@ class Device:
             self._fail(problem)
         self.recorder.record_block(self.stamp_ns(first), self.dt_ns, rows)  # type: ignore[union-attr]
 
-    def _rows_problem(self, rows: np.ndarray) -> tuple[int, str] | None:
-        """The first row (step) no valve can show, and why; None when all are fine."""
-        for jp, ji, lim in self._limit_slots:
-            p, i = rows[:, jp], rows[:, ji]
-            # The usual case in four reductions (a NaN fails every comparison); the row only when not.
-            if lim.pressure_min <= p.min() and p.max() <= lim.pressure_max and -lim.current_max <= i.min() \
-                    and i.max() <= lim.current_max and np.isfinite(rows).all():
-                continue
-            ok = np.isfinite(rows).all(axis=1) & (p >= lim.pressure_min) & (p <= lim.pressure_max) & \
-                (np.abs(i) <= lim.current_max)
-            k = int(np.argmin(ok))
-            return k, lim.problem(float(p[k]), float(i[k])) or "the model state ran away (non-finite)"
-        return None
-
-    def _check_limits(self, values: np.ndarray) -> None:
-        """ModelFault (and `fault` set) when a valve's pressure or current in `values` (the signals)
-        is none a valve can show."""
-        for jp, ji, lim in self._limit_slots:
-            p, i = values[jp], values[ji]
-            if not (lim.pressure_min <= p <= lim.pressure_max and -lim.current_max <= i <= lim.current_max):
-                self._fail(lim.problem(float(p), float(i)) or "the model state ran away (non-finite)")
-
     def _idle_to(self, step: int) -> None:
         """To `step` without computing (the fault state): what falls due acts at its step."""
         sim = self.sim
@@ -1304,18 +569,6 @@ class Device:
             nxt = min(nxt, self._feed_steps[self._feed_next])
         return nxt
 
-    def _check_finite(self) -> None:
-        x = self.sim.x
-        if not math.isfinite(float(np.dot(x, x))):       # any inf or NaN makes the sum so (cheaper than isfinite().all())
-            self._fail("the model state ran away (non-finite)")
-
-    def _fail(self, problem: str) -> NoReturn:
-        """The fault state (`fault`, until a restart) and ModelFault, naming the time and the active faults."""
-        reason = (f"{problem} before t = {self.sim.time:.6g} s; "
-                  f"active faults: {', '.join(f'{k}@{t}' for t, k in self.faults) or 'none'}")
-        self.set_fault(reason)
-        raise ModelFault(reason)
-
     def _due(self) -> None:
         """What falls due at the present step, in the devices' order: queued inputs and actions,
         fed inputs, then the watchdogs."""
@@ -1325,100 +578,5 @@ class Device:
             self._feed_row(self._feed_next, steps)
         self._check_watchdogs()
 
-    # --- outputs -----------------------------------------------------------------------------
-
-    def sample(self) -> np.ndarray:
-        """The true values of `signals` now (SI: Pa, A, m per valve, the plant's), with the inputs in
-        force from now on. A new array."""
-        y = self.sim.outputs()
-        self._outputs_taken(y)
-        return y.copy() if self._all_outputs else y[self._signal_i]
-
-    def _outputs_taken(self, y: np.ndarray) -> None:
-        """What a sample's outputs `y` (every output) tell besides the signals: the load volumes,
-        the options' outputs."""
-        if self._wired_volumes:
-            self._volumes = [float(y[i]) if i >= 0 else v for i, v in zip(self._volume_i, self._volumes)]
-        if len(self._option_out_i):
-            self.option_sample = y[self._option_out_i].tolist()
-
-    def present_sample(self) -> Sample:
-        """The sample at the present step (with the inputs in force from it on); it counts as shown."""
-        self.shown = self.sim.steps
-        self.last_sample = Sample(self.sim.steps, self.sample())
-        return self.last_sample
-
-    def measure(self, sample: Sample) -> np.ndarray:
-        """What the sensors show of `sample` (sensor faults applied; NaN: no value, not to be
-        published). Called once per sample, in order (a delay or noise fault keeps history)."""
-        sensors = self.sensors
-        if not sensors.active and not sensors.keeps_history:
-            return sample.values
-        return sensors.measure(sample.step * self.dt, sample.values)
-
-    def record_values(self) -> dict[str, float]:
-        """What a recorder receives now, SI: per valve (its names as its inputs and signals are
-        named) duty_command (the duty in force), duty (after the fall-rate limiter), load_flow,
-        supply_pressure, pressure, current, spool_position and its options' inputs and outputs;
-        the plant's inputs and signals."""
-        return self._record_values(self.sim.outputs())
-
-    def _record_values(self, y: np.ndarray) -> dict[str, float]:
-        u = self.sim.u
-        out: dict[str, float] = {}
-        for valve, (command, duty, flow, supply, *outputs), i_duty, i_flow, o_flow, i_supply, o in self._record_slots:
-            out[command] = self.duties[valve]
-            out[duty] = float(u[i_duty])
-            out[flow] = float(u[i_flow]) if i_flow >= 0 else float(y[o_flow])
-            out[supply] = float(u[i_supply])
-            for key, i in zip(outputs, o):
-                out[key] = float(y[i])
-        for name, i in zip(self.option_inputs, self._option_in_i):
-            out[name] = float(u[i])
-        for name, i in zip(self.option_outputs, self._option_out_i):
-            out[name] = float(y[i])
-        for name, i in self._plant_i.items():
-            out[name] = float(u[i])
-        for name, i in self._plant_signal_i:
-            out[name] = float(y[i])
-        return out
-
-    def option_input_values(self) -> dict[str, float]:
-        """The valve options' inputs in force (K), read without computing an output."""
-        u = self.sim.u
-        return {name: float(u[i]) for name, i in zip(self.option_inputs, self._option_in_i)}
-
-    def load_volumes(self) -> list[float]:
-        """Each valve's load volume at the last `sample()` (not updated by `advance_sample`'s fused
-        path; m^3: its chamber's, or its own), in the order of `valve_names`. Its change over an
-        interval / the interval is the valve's mean load flow there (the chamber's displacement
-        flow is dV/dt)."""
-        return list(self._volumes)
-
 
 _NO_STEPS = np.empty(0, dtype=np.int64)
-
-
-def _trial_run(sim: Simulator, limits: Sequence[tuple[int, int, PhysicalLimits]], steps: int = TRIAL_STEPS) -> str | None:
-    """Run a copy of `sim` for `steps` steps with its inputs; why it faulted, or None. `limits`:
-    per valve the output indices of its pressure and current, and its limits."""
-    trial = sim.copy()
-    try:
-        for _ in range(0, steps, 10):
-            trial.advance(10)
-            if not trial.finite():
-                return "model state went non-finite"
-            y = trial.outputs()
-            for jp, ji, lim in limits:
-                problem = lim.problem(float(y[jp]), float(y[ji]))
-                if problem is not None:
-                    return problem
-    except MODEL_FAILURES as err:
-        return f"model step failed ({type(err).__name__}: {err})"
-    return None
-
-
-def _positive_int(value: int, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} {value!r}: accepted is an integer >= 1")
-    return value
