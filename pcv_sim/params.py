@@ -20,11 +20,12 @@ valve YAML key, a `model.*` ROS parameter or a node setting, is converted and ch
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -72,6 +73,7 @@ __all__ = [
     "positive",
     "read",
     "read_yaml",
+    "refused_as",
     "replace_param",
     "section_from_mapping",
     "setting",
@@ -717,6 +719,18 @@ def _range_words(check: Check) -> str:
 
 _KIND_WORDS = {"str": "a string", "bool": "true, false", "int": "an integer", "list": "a list", "mapping": "a mapping",
                "section": "a mapping"}
+
+
+@contextlib.contextmanager
+def refused_as(error: type[PcvSimError]) -> Iterator[None]:
+    """A refusal by these declarations raised as `error`, the file's own class (ScenarioError,
+    ProfileError...), with its text."""
+    try:
+        yield
+    except error:
+        raise
+    except ParameterError as err:
+        raise error(str(err)) from None
 
 
 def key_table(cls: type) -> str:

@@ -39,7 +39,7 @@ import numpy as np
 
 from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.keys import check_keys, closest
-from pcv_sim.params import check_mapping, check_value, declarations, non_empty, one_of, parameter, read
+from pcv_sim.params import check_mapping, check_value, declarations, non_empty, one_of, parameter, read, refused_as
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.rig import signal_kind
 
@@ -189,12 +189,8 @@ def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: b
               events: list[tuple[float, str, str]], base: Path | None) -> dict[str, Any]:
     """The assertion with its values in SI and event times resolved; AssertionSpecError naming
     the key and what is accepted."""
-    try:
+    with refused_as(AssertionSpecError):
         return _normalize(where, raw, signals, has_setpoint, events, base)
-    except AssertionSpecError:
-        raise
-    except ParameterError as err:
-        raise AssertionSpecError(str(err)) from None
 
 
 def _normalize(where: str, raw: Any, signals: tuple[str, ...], has_setpoint: bool,

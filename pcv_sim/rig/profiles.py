@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.errors import ParameterError
-from pcv_sim.keys import closest, missing_message, unknown_message
+from pcv_sim.keys import closest, exactly_one, unknown_message
 from pcv_sim.params import (
     Check,
     at_least,
@@ -44,6 +44,7 @@ from pcv_sim.params import (
     non_empty,
     parameter,
     read,
+    refused_as,
 )
 from pcv_sim.units import quantity
 
@@ -311,12 +312,8 @@ def parse_segment(where: str, t: float, raw: Any, kind: str, *, base: Path | Non
     `kind` is the quantity's kind (`pcv_sim.units.KINDS`); `check` (a `pcv_sim.params` check:
     None when fine, else what is accepted) holds each value the profile can reach. ProfileError
     naming the key and what is accepted."""
-    try:
+    with refused_as(ProfileError):
         return _segment(where, t, raw, kind, base, check)
-    except ProfileError:
-        raise
-    except ParameterError as err:
-        raise ProfileError(str(err)) from None
 
 
 def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, check: Check | None) -> Segment:
@@ -327,12 +324,7 @@ def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, check
 
     if not isinstance(raw, Mapping):
         return Segment(t, "value", value=check_value(where, value, raw, check=check, of=kind))
-    shapes = [s for s in SHAPES if s in raw]
-    if len(shapes) != 1:
-        if not shapes:
-            raise ProfileError(missing_message(where, raw, SHAPES))
-        raise ProfileError(f"{where}: accepted is exactly one of {', '.join(SHAPES)}; got {', '.join(shapes)}")
-    shape = shapes[0]
+    shape = exactly_one(where, raw, SHAPES)
     extra = unknown_message(where, {k: v for k, v in raw.items() if k != "t"}, (shape,))
     if extra:
         raise ProfileError(extra)

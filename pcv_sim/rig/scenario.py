@@ -89,7 +89,7 @@ import numpy as np
 
 from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
 from pcv_sim.errors import CommandError, ParameterError, PcvSimError
-from pcv_sim.keys import check_keys, closest, missing_message
+from pcv_sim.keys import check_keys, closest, exactly_one
 from pcv_sim.model import kernel
 from pcv_sim.params import (
     Check,
@@ -103,6 +103,7 @@ from pcv_sim.params import (
     parameter,
     read,
     read_yaml,
+    refused_as,
 )
 from pcv_sim.rig.assertions import ASSERTION_TYPES, Outcome, check_assertions, normalize, signal_kind
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
@@ -453,12 +454,7 @@ def _check_timeline(raw: list[Any] | None, rig: RigParams, duration: float, base
     for k, e in enumerate(raw):
         where = f"timeline[{k}]"
         t = read(TimelineKeys, e, "t", where)
-        actions = [a for a in _ACTIONS if a in e]
-        if len(actions) != 1:
-            if not actions:
-                raise ScenarioError(missing_message(where, e, _ACTIONS))
-            raise ScenarioError(f"{where}: accepted is exactly one of {', '.join(_ACTIONS)} (got {', '.join(actions)})")
-        a = actions[0]
+        a = exactly_one(where, e, _ACTIONS)
         entry: dict[str, Any] = {"t": t}
         if a in ("duty", "supply"):
             check_keys(where, e, ("t", a))
@@ -613,11 +609,9 @@ def ros_controller(raw: Any) -> RosController:
         raise ScenarioError(f"controller: got {raw!r}; accepted is 'module:callable' or {{ros: {{namespace, command, "
                             "wait}}}")
     spec = raw["ros"] if raw["ros"] is not None else {}
-    try:
+    with refused_as(ScenarioError):
         check_mapping(RosController, spec, "controller.ros")
         ns, cmd, wait = (read(RosController, spec, k, "controller.ros") for k in ("namespace", "command", "wait"))
-    except ParameterError as err:
-        raise ScenarioError(str(err)) from None
     return RosController("" if ns == "/" else ns, tuple(cmd) if cmd is not None else None, wait)
 
 
