@@ -20,15 +20,14 @@ valve YAML key, a `model.*` ROS parameter or a node setting, is converted and ch
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import math
 import re
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import yaml
 
@@ -82,6 +81,8 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+R = TypeVar("R")
+P = ParamSpec("P")
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
 
@@ -556,7 +557,7 @@ def validate_section_value(section: str, key: str, value: Any, *, prefix: str = 
     cls = _SECTIONS.get(section)
     if cls is None:
         raise ParameterError(f"unknown section {section!r}; accepted are: {', '.join(_SECTIONS)}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = declarations(cls)
     if key not in fields:
         raise ParameterError(f"unknown parameter {prefix}{section}.{key}; accepted in {section}: {', '.join(fields)}")
     return check_value(f"{prefix}{section}.{key}", fields[key].metadata, value)
@@ -583,16 +584,16 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check 
     if isinstance(value, str) and kind.startswith("float") and si_kind(unit) is not None \
             and _WITH_UNIT.match(value):
         value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
-    if kind in KINDS:
-        out: Any = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False))
+    if kind == "float":
+        out: Any = _number(path, value, f"a number{in_unit}")
+    elif kind in KINDS:
+        out = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False))
     elif kind in ("list", "mapping"):
         return _entries(path, meta, value)
     elif kind == "section":
         return section_from_mapping(meta["section"], value, path, defaults=True)
     elif kind == "any":
         out = value
-    elif kind == "float":
-        out = _number(path, value, f"a number{in_unit}")
     elif kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
@@ -721,16 +722,23 @@ _KIND_WORDS = {"str": "a string", "bool": "true, false", "int": "an integer", "l
                "section": "a mapping"}
 
 
-@contextlib.contextmanager
-def refused_as(error: type[PcvSimError]) -> Iterator[None]:
-    """A refusal by these declarations raised as `error`, the file's own class (ScenarioError,
-    ProfileError...), with its text."""
-    try:
-        yield
-    except error:
-        raise
-    except ParameterError as err:
-        raise error(str(err)) from None
+def refused_as(error: type[PcvSimError]) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """A decorator: a refusal by these declarations in the decorated loader is raised as `error`,
+    the file's own class (ScenarioError, ProfileError...), with its text."""
+
+    def wrap(fn: Callable[P, R]) -> Callable[P, R]:
+        @functools.wraps(fn)
+        def loader(*args: P.args, **kwargs: P.kwargs) -> R:
+            try:
+                return fn(*args, **kwargs)
+            except error:
+                raise
+            except ParameterError as err:
+                raise error(str(err)) from None
+
+        return loader
+
+    return wrap
 
 
 def key_table(cls: type) -> str:

@@ -185,16 +185,11 @@ def event_time(where: str, raw: Any, events: list[tuple[float, str, str]]) -> fl
                              f"({', '.join(sorted(kinds)) or 'none'})")
 
 
+@refused_as(AssertionSpecError)
 def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: bool,
               events: list[tuple[float, str, str]], base: Path | None) -> dict[str, Any]:
     """The assertion with its values in SI and event times resolved; AssertionSpecError naming
     the key and what is accepted."""
-    with refused_as(AssertionSpecError):
-        return _normalize(where, raw, signals, has_setpoint, events, base)
-
-
-def _normalize(where: str, raw: Any, signals: tuple[str, ...], has_setpoint: bool,
-               events: list[tuple[float, str, str]], base: Path | None) -> dict[str, Any]:
     if not isinstance(raw, Mapping):
         raise AssertionSpecError(f"{where}: got {raw!r}; accepted is a mapping {{type: {' | '.join(ASSERTION_TYPES)}, "
                                  "...}")

@@ -306,17 +306,13 @@ def _csv(where: str, spec: Mapping[str, Any], kind: str, base: Path | None) -> t
     return tuple(times), tuple(values), str(path)
 
 
+@refused_as(ProfileError)
 def parse_segment(where: str, t: float, raw: Any, kind: str, *, base: Path | None = None,
                   check: Check | None = None) -> Segment:
     """One segment at `t` from the file's `raw` (a bare value, or a mapping with one of SHAPES).
     `kind` is the quantity's kind (`pcv_sim.units.KINDS`); `check` (a `pcv_sim.params` check:
     None when fine, else what is accepted) holds each value the profile can reach. ProfileError
     naming the key and what is accepted."""
-    with refused_as(ProfileError):
-        return _segment(where, t, raw, kind, base, check)
-
-
-def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, check: Check | None) -> Segment:
     value = _SHAPE["value"].metadata
 
     def reach(w: str, v: float) -> float:

@@ -519,8 +519,8 @@ def _check_assertions(raw: list[Any] | None, rig: RigParams, has_setpoint: bool,
                       timeline: tuple[Mapping[str, Any], ...], base: Path | None) -> tuple[Mapping[str, Any], ...]:
     if raw is None:
         return ()
-    events = _timeline_events(timeline)
-    return tuple(normalize(f"assertions[{k}]", a, signals=_signals(rig), has_setpoint=has_setpoint, events=events,
+    events, signals = _timeline_events(timeline), _signals(rig)
+    return tuple(normalize(f"assertions[{k}]", a, signals=signals, has_setpoint=has_setpoint, events=events,
                            base=base) for k, a in enumerate(raw))
 
 
@@ -603,15 +603,15 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
                     (base / rig_file).resolve() if rig_file else None, tuple(notes), digest, valve_changes)
 
 
+@refused_as(ScenarioError)
 def ros_controller(raw: Any) -> RosController:
     """`{ros: {namespace, command, wait}}` validated (ScenarioError naming the key)."""
     if not isinstance(raw, Mapping) or set(raw) != {"ros"}:
         raise ScenarioError(f"controller: got {raw!r}; accepted is 'module:callable' or {{ros: {{namespace, command, "
                             "wait}}}")
     spec = raw["ros"] if raw["ros"] is not None else {}
-    with refused_as(ScenarioError):
-        check_mapping(RosController, spec, "controller.ros")
-        ns, cmd, wait = (read(RosController, spec, k, "controller.ros") for k in ("namespace", "command", "wait"))
+    check_mapping(RosController, spec, "controller.ros")
+    ns, cmd, wait = (read(RosController, spec, k, "controller.ros") for k in ("namespace", "command", "wait"))
     return RosController("" if ns == "/" else ns, tuple(cmd) if cmd is not None else None, wait)
 
 
