@@ -33,8 +33,7 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
 from pcv_sim.io import BagWriter, read_bag
-from pcv_sim.io.recorder import ROLE_QOS
-from pcv_sim.io.topics import BAG_TOPICS, bag_topic
+from pcv_sim.io.topics import BAG_TOPICS, ROLE_QOS, bag_topic
 
 T0 = 1_704_067_200 * 1_000_000_000
 

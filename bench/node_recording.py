@@ -12,7 +12,7 @@ Part `loop` (no ROS, one fresh process per configuration): the emulator's real-t
 - `off`: no recorder (the device still steps in batches);
 - `hook`: the hook called at every step with a recorder that does nothing (the device's cost of
   recording at every step: single steps and a signals dict);
-- `inline`: `BagRecorder(writer="inline")`: messages serialised and chunks flushed inside the call;
+- `inline`: the emulator's `DeviceRecorder` (`writer="inline"`): messages serialised and chunks flushed inside the call;
 - `thread per-message [5ms]`: the first threaded design: the writer thread serialises message by
   message (`write_float64` / `write_fluid_pressure`, ~3.5 µs each), with Python's default switch
   interval (5 ms) or the one the node sets (`SWITCH_INTERVAL`, 1 ms);
@@ -61,7 +61,8 @@ LOOP_CONFIGS = ("off", "hook", "inline", "thread per-message 5ms", "thread per-m
 def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
     import ctypes
 
-    from pcv_sim.io.recorder import SWITCH_INTERVAL, BagRecorder, WriterSettings
+    from pcv_sim.device.recording import BagLayout, DeviceRecorder
+    from pcv_sim.io.recorder import SWITCH_INTERVAL, WriterSettings
     _PerMessageRecorder = _per_message_recorder()
     from pcv_sim.device.valve import ValveDevice
     from pcv_sim.params import load_params
@@ -98,9 +99,10 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
     if config == "hook":
         dev.recorder, dev.record_every = Timed(lambda t_ns, s: None), 1
     elif config != "off":
-        cls = _PerMessageRecorder if "per-message" in config else BagRecorder
+        cls = _PerMessageRecorder if "per-message" in config else DeviceRecorder
         writer = "inline" if config == "inline" else "process" if config == "process" else "thread"
-        rec = cls(out_dir, name="bag", every=1, dt_ns=dev.dt_ns, frame_id="load_port", writing=WriterSettings(writer=writer))
+        layout = BagLayout.of(dev, every=1, frame_id="load_port", faults=False, events=False)
+        rec = cls(out_dir, layout, name="bag", dt_ns=dev.dt_ns, writing=WriterSettings(writer=writer))
         dev.recorder, dev.record_every = Timed(rec), 1
         sys.setswitchinterval(0.005 if config.endswith("5ms") else
                               float(config.split("@")[1]) * 1e-3 if "@" in config else SWITCH_INTERVAL)
@@ -155,16 +157,33 @@ def _run_loop(config: str, duration: float, out_dir: Path) -> dict:
 
 
 def _per_message_recorder():
-    from pcv_sim.io.recorder import BagRecorder
+    from pcv_sim.device.recording import DeviceRecorder
+    from pcv_sim.io import FLOAT64
 
-    class PerMessage(BagRecorder):
+    class PerMessage(DeviceRecorder):
         """The writer thread serialising message by message (the design before write_samples)."""
 
         def _drain(self) -> None:
             q = self._queue
             with self._lock:
                 for _ in range(len(q)):
-                    self._write(q.popleft())
+                    item = q.popleft()
+                    if item[0] == 1:                           # a row
+                        self._row(item[1], item[2])
+                    elif item[0] == 4:                         # a block of rows at t0, t0 + dt ...
+                        _, t0, dt, rows = item
+                        for k, row in enumerate(rows.tolist()):
+                            self._row(t0 + k * dt, row)
+                    else:
+                        self._write_message(item)
+
+        def _row(self, t: int, row) -> None:
+            w = self._bag
+            for c in self.layout.of_kind("column"):
+                if c.type == FLOAT64:
+                    w.write_float64(c.topic, t, row[c.source[0]])
+                else:
+                    w.write_fluid_pressure(c.topic, t, row[c.source[0]], 0.0, c.frame_id)
 
     return PerMessage
 

@@ -5,7 +5,7 @@
 The rig node (`pcv_sim.node.rig.rig_node`, the shipped config/rig.yaml: two valves + the
 cylinder at 0.1 ms, samples every 1 ms) in this process, `time_mode: real`, run by its own loop
 (`DeviceNode.run`) for duration / rounds s per configuration and round, alternately without and with
-`record.enabled` (`RigRecorder`: every valve under its namespace, the cylinder, 1 kHz samples;
+`record.enabled` (the rig's `DeviceRecorder`: every valve under its namespace, the cylinder, 1 kHz samples;
 its writer thread serialises the joint states message by message). No controller: the duties stay
 at their initial values until the watchdog, so the work per period is the rig's and the
 recorder's. Reported per configuration: late steps (late_threshold 1 ms) and skipped steps summed

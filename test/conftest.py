@@ -173,3 +173,27 @@ def fragile_controller(tmp_path):
     namespace = {}
     exec(compile(FRAGILE_CONTROLLER, str(path), 'exec'), namespace)
     return namespace['Fragile']
+
+
+def make_emulator_recorder(directory, *, name=None, signals=None, options=(), every=1, dt_ns=100_000, namespace='/',
+                           frame_id='', faults=False, max_queue_s=10.0, writing=None):
+    """The emulator's recorder (`pcv_sim.device.recording`) made from its names, without a device:
+    one valve on its own load volume, `options` the valve options' signals it has (inputs and outputs
+    by name), `signals` the roles it records (default all)."""
+    from pcv_sim.device.recording import RECORDABLE, BagLayout, DeviceRecorder
+    from pcv_sim.io.recorder import WRITER_DEFAULTS
+    from pcv_sim.io.topics import INPUT_ROLES, OPTION_INTERFACE, OUTPUT_ROLES
+
+    inputs = [e.name for e in OPTION_INTERFACE if e.direction == 'in' and e.name in options]
+    outputs = [e.name for e in OPTION_INTERFACE if e.direction == 'out' and e.name in options]
+    layout = BagLayout.of_names(('valve',), (*OUTPUT_ROLES, *outputs), (*INPUT_ROLES, *inputs), namespace=namespace,
+                                every=every, record=RECORDABLE if signals is None else signals, frame_id=frame_id,
+                                faults=faults, events=False)
+    return DeviceRecorder(directory, layout, name=name, dt_ns=dt_ns, namespace=namespace, max_queue_s=max_queue_s,
+                          writing=writing or WRITER_DEFAULTS)
+
+
+@pytest.fixture
+def emulator_recorder():
+    """`make_emulator_recorder`."""
+    return make_emulator_recorder

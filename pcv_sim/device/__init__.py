@@ -8,7 +8,8 @@ fault is, `sensors` sensor faults), `outputs` (samples and records, the physical
 `limits` checked before they leave); `inputs`: the one timing rule, the queue, a watchdog;
 `valve`: the emulator's configuration of it,
 one valve and no plant (the rig's, valves on the cylinder, is `pcv_sim.rig.rig`); `settings`:
-the node's settings, declared once and validated like the valve YAML; `parameters`: the
+the node's settings, declared once and validated like the valve YAML; `recording`: a device's
+bag layout and its recorder, live and offline; `parameters`: the
 command-line and params-file checks rcl does not do; `diagnostics`: the device's health per
 concern. A new system plugs into a device here without touching ROS code (the node only moves
 messages). Covered by the test that nothing outside `pcv_sim/node` imports ROS.
@@ -16,5 +17,5 @@ messages). Covered by the test that nothing outside `pcv_sim/node` imports ROS.
 
 __all__ = [
     "composition", "device", "diagnostics", "faults", "feed", "injection", "inputs", "limits", "outputs",
-    "parameters", "restarts", "sensors", "settings", "spec", "valve",
+    "parameters", "recording", "restarts", "sensors", "settings", "spec", "valve",
 ]

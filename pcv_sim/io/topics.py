@@ -52,11 +52,13 @@ __all__ = [
     "RIG_INTERFACE",
     "ROLES",
     "ROLE_ALIASES",
+    "ROLE_QOS",
     "ROLE_TYPES",
     "ROLE_UNITS",
     "SCENARIO_INTERFACE",
     "SETPOINT",
     "SPOOL_POSITION",
+    "STRING",
     "SUPPLY_PRESSURE",
     "Endpoint",
     "InputTopic",
@@ -123,6 +125,14 @@ ROLE_UNITS: Final = {
     CURRENT: "A",
     SPOOL_POSITION: "m",
 }
+#: The QoS the emulator offers per role (docs/interface.md), written into a bag as each topic's
+#: ``offered_qos_profiles`` so that ``ros2 bag play`` republishes it the same way.
+ROLE_QOS: Final[dict[str, Qos]] = {
+    **{r: SENSOR_DATA_QOS for r in OUTPUT_ROLES},
+    **{r: COMMAND_QOS for r in INPUT_ROLES},
+}
+#: The type of the text topics (fault commands, events).
+STRING: Final = "std_msgs/msg/String"
 #: Short names accepted wherever a role is named (``--topic``, ``--columns``).
 ROLE_ALIASES: Final = {
     "duty": DUTY_CYCLE,

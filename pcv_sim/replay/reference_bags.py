@@ -21,7 +21,7 @@ Bit-for-bit: timestamps are integers from a fixed start (2024-01-01T00:00:00Z); 
 size only (no wall-clock flushes: no flush thread, a frozen clock); the MCAP header names the
 library ``pcv_sim``; ``metadata.yaml``'s ``ros_distro`` is pinned to ``jazzy`` (the type store
 the message definitions come from) whatever ``ROS_DISTRO`` says; the offered QoS is the
-emulator's (:data:`pcv_sim.io.recorder.ROLE_QOS`). The bytes then depend only on
+emulator's (:data:`pcv_sim.io.topics.ROLE_QOS`). The bytes then depend only on
 the code, the default config and the pinned packages (numpy, scipy for the numbers; mcap,
 zstandard/libzstd for the container and compression).
 """
@@ -38,8 +38,17 @@ from typing import Final
 import numpy as np
 
 from pcv_sim.io.bag import BagWriter
-from pcv_sim.io.recorder import ROLE_QOS
-from pcv_sim.io.topics import BAG_TOPICS, CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE, bag_topic
+from pcv_sim.io.topics import (
+    BAG_TOPICS,
+    CURRENT,
+    DUTY_CYCLE,
+    LOAD_FLOW,
+    PRESSURE,
+    ROLE_QOS,
+    SPOOL_POSITION,
+    SUPPLY_PRESSURE,
+    bag_topic,
+)
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams, load_params
 from pcv_sim.simulation.duty import DutyProfile

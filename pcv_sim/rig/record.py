@@ -27,68 +27,44 @@ from typing import Any
 
 import numpy as np
 
-from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
-from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, PRESSURE, ROLE_TYPES, SETPOINT, SPOOL_POSITION, bag_topic
-from pcv_sim.rig.bag import JOINT_NAME, JOINT_STATE, STRING, RigBagLayout
+from pcv_sim.device.recording import BagLayout, DeviceRecorder
+from pcv_sim.errors import BagError
+from pcv_sim.io import FLUID_PRESSURE
+from pcv_sim.io.recorder import WriterSettings
+from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, PRESSURE, SETPOINT, SPOOL_POSITION, valve_topic
 from pcv_sim.rig.lockstep import RigRun
-from pcv_sim.rig.rig import CYLINDER_SIGNALS
 
-__all__ = ["JOINT_STATE", "STRING", "read_signals", "signal_unit", "write_bag", "write_csv"]
+__all__ = ["read_signals", "signal_unit", "write_bag", "write_csv"]
 
 _NS = 1_000_000_000
 
 
 def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None = None) -> Path:
     """Write `run` as a rosbag2/MCAP bag at `path` (must not exist); `chambers` maps valve -> a|b.
-    The topics are the rig's bag layout (`pcv_sim.rig.bag.RigBagLayout`, the live recording's)."""
-    chambers = chambers or {}
-    layout = RigBagLayout()
-    topics: dict[str, str] = {}
-    for v in run.valves:
-        topics.update({layout.valve(v, role): ROLE_TYPES[role] for role in (DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION)})
-        if v in chambers:
-            topics[layout.chamber(chambers[v])] = FLUID_PRESSURE
-    topics[layout.joint_states] = JOINT_STATE
-    topics[layout.events] = STRING
-    has_sp = bool(np.any(np.isfinite(run.setpoint)))
-    if has_sp:
-        topics[bag_topic(SETPOINT)] = FLOAT64
-    for flag in run.flags:
-        topics[f"/controller/{flag.removeprefix('controller.')}"] = FLOAT64
-    t_ns = np.round(run.times * _NS).astype(np.int64)
-    m = run.measured
-
-    def column(topic: str, values: np.ndarray, w: BagWriter, frame: str = "") -> None:
-        ok = np.isfinite(values)       # dropped samples: no message (never a NaN measurement)
-        if np.any(ok):
-            w.write_samples(t_ns[ok], {topic: values[ok]}, frame_id=frame)
-
-    with BagWriter(path, topics=topics, flush_thread=False) as w:
-        for k, v in enumerate(run.valves):
-            column(layout.valve(v, DUTY_CYCLE), run.duties[:, k], w)
-            p = m[:, run.signals.index(f"{v}.pressure")]
-            column(layout.valve(v, PRESSURE), p, w, "load_port")
-            if v in chambers:
-                column(layout.chamber(chambers[v]), p, w, f"chamber_{chambers[v]}")
-            column(layout.valve(v, CURRENT), m[:, run.signals.index(f"{v}.current")], w)
-            column(layout.valve(v, SPOOL_POSITION), m[:, run.signals.index(f"{v}.spool_position")], w)
-        if has_sp:
-            column(bag_topic(SETPOINT), run.setpoint, w)
-        for flag, values in run.flags.items():
-            column(f"/controller/{flag.removeprefix('controller.')}", values, w)
-        pos, vel, eff = (m[:, run.signals.index(f"cylinder.{s}")] for s in CYLINDER_SIGNALS)
-        for j in range(len(t_ns)):
-            # A dropped signal is left out of the message (JointState allows empty arrays per field).
-            fields = [(a[j],) if math.isfinite(a[j]) else () for a in (pos, vel, eff)]
-            sec, nsec = divmod(int(t_ns[j]), _NS)
-            w.write(layout.joint_states, int(t_ns[j]), {
-                "header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "cylinder"},
-                "name": [JOINT_NAME],
-                "position": np.array(fields[0], dtype=np.float64), "velocity": np.array(fields[1], dtype=np.float64),
-                "effort": np.array(fields[2], dtype=np.float64)})
-        for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
-            w.write(layout.events, round(t * _NS), {"data": text})
-    return Path(path)
+    The rig's bag layout (`pcv_sim.device.recording.BagLayout`, the live recording's) with a row
+    per sample: the measured signals, each valve's duty, the setpoint (when the run has one) and
+    the controller's flags; the log and the rejected commands as events."""
+    extra = [(f"{v}.{DUTY_CYCLE}", valve_topic(v, DUTY_CYCLE)) for v in run.valves]
+    columns = [run.measured, run.duties]
+    if np.any(np.isfinite(run.setpoint)):
+        extra.append((SETPOINT, SETPOINT))
+        columns.append(run.setpoint[:, None])
+    for flag, values in run.flags.items():
+        extra.append((flag, f"controller/{flag.removeprefix('controller.')}"))
+        columns.append(np.asarray(values, dtype=np.float64)[:, None])
+    layout = BagLayout.of_names(run.valves, run.signals, (), chambers=chambers or {}, faults=False, options=False,
+                                record=(DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION), extra=extra)
+    p = Path(path)
+    rec = DeviceRecorder(p.parent, layout, name=p.name, offered_qos=False,
+                         writing=WriterSettings(writer="inline", fsync=False))
+    rec.rows(np.round(run.times * _NS).astype(np.int64), np.column_stack(columns))
+    assert rec.events_topic is not None
+    for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
+        rec.text(rec.events_topic, round(t * _NS), text)
+    st = rec.close()
+    if st.error:
+        raise BagError(f"{p}: {st.error}")
+    return p
 
 
 def signal_unit(signal: str) -> str:
@@ -132,7 +108,6 @@ def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     import csv
     import re
 
-    from pcv_sim.errors import BagError
     from pcv_sim.rig.rig import signal_kind
     from pcv_sim.units import quantity
 

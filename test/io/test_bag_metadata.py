@@ -16,7 +16,7 @@ from rosbags.rosbag2.storage_mcap import get_qos
 from pcv_sim.errors import BagError
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.io.bag import COMMAND_QOS, SENSOR_DATA_QOS, Qos, detect_ros_distro
-from pcv_sim.io.recorder import BagRecorder, WriterSettings
+from pcv_sim.io.recorder import WriterSettings
 
 T0 = 1_700_000_000_000_000_000
 TOPICS = {"/pressure": FLUID_PRESSURE, "/duty_cycle": FLOAT64, "/other": FLOAT64}
@@ -73,8 +73,8 @@ def _mcap_string(s: str) -> bytes:
     return len(raw).to_bytes(4, "little") + raw
 
 
-def test_recorder_writes_the_emulators_qos_and_distro(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="r", writing=WriterSettings(writer="inline", ros_distro="kilted"))
+def test_recorder_writes_the_emulators_qos_and_distro(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="r", writing=WriterSettings(writer="inline", ros_distro="kilted"))
     rec.close()
     with Reader(tmp_path / "r") as r:
         assert r.ros_distro == "kilted"

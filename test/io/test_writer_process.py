@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import BagRecorder, WriterSettings
+from pcv_sim.io.recorder import WriterSettings
 from pcv_sim.io.writer_process import HIGH_WATER, LOW_WATER
-from pcv_sim.rig.bag import RigRecorder
 
 T0 = 1_700_000_000_000_000_000
 DT = 100_000
@@ -33,7 +33,7 @@ def signals(k: int, duty: float = 0.5) -> dict[str, float]:
             "pressure": 1e5 + k, "current": 1e-3 * k, "spool_position": 1e-9 * k}
 
 
-def feed(rec: BagRecorder, first: int, last: int) -> None:
+def feed(rec: DeviceRecorder, first: int, last: int) -> None:
     if first == 0:
         rec.start(T0, signals(0))
         first = 1
@@ -51,9 +51,9 @@ def messages(bag: Path) -> list[tuple[str, int, bytes]]:
     return sorted(out)
 
 
-def test_the_process_writes_the_messages_a_thread_writes(tmp_path: Path) -> None:
+def test_the_process_writes_the_messages_a_thread_writes(tmp_path: Path, emulator_recorder) -> None:
     for writer in ("process", "thread"):
-        rec = BagRecorder(tmp_path, name=writer, every=1, frame_id="load_port", writing=WriterSettings(writer=writer))
+        rec = emulator_recorder(tmp_path, name=writer, every=1, frame_id="load_port", writing=WriterSettings(writer=writer))
         feed(rec, 0, 6000)
         st = rec.close()
         assert (st.state, st.dropped, st.queued, st.messages) == ("closed", 0, 0, 4 + 3 * 6001), st
@@ -62,11 +62,12 @@ def test_the_process_writes_the_messages_a_thread_writes(tmp_path: Path) -> None
 
 
 def test_the_rig_recorder_runs_in_the_process_too(tmp_path: Path) -> None:
-    kw = {"valves": [("left", "a")], "namespace": "/rig",
-          "signals": ["left.pressure", "left.current", "left.spool_position",
-                      "cylinder.position", "cylinder.velocity", "cylinder.effort"]}
+    layout = BagLayout.of_names(
+        ["left"], ["left.pressure", "left.current", "left.spool_position", "cylinder.position", "cylinder.velocity",
+                   "cylinder.effort"], ["left.duty_cycle", "left.supply_pressure", "cylinder.external_force"],
+        namespace="/rig", chambers={"left": "a"})
     for writer in ("process", "inline"):
-        rec = RigRecorder(tmp_path, name=writer, **kw, writing=WriterSettings(writer=writer))
+        rec = DeviceRecorder(tmp_path, layout, name=writer, writing=WriterSettings(writer=writer))
         rec.start(T0, {"left.duty_cycle": 0.5, "left.supply_pressure": 200e5, "cylinder.external_force": 0.0})
         for k in range(1, 500):
             rec.sample(T0 + k * 10 * DT, [1e6 + k, 0.5, 1e-4, 0.01 * k, 0.1, 5.0], [1e-6 * k])
@@ -76,8 +77,8 @@ def test_the_rig_recorder_runs_in_the_process_too(tmp_path: Path) -> None:
     assert messages(tmp_path / "process") == messages(tmp_path / "inline")
 
 
-def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
+def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     feed(rec, 0, 1000)
     assert rec._proc is not None
     rec._proc.proc.kill()
@@ -92,8 +93,8 @@ def test_a_writer_that_dies_is_reported_and_never_blocks_the_loop(tmp_path: Path
     assert st.state == "failed" and st.dropped >= 3 * 1000
 
 
-def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=0.01,
+def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, max_queue_s=0.01,
                       writing=WriterSettings(writer="process", when_full="wait"))
     assert rec._proc is not None
     rec._proc.proc.send_signal(signal.SIGSTOP)            # a writer that stopped taking
@@ -108,19 +109,20 @@ def test_when_full_wait_stops_waiting_for_a_dead_writer(tmp_path: Path) -> None:
     assert rec.close().state == "failed"
 
 
-def test_an_error_opening_the_bag_in_the_process_is_the_constructor_s(tmp_path: Path) -> None:
+def test_an_error_opening_the_bag_in_the_process_is_the_constructor_s(tmp_path: Path, emulator_recorder) -> None:
     with pytest.raises(BagError, match=r"the bag writer process could not start: .*ros_distro"):
-        BagRecorder(tmp_path, name="b", writing=WriterSettings(writer="process", ros_distro="no such distro!"))
+        emulator_recorder(tmp_path, name="b", writing=WriterSettings(writer="process", ros_distro="no such distro!"))
 
 
 def test_a_node_killed_by_sigkill_leaves_a_finalized_bag_with_every_batch_it_handed_over(tmp_path: Path) -> None:
     """The writer sees the control pipe close, writes what the ring holds and finalizes the bag."""
     script = textwrap.dedent(f"""
         import os, signal, sys, time
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        sys.path[:0] = [{str(Path(__file__).parent)!r}, {str(Path(__file__).parents[1])!r}]
         from test_writer_process import feed
-        from pcv_sim.io.recorder import BagRecorder, WriterSettings
-        rec = BagRecorder({str(tmp_path)!r}, name="b", every=1, writing=WriterSettings(writer="process"))
+        from conftest import make_emulator_recorder
+        from pcv_sim.io.recorder import WriterSettings
+        rec = make_emulator_recorder({str(tmp_path)!r}, name="b", every=1, writing=WriterSettings(writer="process"))
         feed(rec, 0, 5000)
         time.sleep(rec.batch_period)
         rec.status()                       # hands over the batch in progress
@@ -148,9 +150,9 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_the_writer_process_ignores_sigint(tmp_path: Path) -> None:
+def test_the_writer_process_ignores_sigint(tmp_path: Path, emulator_recorder) -> None:
     """A Ctrl-C reaches the node, which closes the bag after its last samples; the writer waits for it."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     feed(rec, 0, 100)
     assert rec._proc is not None
     os.kill(rec._proc.proc.pid, signal.SIGINT)
@@ -181,11 +183,11 @@ def _autogroup(pid: int | str) -> str | None:
     return fields[0] if fields else None
 
 
-def test_the_writer_shares_the_node_s_scheduling_group_and_writes_only_on_idle_cpu(tmp_path: Path) -> None:
+def test_the_writer_shares_the_node_s_scheduling_group_and_writes_only_on_idle_cpu(tmp_path: Path, emulator_recorder) -> None:
     """A session of its own would be an autogroup of its own, weighing as much as the node's whole
     group; in the node's session its writing thread runs under SCHED_IDLE (any thread that wants
     the CPU preempts it), its main thread (close, a filling ring) at normal priority."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     try:
         assert rec._proc is not None
         pid = rec._proc.proc.pid
@@ -203,11 +205,11 @@ def test_the_writer_shares_the_node_s_scheduling_group_and_writes_only_on_idle_c
         rec.close()
 
 
-def test_under_cpu_load_the_ring_keeps_every_batch_until_close(tmp_path: Path, cpu_load) -> None:
+def test_under_cpu_load_the_ring_keeps_every_batch_until_close(tmp_path: Path, cpu_load, emulator_recorder) -> None:
     """Two CPU burners in this session: the idle writer falls behind (how far depends on how often
     a core idles between the burners' slices: not asserted), the ring holds what the loop handed
     over, and closing (at normal priority) writes all of it."""
-    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     feed(rec, 0, 20_000)                                   # 2 s of 10 kHz samples, ~1 MB in the ring
     time.sleep(rec.batch_period)
@@ -224,12 +226,12 @@ def test_under_cpu_load_the_ring_keeps_every_batch_until_close(tmp_path: Path, c
 
 
 def test_a_ring_filled_past_half_is_written_by_the_normal_priority_thread_under_cpu_load(tmp_path: Path,
-                                                                                          cpu_load) -> None:
+                                                                                          cpu_load, emulator_recorder) -> None:
     """Beside two burners the idle writer gets little; once the ring is more than HIGH_WATER full
     the process's main thread (normal priority) writes it down to LOW_WATER, so a long busy spell
     costs no data while the ring has room. Nothing is dropped, all is written. (Which thread wrote
     is not asserted: the idle one gets CPU whenever a core idles between the burners' slices.)"""
-    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=3.0, writing=WriterSettings(writer="process"))
+    rec = emulator_recorder(tmp_path, name="b", every=1, max_queue_s=3.0, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     ring = rec._proc.ring
     feed(rec, 0, 0)
@@ -246,10 +248,10 @@ def test_a_ring_filled_past_half_is_written_by_the_normal_priority_thread_under_
     assert (st.state, st.dropped, st.messages) == ("closed", 0, 4 + 3 * (n + 1) - (n < 3000) * 1), st
 
 
-def test_a_full_ring_drops_whole_batches_and_counts_every_message(tmp_path: Path) -> None:
+def test_a_full_ring_drops_whole_batches_and_counts_every_message(tmp_path: Path, emulator_recorder) -> None:
     """A writer that takes nothing (stopped): batches that do not fit are counted as dropped, the
     ones that fit are written at close: bag + dropped = everything recorded."""
-    rec = BagRecorder(tmp_path, name="b", every=1, max_queue_s=0.05, writing=WriterSettings(writer="process"))
+    rec = emulator_recorder(tmp_path, name="b", every=1, max_queue_s=0.05, writing=WriterSettings(writer="process"))
     assert rec._proc is not None
     rec._proc.proc.send_signal(signal.SIGSTOP)
     try:

@@ -1,4 +1,4 @@
-"""The rig node's bag without ROS: a rig run recorded with `RigRecorder` the way the node feeds it
+"""The rig's bag without ROS: a rig run recorded with `DeviceRecorder` on the rig's `BagLayout` the way the node feeds it
 (`Rig.on_input` for the inputs, the samples every control period), read back with rosbags, and
 one valve replayed from it by namespace (`pcv-sim replay --namespace`)."""
 
@@ -11,13 +11,20 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from pcv_sim.cli import main
+from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.io.recorder import WriterSettings
 from pcv_sim.params import load_params
 from pcv_sim.replay import ReplayError, load_recording, replay
-from pcv_sim.rig.bag import RigRecorder
 
 DT_NS = 100_000
 NS = "/bench/rig"
+
+
+def rig_recorder(rig, directory, *, name, namespace="/"):
+    """The rig's recorder as its node makes it (`pcv_sim.node.kinds`), writing inline."""
+    chambers = {v.name: v.chamber for v in rig.params.valves if v.chamber in ("a", "b")}
+    return DeviceRecorder(directory, BagLayout.of(rig, namespace=namespace, chambers=chambers), name=name,
+                          namespace=namespace, writing=WriterSettings(writer="inline"))
 
 
 def duties(t):
@@ -27,8 +34,7 @@ def duties(t):
 @pytest.fixture
 def rig_bag(rig, tmp_path):
     """0.3 s of the rig, recorded at the 1 ms control period; returns (bag path, samples)."""
-    rec = RigRecorder(tmp_path, name="b", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, namespace=NS, writing=WriterSettings(writer="inline"))
+    rec = rig_recorder(rig, tmp_path, name="b", namespace=NS)
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     samples = []
     for k in range(301):
@@ -101,10 +107,9 @@ def test_dropped_measurements_have_no_message_and_joint_states_match_the_generic
     """As on the wire: a dropped (NaN) sample has no message, a JointState leaves a dropped field
     empty; the joint states written from the template are the generic serializer's bytes."""
     from pcv_sim.io.bag import cdr
-    from pcv_sim.rig.bag import JOINT_STATE
+    from pcv_sim.io.topics import JOINT_STATE
 
-    rec = RigRecorder(tmp_path, name="d", valves=[(v.name, v.chamber) for v in rig.params.valves],
-                      signals=rig.signals, writing=WriterSettings(writer="inline"))
+    rec = rig_recorder(rig, tmp_path, name="d")
     y = rig.sample()
     rec.start(0, rig.input_values())
     rec.sample(0, y, rig.load_volumes())
@@ -136,19 +141,13 @@ def test_the_valve_options_are_recorded_under_their_valve_and_read_back_by_the_m
 
     from mcap.reader import make_reader
 
-    from pcv_sim.errors import BagError
     from pcv_sim.rig import Rig, load_rig
     from pcv_sim.units import kelvin
 
     rig = Rig(load_rig(options_rig))
     assert rig.option_inputs == ("probe.ambient_temperature", "probe.oil_temperature")
     assert rig.option_outputs == ("probe.coil_temperature", "probe.coil_resistance")
-    valves = [(v.name, v.chamber) for v in rig.params.valves]
-    with pytest.raises(BagError, match=r"record option signal 'middle.coil_temperature': accepted are <valve>.<name>"):
-        RigRecorder(tmp_path, name="x", valves=valves[:1], signals=rig.signals, options=["middle.coil_temperature"],
-                    writing=WriterSettings(writer="inline"))
-    rec = RigRecorder(tmp_path, name="o", valves=valves, signals=rig.signals, namespace=NS,
-                      options=(*rig.option_inputs, *rig.option_outputs), writing=WriterSettings(writer="inline"))
+    rec = rig_recorder(rig, tmp_path, name="o", namespace=NS)
     rig.on_input = lambda step, name, value: rec.input(step * DT_NS, name, value)
     rig.set_duty("probe", 0.9)                  # the coil heats
     start = rig.input_values()
@@ -158,7 +157,7 @@ def test_the_valve_options_are_recorded_under_their_valve_and_read_back_by_the_m
         y = rig.sample()
         if k == 0:
             rec.start(0, rig.input_values())
-        rec.sample(rig.steps * DT_NS, y, rig.load_volumes(), rig.option_sample)
+        rec.sample(rig.steps * DT_NS, y, rig.load_volumes())
         sampled.append((rig.steps * DT_NS, *rig.option_sample))
         if k == 50:
             rig.set_temperature("probe", "oil_temperature", kelvin(50.0))

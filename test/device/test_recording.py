@@ -1,4 +1,5 @@
-"""BagRecorder without ROS: direct calls with scripted signals, and the real ValveDevice.
+"""The emulator's configuration of the device's recorder (`pcv_sim.device.recording`) without ROS:
+direct calls with scripted signals, and the real ValveDevice.
 
 The recorder is called at every model step with the device's signals (pcv_sim.device.valve.SIGNALS);
 inputs go into the bag on change, stamped with the step at which they took effect, outputs at every
@@ -14,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pcv_sim.device.recording import RECORDABLE, DeviceRecorder, check_signals
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
 from pcv_sim.io import read_bag
-from pcv_sim.io.recorder import RECORDABLE, BagRecorder, Writer, WriterSettings, bag_name, check_signals
+from pcv_sim.io.recorder import Writer, WriterSettings, bag_name
 from pcv_sim.params import load_params, replace_param
 from pcv_sim.replay import load_recording, replay
 
@@ -32,7 +34,7 @@ def signals(k: int, duty: float = 0.5, q: float = 0.0, ps: float = 200e5) -> dic
             "pressure": 1e5 + k, "current": 1e-3 * k, "spool_position": 1e-9 * k}
 
 
-def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> None:
+def record(rec: DeviceRecorder, n: int, script: dict[int, dict[str, float]]) -> None:
     """start() at step 0, then a call per step; script[k] changes inputs from step k on (as the
     device does: the call for step k shows the inputs in force from step k on)."""
     inputs = {"duty": 0.5, "q": 0.0, "ps": 200e5}
@@ -43,8 +45,8 @@ def record(rec: BagRecorder, n: int, script: dict[int, dict[str, float]]) -> Non
 
 
 @pytest.mark.parametrize("writer", ["process", "thread", "inline"])
-def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=10, frame_id="load_port", writing=WriterSettings(writer=writer))
+def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_path: Path, writer: Writer, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=10, frame_id="load_port", writing=WriterSettings(writer=writer))
     record(rec, 1000, {100: {"duty": 0.7}, 250: {"q": 1e-5}, 400: {"duty": 0.3, "ps": 150e5}, 401: {"duty": 0.3}})
     st = rec.close()
     assert (st.state, st.dropped, st.queued, st.error) == ("closed", 0, 0, "")
@@ -70,8 +72,8 @@ def test_inputs_on_change_stamped_where_they_took_effect_outputs_decimated(tmp_p
     assert st.messages == 3 + 2 + 2 + 3 * len(steps) and st.bytes > 0 and st.files == 1
 
 
-def test_full_rate_and_signal_subset(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure"], namespace="/left")
+def test_full_rate_and_signal_subset(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, signals=["duty", "pressure"], namespace="/left")
     record(rec, 500, {50: {"duty": 0.9}})
     rec.close()
     bag = read_bag(tmp_path / "b")
@@ -81,9 +83,9 @@ def test_full_rate_and_signal_subset(tmp_path: Path) -> None:
     assert bag["/left/duty_cycle"].t_ns.tolist() == [T0, T0 + 50 * DT]
 
 
-def test_output_grid_is_anchored_at_the_start_and_survives_gaps(tmp_path: Path) -> None:
+def test_output_grid_is_anchored_at_the_start_and_survives_gaps(tmp_path: Path, emulator_recorder) -> None:
     """Skipped steps (the node far behind wall time) or a fault leave a gap; the grid stays."""
-    rec = BagRecorder(tmp_path, name="b", every=10, signals=["pressure"])
+    rec = emulator_recorder(tmp_path, name="b", every=10, signals=["pressure"])
     rec.start(T0 + 3 * DT, signals(3))
     for k in [*range(4, 30), *range(57, 80)]:
         rec(T0 + k * DT, signals(k))
@@ -92,8 +94,8 @@ def test_output_grid_is_anchored_at_the_start_and_survives_gaps(tmp_path: Path) 
     assert t.tolist() == [3, 13, 23, 63, 73]
 
 
-def test_split_files(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, writing=WriterSettings(split_size_bytes=20_000, chunk_size=16_384))
+def test_split_files(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(split_size_bytes=20_000, chunk_size=16_384))
     record(rec, 6000, {})
     st = rec.close()
     bag = read_bag(tmp_path / "b")
@@ -102,22 +104,22 @@ def test_split_files(tmp_path: Path) -> None:
     assert len(bag["/pressure"]) == 6001 and np.all(np.diff(bag["/pressure"].t_ns) == DT)
 
 
-def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path) -> None:
+def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path, emulator_recorder) -> None:
     (tmp_path / "b").mkdir()
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
-        BagRecorder(tmp_path, name="b")
+        emulator_recorder(tmp_path, name="b")
     assert list((tmp_path / "b").iterdir()) == []
-    BagRecorder(tmp_path, name="c", writing=WriterSettings(writer="inline")).close()
+    emulator_recorder(tmp_path, name="c", writing=WriterSettings(writer="inline")).close()
     with pytest.raises(BagError, match="exists already"):
-        BagRecorder(tmp_path, name="c")
+        emulator_recorder(tmp_path, name="c")
     assert read_bag(tmp_path / "c").closed_cleanly
 
 
-def test_timestamped_default_name(tmp_path: Path) -> None:
+def test_timestamped_default_name(tmp_path: Path, emulator_recorder) -> None:
     when = time.mktime((2026, 3, 4, 5, 6, 7, 0, 0, -1))
     assert bag_name("/", when) == "emulator_20260304-050607"
     assert bag_name("/steer/left", when) == "emulator_steer_left_20260304-050607"
-    rec = BagRecorder(tmp_path / "new" / "dir", namespace="/left")     # directory made if missing
+    rec = emulator_recorder(tmp_path / "new" / "dir", namespace="/left")     # directory made if missing
     rec.close()
     assert rec.path.parent == tmp_path / "new" / "dir" and rec.path.name.startswith("emulator_left_2")
 
@@ -132,9 +134,9 @@ def test_timestamped_default_name(tmp_path: Path) -> None:
     ({"name": "../x"}, "plain directory name"),
     ({"name": ".."}, "plain directory name"),
 ])
-def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str) -> None:
+def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str, emulator_recorder) -> None:
     with pytest.raises(BagError, match=match):
-        BagRecorder(tmp_path, **{"name": "b", **kwargs})
+        emulator_recorder(tmp_path, **{"name": "b", **kwargs})
     assert not (tmp_path / "b").exists()
 
 
@@ -154,8 +156,8 @@ def test_check_signals_orders_and_accepts_aliases() -> None:
     assert check_signals(RECORDABLE) == RECORDABLE
 
 
-def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"],
+def test_queue_overflow_is_counted_not_silent(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, signals=["duty", "pressure", "current"],
                       writing=WriterSettings(batch_period=0.1))
     rec._max_items = 10
     rec.start(T0, signals(0))                              # 2 items: duty, outputs
@@ -169,8 +171,8 @@ def test_queue_overflow_is_counted_not_silent(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("writer", ["thread", "inline"])
-def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, writer: Writer) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"], writing=WriterSettings(writer=writer))
+def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, writer: Writer, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, signals=["pressure"], writing=WriterSettings(writer=writer))
     record(rec, 10, {})
     rec.close()                                             # drain what came before
     rec._closed = False
@@ -187,14 +189,14 @@ def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, wr
 # --- with the real device -------------------------------------------------------------------------
 
 
-def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Path) -> None:
+def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Path, emulator_recorder) -> None:
     """The duty in the bag is what the model used (after the limiter), stamped with the step it acted
     on; the emulator's own stepper replaying it with the limiter off gives the recorded pressure.
 
     Tolerance 1e-3 Pa on ~50-120 bar: the same arithmetic in the same order; the replay's stepper
     starts from RealTimeStepper's own rest state, as the device does for duty >= 0.3."""
     limited = replace_param(PARAMS, "command.duty_fall_rate_limit", 2.0)
-    rec = BagRecorder(tmp_path, name="b", every=10, frame_id="load_port")
+    rec = emulator_recorder(tmp_path, name="b", every=10, frame_id="load_port")
     dev = ValveDevice(limited, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
     rec.start(dev.stamp_ns(), dev.record_values())
     for at, duty in [(0.05, 0.8), (0.2, 0.55), (0.4, 0.7), (0.55, 0.3)]:
@@ -210,8 +212,8 @@ def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Pat
     assert result.signals["pressure"].fit.nrmse_fit_percent > 99.999
 
 
-def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
-    rec = BagRecorder(tmp_path, name="b", every=1, signals=["pressure"],
+def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path, emulator_recorder) -> None:
+    rec = emulator_recorder(tmp_path, name="b", every=1, signals=["pressure"],
                       writing=WriterSettings(batch_period=0.005, when_full="wait"))
     rec._max_items = 50
     record(rec, 2000, {})
@@ -219,12 +221,12 @@ def test_when_full_wait_blocks_instead_of_dropping(tmp_path: Path) -> None:
     assert st.dropped == 0 and st.messages == 2001
 
 
-def test_when_full_is_checked(tmp_path: Path) -> None:
+def test_when_full_is_checked(tmp_path: Path, emulator_recorder) -> None:
     with pytest.raises(BagError, match="when_full 'block': accepted are 'drop' and 'wait'"):
-        BagRecorder(tmp_path, name="b", writing=WriterSettings(when_full="block"))  # type: ignore[arg-type]
+        emulator_recorder(tmp_path, name="b", writing=WriterSettings(when_full="block"))  # type: ignore[arg-type]
 
 
-def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path) -> None:
+def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_path: Path, emulator_recorder) -> None:
     """ValveDevice hands a recorder of every step its stretches between events as one block
     (`record_block`); a recorder without that method gets every step alone. Same bag, to the bit."""
     from mcap.reader import make_reader
@@ -239,8 +241,8 @@ def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_pat
             dev.run(10)
         assert rec.close().dropped == 0
 
-    blocks = BagRecorder(tmp_path, name="blocks", every=2, frame_id="load_port")
-    single = BagRecorder(tmp_path, name="single", every=2, frame_id="load_port")
+    blocks = emulator_recorder(tmp_path, name="blocks", every=2, frame_id="load_port")
+    single = emulator_recorder(tmp_path, name="single", every=2, frame_id="load_port")
     run(blocks, blocks)
     def single_steps(t_ns: int, s: dict[str, float]) -> None:   # no record_block: one step at a time
         single(t_ns, s)
@@ -254,7 +256,7 @@ def test_the_device_s_stretches_of_steps_record_what_single_steps_record(tmp_pat
 
 
 @pytest.mark.parametrize("faults", [True, False])
-def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_path: Path, faults: bool) -> None:
+def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_path: Path, faults: bool, emulator_recorder) -> None:
     """As the rig's bag: `faults` (std_msgs/String) holds each command that acted, as given, at its
     step (`ValveDevice.on_fault_command`); one refused when due is not in it; without `faults` the
     bag has no such topic. Read back with the mcap reader (CDR decoded here)."""
@@ -262,7 +264,7 @@ def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_p
 
     from mcap.reader import make_reader
 
-    rec = BagRecorder(tmp_path, name="b", faults=faults, writing=WriterSettings(writer="inline"))
+    rec = emulator_recorder(tmp_path, name="b", faults=faults, writing=WriterSettings(writer="inline"))
     dev = ValveDevice(PARAMS, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)
     dev.on_fault_command = lambda step, text: rec.fault_command(dev.stamp_ns(step), text)
     rec.start(dev.stamp_ns(), dev.record_values())
