@@ -4,7 +4,7 @@
 
 The rig node (`python -m pcv_sim.node.rig`, two simplified valves + the steering cylinder of
 config/rig.yaml at 0.1 ms) in its own process and ROS domain; in this process a controller node
-(`pcv_sim.node.rig_client.RigClient`: the example PI position controller, examples/steering.py,
+(`pcv_sim.node.client.RigClient`: the example PI position controller, examples/steering.py,
 a 20 mm setpoint step at 0.1 s) answers every control period for both valves. Reported per control
 period (10 ms = 100 Hz, 1 ms = 1 kHz): the real-time factor (simulated s per wall s, median of the
 repeats, the first 50 periods not timed), and the wall time of one period at the controller
@@ -49,7 +49,7 @@ def _child_env(domain: int) -> dict[str, str]:
 def one_run(context, domain: int, period: float, duration: float, k: int, record: str = "") -> dict[str, float]:
     from steering import PositionController
 
-    from pcv_sim.node.rig_client import RigClient
+    from pcv_sim.node.client import RigClient
 
     ns = f"/bench{os.getpid()}_{k}"
     log = open(os.devnull, "w")
@@ -175,7 +175,7 @@ def main() -> None:
     import rclpy
 
     from pcv_sim.jit import backend
-    from pcv_sim.node.base import tighten_timer_slack
+    from pcv_sim.node.tuning import tighten_timer_slack
 
     tighten_timer_slack()       # the controller polls in 20 us sleeps, as the rig node does
     domain = 150 + os.getpid() % 50

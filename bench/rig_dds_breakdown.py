@@ -41,7 +41,8 @@ mono_ns = time.monotonic_ns
 
 def _controller_child(out: str, argv: list[str]) -> int:
     """The steering_controller node with its RigClient's points timed; the trace written at exit."""
-    from pcv_sim.node import rig_client, steering_controller
+    from pcv_sim.node import client as clients
+    from pcv_sim.node import steering_controller
 
     trace: dict[int, list[int]] = {}            # stamp -> [first taken, joint taken, law called, law done, sent,
     polls = [0, 0]                              #           process CPU ns then]; polls in all, polls that found nothing
@@ -52,7 +53,7 @@ def _controller_child(out: str, argv: list[str]) -> int:
             row = trace[stamp] = [mono_ns(), 0, 0, 0, 0, time.process_time_ns()]
         return row
 
-    cls = rig_client.RigClient
+    cls = clients.RigClient
     orig_pressure, orig_joint, orig_poll, orig_send, orig_run = (
         cls._pressure, cls._joint, cls.poll, cls._send, cls.run)
     orig_sample = getattr(cls, "_sample", None)

@@ -39,7 +39,7 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
 
 from pcv_sim.node.client import sample_qos
-from pcv_sim.node.polling import drain
+from pcv_sim.node.inputs import drain
 
 
 def _ignore(_msg: object) -> None:

@@ -1,4 +1,5 @@
-"""The emulator's health as four statuses, one per concern, so an aggregator can tell causes apart.
+"""The health of any device's node (the emulator, the rig), one status per concern, so that an
+aggregator can tell causes apart; the emulator is the case of one valve.
 
 No ROS here: `DiagnosticsBuilder.build` returns plain `Status` values (level, message, key values
 as strings, SI units in the key names); the node turns them into a DiagnosticArray.
@@ -11,10 +12,17 @@ name as hardware_id (one device). Levels:
                `diagnostics.max_lag` at a wake (how late the first sample of the batch leaves), or
                steps were skipped.
                A few late steps on a shared machine are normal and stay OK.
-    inputs     WARN while the watchdog has fired, or when inputs were rejected in the period.
+    inputs     WARN while a watchdog has fired or a fault is active, or when inputs were rejected
+               in the period.
     model      ERROR while the model is faulted (no samples are published); OK otherwise.
     recording  OK when off or recording; WARN when messages were dropped in the period; ERROR
                when the recording failed.
+    <valve>    a device whose valves are named (the rig's `left`, `right`): one status per valve,
+               its inputs (watchdog, duty in force and last valid, the faults on it or its signals,
+               its inputs' counts, its options' temperatures) and its last sample; WARN while its
+               watchdog has fired, a fault is active on it or its inputs were refused in the period.
+               The emulator's one valve goes by the bare names (its topics are `duty_cycle`,
+               `pressure`): its inputs are in `inputs`, its last sample in `model`.
 """
 
 from __future__ import annotations
@@ -22,21 +30,34 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from pcv_sim.device.device import Device
 from pcv_sim.device.inputs import WatchdogState
-from pcv_sim.device.settings import NodeSettings
-from pcv_sim.device.valve import VALVE, ValveDevice
 from pcv_sim.io.recorder import RecorderStatus
-from pcv_sim.io.topics import FAULTS, OPTION_INTERFACE
+from pcv_sim.io.topics import (
+    DUTY_CYCLE,
+    EMULATOR_INTERFACE,
+    FAULTS,
+    LOAD_FLOW,
+    OPTION_INTERFACE,
+    RIG_INTERFACE,
+    SUPPLY_PRESSURE,
+    input_topics,
+)
 from pcv_sim.simulation.clock import RealTimeSchedule
 from pcv_sim.units import bar
 
-_OPTION_UNITS = {e.name: e.unit for e in OPTION_INTERFACE}
-
-__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "PeriodDiagnostics", "Shown", "Status",
-           "recording_status", "valve_inputs"]
+__all__ = ["CONCERNS", "ERROR", "OK", "WARN", "DiagnosticsBuilder", "Shown", "Status", "recording_status",
+           "valve_inputs", "valve_signals"]
 
 OK, WARN, ERROR = 0, 1, 2
 CONCERNS = ("timing", "inputs", "model", "recording")
+#: A topic's unit (`pcv_sim.io.topics`), for the keys of the values it carries.
+_UNITS = {e.name: e.unit for e in (*EMULATOR_INTERFACE, *RIG_INTERFACE, *OPTION_INTERFACE)}
+
+
+def unit_key(unit: str) -> str:
+    """A unit as a key's suffix: Pa -> pa, m^3/s -> m3s, N -> n, K -> k."""
+    return unit.lower().replace("^", "").replace("/", "")
 
 
 @dataclass(frozen=True)
@@ -55,19 +76,23 @@ class Shown:
     time_mode: str                      # real, simulated or external_clock
     samples_published: int
     resets: int                         # reset service calls that acted
-    last: dict[str, float]              # the last published sample: signal -> measured value (SI)
     waiting_for: tuple[str, ...] = ()   # simulated lockstep: the valves whose answer it waits for
 
 
-def valve_inputs(device: Any, valve: str, new: dict[str, int]) -> tuple[list[str], dict[str, Any]]:
-    """What every device's diagnostics say of one valve's inputs (`device`: a `Device`; `new`: the
-    counts gained in the period, `rejected.<input>`): its watchdog (state, timeout, firings and
-    their stamps, the safe duty), the duty command in force (the safe duty while the watchdog
-    holds) and the last valid one, the faults on it or its signals, its inputs' counts
-    (`accepted.<role>`, `rejected.<role>`: duty_cycle, the options' temperatures...) and the
-    options' temperatures in force (`<name>_k`). Problems: a fired watchdog, active faults,
-    refused inputs in the period."""
-    prefix = f"{valve}." if f"{valve}.duty_cycle" in device.inputs else ""
+def _prefix(device: Device, valve: str) -> str:
+    """How a valve's inputs and signals are named: `<valve>.` (the rig's), or bare (the emulator's)."""
+    return f"{valve}." if f"{valve}.{DUTY_CYCLE}" in device.inputs else ""
+
+
+def valve_inputs(device: Device, valve: str, new: dict[str, int]) -> tuple[list[str], dict[str, Any]]:
+    """What the diagnostics say of one valve's inputs (`new`: the counts gained in the period,
+    `rejected.<input>`): its watchdog (state, timeout, firings and their stamps, the safe duty), the
+    duty command in force (the safe duty while the watchdog holds), the last valid one and the duty
+    the model uses (after the fall-rate limiter), its supply pressure (the emulator's load flow
+    too), the faults on it or its signals, its inputs' counts (`accepted.<role>`,
+    `rejected.<role>`: duty_cycle, the options' temperatures...) and the options' temperatures in
+    force (`<name>_k`). Problems: a fired watchdog, active faults, refused inputs in the period."""
+    prefix = _prefix(device, valve)
     dog = device.watchdogs[valve]
     timeout = dog.timeout_steps * device.dt
     faults = [f"{kind}@{target}" for target, kind in device.faults
@@ -81,6 +106,7 @@ def valve_inputs(device: Any, valve: str, new: dict[str, int]) -> tuple[list[str
     rejected = {n[len(prefix):]: new.get(f"rejected.{n}", 0) for n in mine}
     if any(rejected.values()):
         problems.append("rejected inputs: " + ", ".join(f"{k} {v}" for k, v in rejected.items() if v))
+    in_force = device.input_values()
     values: dict[str, Any] = {
         "watchdog": dog.state,
         "watchdog_timeout_s": f"{timeout:g}",
@@ -91,26 +117,54 @@ def valve_inputs(device: Any, valve: str, new: dict[str, int]) -> tuple[list[str
         "duty_applied_stamp_ns": device.stamp_ns(dog.command_step) if dog.command_step is not None else "",
         "watchdog_fired_stamp_ns": device.stamp_ns(dog.fired_step) if dog.fired_step is not None else "",
         "faults_active": ", ".join(faults),
+        "duty_effective": f"{in_force[f'{prefix}{DUTY_CYCLE}']:g}",
+        f"{SUPPLY_PRESSURE}_pa": f"{in_force[f'{prefix}{SUPPLY_PRESSURE}']:g}",
     }
+    if not prefix and LOAD_FLOW in device.inputs:   # the emulator's valve on its own load volume
+        values[f"{LOAD_FLOW}_{unit_key(_UNITS[LOAD_FLOW])}"] = f"{getattr(device, LOAD_FLOW):g}"
     for n in mine:
         role = n[len(prefix):]
         values[f"accepted.{role}"] = device.counts.accepted.get(n, 0)
         values[f"rejected.{role}"] = device.counts.rejected.get(n, 0)
-    # The valve options' temperatures in force (K), read without computing an output.
-    temperatures = ({n[len(prefix):]: v for n, v in device.input_values().items()
-                     if n in device.option_inputs and n.startswith(prefix)} if prefix
-                    else device.option_input_values())
-    for n, value in temperatures.items():
-        values[f"{n}_k"] = f"{value:.2f}"
+    for n in device.option_inputs:                   # the valve options' temperatures in force (K)
+        if n.startswith(prefix):
+            values[f"{n[len(prefix):]}_k"] = f"{in_force[n]:.2f}"
     return problems, values
 
 
-class PeriodDiagnostics:
-    """What every node's diagnostics keep between two builds (one per diagnostics period): the wall
-    time, the model steps and the counts of the previous build, so that a build reports the period's."""
+def valve_signals(device: Device, valve: str) -> dict[str, Any]:
+    """One valve's signals in the device's last sample (SI; read, not computed: computing outputs moves
+    the coil solve's Newton start, and a run must not depend on when the wall-clock diagnostics came),
+    its options' outputs too (`coil_temperature_k`, `coil_resistance_ohm`, `core_position_m`)."""
+    prefix = _prefix(device, valve)
+    last = device.last_sample
+    y = dict(zip(device.signals, last.values.tolist())) if last is not None else {}
 
-    def __init__(self, node_name: str, now: float) -> None:
+    def show(signal: str, fmt: str) -> str:
+        v = y.get(f"{prefix}{signal}")
+        return format(v, fmt) if v is not None else ""
+
+    values: dict[str, Any] = {
+        "pressure_pa": show("pressure", ".1f"),
+        "pressure_bar": format(bar(y[f"{prefix}pressure"]), ".3f") if f"{prefix}pressure" in y else "",
+        "current_a": show("current", ".5f"),
+        "spool_position_m": show("spool_position", ".4e"),
+    }
+    for signal in device.option_outputs:
+        if signal.startswith(prefix) and signal in y:
+            option = signal[len(prefix):]
+            values[f"{option}_{unit_key(_UNITS[option])}"] = f"{y[signal]:.6g}"
+    return values
+
+
+class DiagnosticsBuilder:
+    """The statuses of any device (see the module docstring); `build` once per diagnostics period.
+    It keeps between two builds the wall time, the model steps and the counts of the previous one,
+    so that a build reports the period's."""
+
+    def __init__(self, node_name: str, now: float, chambers: dict[str, str] | None = None) -> None:
         self.node_name = node_name
+        self.chambers = dict(chambers or {})        # valve -> the cylinder chamber it feeds (a | b)
         self._wall = now
         self._steps = 0
         self._counts: dict[str, int] = {}
@@ -137,32 +191,36 @@ class PeriodDiagnostics:
         self._wall, self._steps, self._counts = now, steps, counts
         return wall, period_steps, new
 
-
-class DiagnosticsBuilder(PeriodDiagnostics):
-    """The emulator's four statuses; `build` once per diagnostics period."""
-
-    def build(self, now: float, *, device: ValveDevice, settings: NodeSettings, schedule: RealTimeSchedule | None,
+    def build(self, now: float, *, device: Device, settings: Any, schedule: RealTimeSchedule | None,
               recorder: RecorderStatus | None, shown: Shown) -> list[Status]:
+        """The four concerns', then (a device of named valves) one status per valve. `settings`: the
+        node's (`pcv_sim.device.settings.CommonSettings`); `recorder`: the recording's status
+        (record.enabled)."""
         dev, s = device, settings
         wall, period_steps, new = self._period(
             now, dev.steps, {f"rejected.{k}": v for k, v in dev.counts.rejected.items()}, schedule)
-        return [self._timing(dev, s, schedule, new, wall, period_steps, shown.time_mode),
-                self._inputs(dev, s, new),
-                self._model(dev, shown.samples_published),
-                self._recording(recorder)]
+        named = [v for v in dev.valve_names if _prefix(dev, v)]
+        return [self._timing(dev, s, schedule, new, wall, period_steps, shown),
+                self._inputs(dev, new, named),
+                self._model(dev, shown, named),
+                self._recording(recorder),
+                *(self._valve(dev, v, new) for v in named)]
 
-    def _timing(self, dev: ValveDevice, s: NodeSettings, sched: RealTimeSchedule | None, new: dict[str, int],
-                wall: float, period_steps: int, time_mode: str) -> Status:
+    def _timing(self, dev: Device, s: Any, sched: RealTimeSchedule | None, new: dict[str, int],
+                wall: float, period_steps: int, shown: Shown) -> Status:
+        time_mode = shown.time_mode
         values: dict[str, Any] = {
             "time_mode": time_mode,
             "model_time_s": f"{dev.time:.4f}",
             "real_time_factor": f"{period_steps * dev.dt / wall:.4f}",
             "model_time_origin_ns": dev.origin_ns,
+            "sample_period_s": f"{dev.sample_every * dev.dt:g}",
         }
         problems: list[str] = []
         if sched is None:
             values["lockstep"] = str(s.lockstep).lower()
             values["real_time_factor_set"] = f"{s.real_time_factor:g}"
+            values["waiting_for"] = ", ".join(shown.waiting_for)
             return self._status("timing", OK, problems, f"{time_mode} time", values)
         late, skipped = new["late_steps"], new["skipped_steps"]
         computed = max(period_steps - skipped, 1)
@@ -194,40 +252,70 @@ class DiagnosticsBuilder(PeriodDiagnostics):
         })
         return self._status("timing", WARN if problems else OK, problems, "on time", values)
 
-    def _inputs(self, dev: ValveDevice, s: NodeSettings, new: dict[str, int]) -> Status:
-        problems, values = valve_inputs(dev, VALVE, new)
+    def _inputs(self, dev: Device, new: dict[str, int], named: list[str]) -> Status:
+        """The device's inputs: its one bare valve's (the emulator), or what the named valves' statuses
+        sum up to (faults, watchdogs, rejections); the inputs of no valve (the plant's:
+        `cylinder.external_force`) and fault commands."""
+        waiting = [v for v in dev.valve_names if dev.watchdogs[v].state == WatchdogState.WAITING]
+        if named:
+            faults = [f"{kind}@{target}" for target, kind in dev.faults]
+            fired = [v for v in dev.valve_names if dev.watchdogs[v].state == WatchdogState.FIRED]
+            problems = []
+            if faults:
+                problems.append(f"faults active: {', '.join(faults)}")
+            if fired:
+                problems.append(f"watchdog fired: {', '.join(fired)}")
+            values: dict[str, Any] = {
+                "faults_active": ", ".join(faults),
+                "watchdog_fired": ", ".join(fired),
+                "rejected_inputs": sum(dev.counts.rejected.values()),
+                f"rejected.{DUTY_CYCLE}": sum(dev.counts.rejected.get(f"{v}.{DUTY_CYCLE}", 0) for v in named),
+            }
+            ok = f"waiting for the first duty command of {', '.join(waiting)}" if waiting else "commands arriving"
+        else:
+            problems, values = valve_inputs(dev, dev.valve_names[0], new)
+            ok = "waiting for the first duty command" if waiting else "commands arriving"
+        in_force = dev.input_values()
+        for entry in input_topics(dev.input_names, dev.valve_names):
+            owner = entry.input.rpartition(".")[0]
+            if not owner or owner in dev.valve_names:
+                continue                                # a valve's
+            role = entry.input.rpartition(".")[2]
+            values[f"{role}_{unit_key(_UNITS[entry.topic])}"] = f"{in_force[entry.input]:g}"
+            values[f"accepted.{role}"] = dev.counts.accepted.get(entry.input, 0)
+            values[f"rejected.{role}"] = dev.counts.rejected.get(entry.input, 0)
+            if new.get(f"rejected.{entry.input}"):
+                problems.append(f"rejected inputs: {role} {new[f'rejected.{entry.input}']}")
         if new.get(f"rejected.{FAULTS}"):
             problems.append(f"rejected inputs: {FAULTS} {new[f'rejected.{FAULTS}']}")
-        last = dev.last_good
         values.update({
-            "duty_effective": f"{last.duty:g}" if last else "",
-            "load_flow_m3s": f"{dev.load_flow:g}",
-            "supply_pressure_pa": f"{dev.input_values()['supply_pressure']:g}",
             "last_rejection": dev.counts.last_rejection,
             f"accepted.{FAULTS}": dev.counts.accepted.get(FAULTS, 0),
             f"rejected.{FAULTS}": dev.counts.rejected.get(FAULTS, 0),
         })
-        ok = ("waiting for the first duty command" if dev.watchdog_state == WatchdogState.WAITING
-              else "commands arriving")
         return self._status("inputs", WARN if problems else OK, problems, ok, values)
 
-    def _model(self, dev: ValveDevice, samples_published: int) -> Status:
-        last = dev.last_good
+    def _model(self, dev: Device, shown: Shown, named: list[str]) -> Status:
         values: dict[str, Any] = {
             "model": "fault" if dev.fault else "ok",
             "fault_reason": dev.fault or "",
             "integrator": dev.sim.integrator,
-            "pressure_pa": f"{last.pressure:.1f}" if last else "",
-            "pressure_bar": f"{bar(last.pressure):.3f}" if last else "",
-            "current_a": f"{last.current:.5f}" if last else "",
-            "spool_position_m": f"{last.spool_position:.4e}" if last else "",
-            "samples_published": samples_published,
         }
-        for name, value in zip(dev.option_outputs, last.options if last else ()):   # the options' outputs
-            values[f"{name}_{_OPTION_UNITS[name].lower()}"] = f"{value:.6g}"
+        if not named:                                   # the one bare valve's last sample
+            values.update(valve_signals(dev, dev.valve_names[0]))
+        values.update({"samples_published": shown.samples_published, "resets": shown.resets})
         if dev.fault is not None:
             return self._status("model", ERROR, [f"model fault: {dev.fault}; call the reset service"], "", values)
         return self._status("model", OK, [], "running", values)
+
+    def _valve(self, dev: Device, valve: str, new: dict[str, int]) -> Status:
+        problems, values = valve_inputs(dev, valve, new)
+        if valve in self.chambers:
+            values["chamber"] = self.chambers[valve]
+        values.update(valve_signals(dev, valve))
+        ok = "waiting for the first duty command" if dev.watchdogs[valve].state == WatchdogState.WAITING \
+            else "commands arriving"
+        return self._status(valve, WARN if problems else OK, problems, ok, values)
 
     def _recording(self, st: RecorderStatus | None) -> Status:
         if st is None:
@@ -238,7 +326,7 @@ class DiagnosticsBuilder(PeriodDiagnostics):
 
 
 def recording_status(st: RecorderStatus, dropped_before: int) -> tuple[int, list[str], dict[str, Any]]:
-    """Level, problems and `recording*` values of a recorder (the emulator's and the rig node's);
+    """Level, problems and `recording*` values of a recorder;
     `dropped_before`: its drop count at the previous diagnostics."""
     new_dropped = st.dropped - dropped_before
     problems = []

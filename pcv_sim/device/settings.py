@@ -111,6 +111,15 @@ class CommonSettings:
         0, "-", "real time: 1..99 runs the loop thread under SCHED_FIFO at this priority (needs root or an "
         "rtprio limit); 0 = normal scheduling", _priority, "int", read_only=True)
     diagnostics_period: float = setting(1.0, "s", "wall-clock period of /diagnostics", positive)
+    diagnostics_late_fraction: float = setting(
+        0.05, "-", "timing status WARN when more than this fraction of the steps of a diagnostics period were "
+        "late. A loop sharing its machine with other jobs has 0.2-3 % of its steps late with nothing wrong "
+        "(each such sample leaves a little over late_threshold late; a longer stall is diagnostics.max_lag's "
+        "and a skip is always warned about); 5 % is above that noise and means the loop is short of CPU "
+        "for a sustained part of the period", _fraction, name="diagnostics.late_fraction")
+    diagnostics_max_lag: float = setting(
+        0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
+        "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
     reject_log_period: float = setting(
         1.0, "s", "at most one log line per input topic per this period for rejected inputs (all are counted)",
         non_negative)
@@ -188,15 +197,6 @@ class NodeSettings(CommonSettings):
         0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
     valve_config: str = setting(
         "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
-    diagnostics_late_fraction: float = setting(
-        0.05, "-", "timing status WARN when more than this fraction of the steps of a diagnostics period were "
-        "late. A loop sharing its machine with other jobs has 0.2-3 % of its steps late with nothing wrong "
-        "(each such sample leaves a little over late_threshold late; a longer stall is diagnostics.max_lag's "
-        "and a skip is always warned about); 5 % is above that noise and means the loop is short of CPU "
-        "for a sustained part of the period", _fraction, name="diagnostics.late_fraction")
-    diagnostics_max_lag: float = setting(
-        0.01, "s", "timing status WARN when the model lagged wall time by more than this at a wake within the "
-        "period (a sample then leaves that late)", positive, name="diagnostics.max_lag")
     record_signals: tuple[str, ...] = setting(
         RECORDABLE, "-", "signals to record: inputs on change (the duty as the model used it), outputs at "
         "record.rate_hz", name="record.signals", read_only=True, convert=_record_signals)

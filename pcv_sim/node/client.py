@@ -1,21 +1,54 @@
-"""ROS clients of the device nodes: what every client does (`DeviceClient`: its node, the
-device's fault topic and reset service, the diagnostics' levels and the samples' stamps), and the
-client of one emulator (`EmulatorClient`: send inputs, collect samples and diagnostics, set its
-parameters). The rig's client is `pcv_sim.node.rig_client.RigClient`.
+"""The ROS client of any device node (`DeviceClient`): the emulator's and the rig's, built from the
+interface registry (`pcv_sim.io.topics`: a device's inputs and signals name its topics). Used by the
+demo, the tests, the benchmarks and the steering controller; also a starting point for a controller.
 
-Used by the demo, the tests and the benchmarks; also a starting point for a controller.
+What it does for any device:
+- send any of its inputs by name (`send("left.duty_cycle", 0.6)`, `send_duty`...), fault commands
+  (the node takes them with its `faults` topic enabled), call its `reset` service, set its
+  parameters (`set_parameters`, as `ros2 param set`);
+- collect its samples (`samples`: the pressure of the emulator's valve with its DDS timestamps;
+  `outputs`: its current and spool position) and its diagnostics (`statuses`: per message, each
+  status by name; `diagnostics`: the statuses' values merged, as the emulator's unique keys allow);
+- wait: `spin_for`, `spin_until`, `wait_for_device`, `wait_for_diagnostics`;
+- answer it in lockstep (`run(controller, periods)`): with `lockstep`, a controller is called once
+  per sample period with what was measured and its duties are sent back, over the per-valve topics
+  or, with `channel`, the lockstep channel (`pcv_sim.node.lockstep_channel`: a period is one
+  `lockstep/sample`, every signal of the device and the scenario's `setpoint`, and one
+  `lockstep/command` back with the duties and flags, stamped with the sample it answers).
 
-Samples arrive with sensor-data QoS from the emulator. `qos_profile_sensor_data` keeps only 5
-messages: a Python subscriber busy for a few ms loses 1 kHz samples. This client subscribes
-best-effort with a deep queue (`sample_depth`), which is what a subscriber that must see every
-sample should do.
+The emulator is the device of one valve whose names are bare (`duty_cycle`, `pressure`; its valve is
+`valve` for a controller's duties and the channel's `valve.duty`): `DeviceClient(namespace)`. The
+rig names its valves (`left.duty_cycle` on `left/duty_cycle`) and has the cylinder:
+`DeviceClient(namespace, ("left", "right"), device_node="rig")`. `EmulatorClient` and `RigClient`
+are these two configurations.
+
+Messages are taken without an executor in a lockstep (`take_message`, `poll`: ~125 us per executor
+`spin_once` against a 1 ms control period), blocked between periods in an rcl wait set on the
+period's last topic (`pcv_sim.node.polling.Waiter`). A period on the topics is complete when the
+cylinder's `joint_states` (the rig publishes it last; the emulator: its pressure) stamped with its
+model time has arrived and the topics published before it have been taken once more; the controller
+then gets `<valve>.pressure` Pa, with `currents` also `<valve>.current` A (std_msgs/Float64 carries
+no stamp: the one received since the last answer), `cylinder.position` m, `cylinder.velocity` m/s,
+`cylinder.effort` N; a sample the device dropped (a sensor fault) is absent. A sample published
+again (unanswered for 0.5 s) is answered again with the same duties; one stamped before the last
+one answered is a new run (the device restarted): `rewind` gives a fresh controller. Between runs
+the same subscriptions are spun by the client's executor (`spin_for`), their handlers the same.
+
+Samples arrive with sensor-data QoS. `qos_profile_sensor_data` keeps only 5 messages: a Python
+subscriber busy for a few ms loses 1 kHz samples. This client subscribes best effort with a deep
+queue (`sample_depth`), which is what a subscriber that must see every sample should do.
+
+The client makes its own node, or works on a node it is given (`node=`: the `steering_controller`
+node, with its parameters and its own inputs added by `add_input`; its services then go through a
+node of their own, made at the first call).
 """
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import rclpy
@@ -25,19 +58,36 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import FluidPressure
+from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from pcv_sim.io import topics
+from pcv_sim.io.bag import FLUID_PRESSURE
+from pcv_sim.node.inputs import drain
+from pcv_sim.node.lockstep_channel import (
+    COMMAND_TOPIC,
+    DUTY_SUFFIX,
+    FLAG_PREFIX,
+    SAMPLE_TOPIC,
+    NamedVector,
+    decode,
+    measurement,
+)
+from pcv_sim.node.polling import Waiter
 
-__all__ = ["DeviceClient", "EmulatorClient", "PressureSample", "diagnostic_level", "sample_qos", "stamp_ns"]
+__all__ = ["DeviceClient", "EmulatorClient", "Period", "PressureSample", "RigClient", "diagnostic_level",
+           "sample_qos", "stamp_ns"]
 
 SERVICE_AGAIN = 5.0     # s without an answer before a repeatable request (set_parameters) is sent again
+FULL_POLL = 1e-2        # s between polls of every topic while a lockstep waits for a period's last one
+VALVE = "valve"         # the emulator's one valve (pcv_sim.device.valve.VALVE): its duty's key
+EMULATOR_INPUTS = (topics.DUTY_CYCLE, topics.LOAD_FLOW, topics.SUPPLY_PRESSURE)
+Controller = Callable[[float, Mapping[str, float]], Mapping[str, Any]]
 
 
 def sample_qos(depth: int = 10000) -> QoSProfile:
-    """Best effort (matches the emulator's sensor-data publisher) with a deep queue."""
+    """Best effort (matches the node's sensor-data publishers) with a deep queue."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
@@ -74,25 +124,460 @@ def call_service(executor: Any, client: Any, request: Any, timeout: float, *, ag
             raise TimeoutError(f"no answer from {client.srv_name} within {timeout} s")
 
 
-class DeviceClient:
-    """What a client of any device node does, from its own node or from `node` (then `namespace`
-    and `context` are the node's): send fault commands (the node takes them with its `faults`
-    topic enabled), call the device's `reset` service, close."""
+@dataclass(frozen=True)
+class PressureSample:
+    stamp_ns: int          # header.stamp: the sample's model time (anchored to the ROS clock in real time)
+    pressure: float        # Pa
+    source_ns: int         # DDS source timestamp (when the node published it)
+    received_ns: int       # DDS reception timestamp at this client
 
-    def __init__(self, namespace: str | None, *, context: Any = None, node_name: str, node: Any = None) -> None:
+
+@dataclass
+class Period:
+    """One answered sample period: the model time (ns), what was measured, what was commanded."""
+
+    stamp_ns: int
+    measured: dict[str, float]
+    duties: dict[str, float]
+    flags: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _Partial:
+    values: dict[str, float] = field(default_factory=dict)
+
+
+class DeviceClient:
+    """Talks to the device node `device_node` in `namespace` (see the module docstring). `valves`:
+    the device's valve names, () for the emulator's one valve under bare names. `inputs`: the inputs
+    whose publishers are made at once (default: the emulator's three, or each valve's duty and the
+    cylinder's force); any other is made at its first `send`. `outputs`: the emulator's signals
+    collected in `samples` and `outputs`. `lockstep`: subscribed for `run` (with `channel`, to the
+    lockstep channel); `currents`: each valve's current measured too; `history`: keep every answered
+    Period, every current and the diagnostics (a long-running controller: False)."""
+
+    def __init__(self, namespace: str | None = "/", valves: tuple[str, ...] = (), *, context: Any = None,
+                 node_name: str = "pcv_client", node: Any = None, device_node: str = "emulator",
+                 inputs: tuple[str, ...] | None = None, outputs: tuple[str, ...] = (), sample_depth: int = 10000,
+                 on_pressure: Callable[[PressureSample], None] | None = None, lockstep: bool = False,
+                 channel: bool = False, currents: bool = False, history: bool = True) -> None:
         self._own_node = node is None
         self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
-        self.context = self.node.context
-        self.fault_pub = self.node.create_publisher(String, topics.FAULTS, QoSProfile(depth=10))
+        node = self.node
+        self.context = node.context
+        self.device_name = f"{node.get_namespace().rstrip('/')}/{device_node}"
+        self.emulator_name = self.device_name
+        self.bare = not valves
+        self.valves = valves or (VALVE,)
+        self.cylinder = not self.bare            # the rig: its valves on the cylinder
+        self.history = history
+        self.channel = channel
+        self.lockstep = lockstep or channel
+        self._currents = currents
+        cmd = QoSProfile(depth=10)
+        self._cmd_qos = cmd
+        self.fault_pub = node.create_publisher(String, topics.FAULTS, cmd)
         self._clients: dict[str, Any] = {}
+        self._srv: tuple[Any, SingleThreadedExecutor] | None = None     # services of a node given (`_service_node`)
+
+        # --- inputs, by the device's names ---
+        self._pubs: dict[str, tuple[Any, Any, Any]] = {}   # input -> (publisher, message, its field's setter)
+        if inputs is None:
+            inputs = EMULATOR_INPUTS if self.bare else (
+                *(self.key(v, topics.DUTY_CYCLE) for v in self.valves),
+                f"{topics.CYLINDER}.{topics.EXTERNAL_FORCE}")
+        for name in inputs:
+            if channel and name.rpartition(".")[2] == topics.DUTY_CYCLE:
+                continue                         # the duties go in the channel's command
+            self._publisher(name)
+        self.duty_pubs = {v: self._pubs[self.key(v, topics.DUTY_CYCLE)][0] for v in self.valves
+                          if self.key(v, topics.DUTY_CYCLE) in self._pubs}
+        self.command_pub = node.create_publisher(JointState, COMMAND_TOPIC, cmd) if channel else None
+        self._commands: dict[tuple[str, ...], NamedVector] = {}
+        self._duty_msg = Float64()
+        self.duty_sent: list[tuple[float, int]] = []
+
+        # --- what it collects ---
+        self.samples: list[PressureSample] = []
+        self.outputs: dict[str, list[tuple[int, float]]] = {topics.CURRENT: [], topics.SPOOL_POSITION: []}
+        self._outputs = outputs
+        self._on_pressure = on_pressure
+        self.statuses: list[dict[str, tuple[int, str, dict[str, str]]]] = []   # status name -> (level, message, values)
+        self.diagnostics: list[dict[str, str]] = []
+        self.diagnostic_levels: list[int] = []
+        self.diagnostic_messages: list[str] = []
+        self.diagnostic_statuses: list[dict[str, tuple[int, str]]] = []   # concern -> (level, message)
+        self.currents: dict[str, list[tuple[int, float]]] = {v: [] for v in self.valves}   # (latest stamp seen, A)
+        self.periods: list[Period] = []
+        self.answered = 0                    # periods answered (once each), history or not
+        self._partial: dict[int, _Partial] = {}
+        self._samples: list[tuple[int, dict[str, float]]] = []      # channel: samples taken, not answered
+        self._fresh: dict[str, float] = {}   # <valve>.current received since the last answer
+        self._answers: dict[int, dict[str, float]] = {}
+        self._flags_sent: dict[str, float] = {}
+        self._last_answered = -1
+        self._latest = -1
+
+        qos = sample_qos(sample_depth)
+        self._subs: list[tuple[Any, Callable[..., None]]] = []
+        last: tuple[Any, Callable[..., None]] | None = None
+        with_info: Any                       # callbacks of (message, MessageInfo): rclpy passes the info
+        if channel:
+            with_info = self._sample
+            last = (node.create_subscription(JointState, SAMPLE_TOPIC, with_info, cmd, raw=True), with_info)
+        if not channel and (self.lockstep or topics.PRESSURE in outputs):
+            for v in self.valves:
+                with_info = self._pressure(v)
+                last = (node.create_subscription(FluidPressure, self.topic(v, topics.PRESSURE), with_info, qos),
+                        with_info)
+                self._subs.append(last)
+        if (currents and not channel) or topics.CURRENT in outputs:
+            for v in self.valves:
+                with_info = self._current(v)
+                self._subs.append((node.create_subscription(Float64, self.topic(v, topics.CURRENT), with_info,
+                                                            qos), with_info))
+        if topics.SPOOL_POSITION in outputs:
+            with_info = self._scalar(topics.SPOOL_POSITION)
+            self._subs.append((node.create_subscription(Float64, topics.SPOOL_POSITION, with_info, qos), with_info))
+        if self.cylinder and self.lockstep and not channel:
+            with_info = self._joint
+            last = (node.create_subscription(JointState, topics.cylinder_topic(topics.JOINT_STATES), with_info,
+                                             qos), with_info)
+        if last is not None and last not in self._subs:
+            self._subs.append(last)
+        #: a lockstep's last topic of a period (the rig publishes joint_states last): it completes one
+        self._completing = [last] if last is not None and self.lockstep else []
+        self._waiter = Waiter([last[0]], node.context) if self._completing and last is not None else None
+        if history:
+            with_info = self._diagnostic
+            self._subs.append((node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, with_info,
+                                                        QoSProfile(depth=50)), with_info))
+        self.executor: SingleThreadedExecutor | None = None
+        if self._own_node:
+            self.executor = SingleThreadedExecutor(context=self.context)
+            self.executor.add_node(node)
+            self._service(Trigger, topics.RESET)
+            self._service(SetParameters, f"{self.device_name}/set_parameters")
+
+    # --- names -------------------------------------------------------------------------------
+
+    def key(self, valve: str, role: str) -> str:
+        """A valve's input or signal as the device names it: `left.pressure`, the emulator's `pressure`."""
+        return role if self.bare else f"{valve}.{role}"
+
+    def topic(self, valve: str, role: str) -> str:
+        """A valve's signal's relative topic (`pcv_sim.io.topics.output_topics`)."""
+        return topics.output_topics((self.key(valve, role),))[0].topic
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def _publisher(self, name: str) -> tuple[Any, Any, Any]:
+        entry = self._pubs.get(name)
+        if entry is None:
+            [it] = topics.input_topics((name,), self.valves)
+            if it.type == FLUID_PRESSURE:
+                msg: Any = FluidPressure()
+                setter: Any = lambda m, v: setattr(m, "fluid_pressure", v)   # noqa: E731
+            else:
+                msg = Float64()
+                setter = lambda m, v: setattr(m, "data", v)                   # noqa: E731
+            entry = self._pubs[name] = (self.node.create_publisher(type(msg), it.topic, self._cmd_qos), msg, setter)
+        return entry
+
+    def send(self, name: str, value: float) -> None:
+        """One of the device's inputs by its name (`duty_cycle`, `left.duty_cycle`,
+        `cylinder.external_force`, `oil_temperature`...), SI, on its topic."""
+        pub, msg, setter = self._publisher(name)
+        setter(msg, float(value))
+        pub.publish(msg)
+
+    def send_duty(self, duty: float, valve: str | None = None) -> None:
+        self.send(self.key(valve or self.valves[0], topics.DUTY_CYCLE), duty)
+        self.duty_sent.append((duty, time.time_ns()))
+
+    def send_load_flow(self, q: float) -> None:
+        self.send(topics.LOAD_FLOW, q)
+
+    def send_supply_pressure(self, p: float, valve: str | None = None) -> None:
+        self.send(self.key(valve or self.valves[0], topics.SUPPLY_PRESSURE), p)
+
+    def send_external_force(self, newton: float) -> None:
+        self.send(f"{topics.CYLINDER}.{topics.EXTERNAL_FORCE}", newton)
 
     def send_fault(self, text: str) -> None:
         """A fault command (one line of YAML, `pcv_sim.device.faults.parse_fault_command`)."""
         self.fault_pub.publish(String(data=text))
 
+    @property
+    def pub_duty(self) -> Any:
+        """The first valve's duty publisher."""
+        return self._publisher(self.key(self.valves[0], topics.DUTY_CYCLE))[0]
+
+    def add_input(self, subscription: Any, handler: Callable[..., None]) -> None:
+        """Take `subscription`'s messages with `handler(msg, info)` in every poll, after the device's."""
+        self._subs.append((subscription, handler))
+
+    # --- taking messages ---------------------------------------------------------------------
+
+    def _put(self, stamp: int, key: str, value: float) -> None:
+        self._partial.setdefault(stamp, _Partial()).values[key] = value
+        self._latest = max(self._latest, stamp)
+
+    def _pressure(self, valve: str) -> Callable[[Any, Any], None]:
+        key = self.key(valve, topics.PRESSURE)
+        lockstep = self.lockstep
+        collect = self.bare and topics.PRESSURE in self._outputs
+
+        def take(msg: FluidPressure, info: Any) -> None:
+            stamp = stamp_ns(msg)
+            if lockstep:
+                self._put(stamp, key, msg.fluid_pressure)
+            if collect:
+                s = PressureSample(stamp, msg.fluid_pressure, info["source_timestamp"], info["received_timestamp"])
+                self.samples.append(s)
+                if self._on_pressure is not None:
+                    self._on_pressure(s)
+        return take
+
+    def _current(self, valve: str) -> Callable[[Any, Any], None]:
+        key = self.key(valve, topics.CURRENT)
+        collect = self.bare and topics.CURRENT in self._outputs
+
+        def take(msg: Float64, info: Any) -> None:
+            if collect:
+                self.outputs[topics.CURRENT].append((info["source_timestamp"], msg.data))
+            if self._currents:
+                self._fresh[key] = msg.data
+                seen = self.currents[valve]
+                if not self.history:
+                    seen.clear()
+                seen.append((self._latest, msg.data))
+        return take
+
+    def _scalar(self, name: str) -> Callable[[Float64, Any], None]:
+        def take(msg: Float64, info: Any) -> None:
+            self.outputs[name].append((info["source_timestamp"], msg.data))
+        return take
+
+    def _joint(self, msg: JointState, _info: Any) -> None:
+        stamp = stamp_ns(msg)
+        for name, arr in (("position", msg.position), ("velocity", msg.velocity), ("effort", msg.effort)):
+            if len(arr):
+                self._put(stamp, f"{topics.CYLINDER}.{name}", float(arr[0]))
+        self._put(stamp, "joint", 1.0)
+
+    def _sample(self, raw: bytes, _info: Any) -> None:
+        stamp, names, values = decode(raw)
+        m = measurement(names, values)
+        self._samples.append((stamp, m))
+        self._latest = max(self._latest, stamp)
+        if self._currents:
+            for v in self.valves:
+                i = m.get(self.key(v, topics.CURRENT))
+                if i is not None:
+                    seen = self.currents[v]
+                    if not self.history:
+                        seen.clear()
+                    seen.append((stamp, i))
+
+    def _diagnostic(self, msg: DiagnosticArray, _info: Any = None) -> None:
+        """The statuses of this client's device node: by name in `statuses`; their values merged (the
+        emulator's keys are unique across concerns), the highest level and the messages joined in
+        `diagnostics`, `diagnostic_levels`, `diagnostic_messages`, per concern in `diagnostic_statuses`."""
+        prefix = self.device_name + ":"
+        ours = [st for st in msg.status if st.name.startswith(prefix)]
+        if not ours:
+            return
+        merged: dict[str, str] = {}
+        by_name: dict[str, tuple[int, str, dict[str, str]]] = {}
+        statuses: dict[str, tuple[int, str]] = {}
+        for st in ours:
+            values = {kv.key: kv.value for kv in st.values}
+            merged.update(values)
+            level = diagnostic_level(st)
+            by_name[st.name] = (level, st.message, values)
+            statuses[st.name[len(prefix):].strip()] = (level, st.message)
+        self.statuses.append(by_name)
+        self.diagnostics.append(merged)
+        self.diagnostic_statuses.append(statuses)
+        self.diagnostic_levels.append(max(level for level, _ in statuses.values()))
+        self.diagnostic_messages.append("; ".join(m for _, m in statuses.values()))
+
+    def poll(self) -> int:
+        """Take every pending message (no executor); returns how many."""
+        return drain(self._subs)
+
+    # --- waiting -----------------------------------------------------------------------------
+
+    def spin_once(self, timeout: float) -> None:
+        """Take what comes within `timeout` s: the client's node spun (its handlers and any the user
+        made on it), or on a node given, `poll`."""
+        if self.executor is not None:
+            self.executor.spin_once(timeout_sec=timeout)
+        elif not self.poll():
+            time.sleep(timeout)
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.spin_once(min(0.01, max(0.0, end - time.monotonic())))
+
+    def spin_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > end:
+                return False
+            self.spin_once(0.01)
+        return True
+
+    def wait_for_device(self, timeout: float = 30.0) -> bool:
+        """Until every duty publisher (the lockstep command's, with `channel`) is matched with the node."""
+        end = time.monotonic() + timeout
+        pubs = [self.command_pub] if self.command_pub is not None else list(self.duty_pubs.values())
+        while not all(p.get_subscription_count() > 0 for p in pubs):
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.01)
+        return True
+
+    wait_for_rig = wait_for_device
+
+    def wait_for_emulator(self, timeout: float = 20.0) -> bool:
+        """Until the node's endpoints are matched and a sample has arrived."""
+        n = len(self.samples)
+        return self.spin_until(lambda: (self.pub_duty.get_subscription_count() > 0 and len(self.samples) > n),
+                               timeout)
+
+    def wait_for_diagnostics(self, predicate: Callable[[dict[str, str]], bool] = lambda d: True,
+                             timeout: float = 10.0) -> dict[str, str] | None:
+        """The first diagnostics message (merged values) from now on that satisfies predicate (None on timeout)."""
+        start = len(self.diagnostics)
+        found: list[dict[str, str]] = []
+
+        def check() -> bool:
+            found[:] = [d for d in self.diagnostics[start:] if predicate(d)]
+            return bool(found)
+
+        return found[0] if self.spin_until(check, timeout) else None
+
+    # --- lockstep ----------------------------------------------------------------------------
+
+    def _all_there(self, values: dict[str, float]) -> bool:
+        return all(self.key(v, topics.PRESSURE) in values for v in self.valves) and (
+            not self._currents or all(self.key(v, topics.CURRENT) in self._fresh for v in self.valves))
+
+    def _take_complete(self) -> list[tuple[int, dict[str, float]]]:
+        """The periods whose last topic arrived, oldest first, with what was published before it
+        (taken once more when something is missing: it left the node before the last one); on the
+        channel the samples taken."""
+        if self.channel:
+            out, self._samples = self._samples, []
+            return out
+        last = "joint" if self.cylinder else self.key(self.valves[-1], topics.PRESSURE)
+        done = sorted(s for s, p in self._partial.items() if last in p.values)
+        if not done:
+            return []
+        if not all(self._all_there(self._partial[s].values) for s in done):
+            self.poll()
+        out = []
+        for stamp in done:
+            values = self._partial.pop(stamp).values
+            values.pop("joint", None)
+            out.append((stamp, values))
+        for stale in [s for s in self._partial if s < done[-1]]:
+            del self._partial[stale]              # an incomplete period the node will not finish (lost joint)
+        return out
+
+    def run(self, controller: Controller, periods: int | None, *, timeout: float | None = 60.0,
+            before: Callable[[int], None] | None = None, stop: Any = None,
+            on_flags: Callable[[int, Mapping[str, float]], None] | None = None,
+            rewind: Callable[[], Controller] | None = None) -> list[Period]:
+        """Answer `periods` sample periods (None: until `stop.requested`) with
+        `controller(t, measured) -> {valve: duty, "flags": {name: value}}`; `before(k)` runs
+        before the k-th answer (e.g. to inject a fault), `on_flags(stamp_ns, flags)` before the
+        duties are published. The answered periods (kept only with `history`). Needs `lockstep`."""
+        if not self._completing or self._waiter is None:
+            raise ValueError("run: the client was made without lockstep=True (or channel=True)")
+        waiter = self._waiter
+        end = math.inf if timeout is None else time.monotonic() + timeout
+        answered = self.answered
+        first = len(self.periods)
+        goal = math.inf if periods is None else answered + periods
+        next_full = 0.0
+        while self.answered < goal and not (stop is not None and stop.requested):
+            now = time.monotonic()
+            if now > end:
+                raise TimeoutError(f"lockstep: {self.answered - answered} of {periods} periods answered in "
+                                   f"{timeout} s")
+            # Waiting, for the period's last topic only, blocked in an rcl wait set (not polling: two
+            # polling processes kept both cores busy, ~1 ms of CPU a period each, and the DDS threads
+            # that deliver the messages waited for a core); every topic once it came, and every
+            # FULL_POLL s whatever came.
+            if not drain(self._completing) and now < next_full:
+                waiter.wait(next_full - now)
+                continue
+            if now >= next_full or not self.channel:      # on the channel a sample is the whole period
+                next_full = now + FULL_POLL
+                if not self.poll() and not self._partial and not self._samples:
+                    continue
+            for stamp, values in self._take_complete():
+                if self._currents and not self.channel:
+                    values.update(self._fresh)
+                    self._fresh.clear()
+                again = self._answers.get(stamp)
+                if again is not None:                 # published again by the node: same answer
+                    self._send(again, stamp, self._flags_sent)
+                    continue
+                if stamp < self._last_answered:       # the node started again from 0: a new run
+                    self._answers.clear()
+                    if rewind is not None:
+                        controller = rewind()
+                if self.answered >= goal:
+                    continue
+                if before is not None:
+                    before(self.answered)
+                out = controller(stamp * 1e-9, values)
+                flags = {str(k): float(f) for k, f in dict(out.get("flags") or {}).items()}
+                duties = {v: float(d) for v, d in out.items() if v != "flags"}
+                self._answers = {stamp: duties}
+                self._flags_sent = flags
+                self._last_answered = stamp
+                self.answered += 1
+                if self.history:
+                    self.periods.append(Period(stamp, values, duties, flags))
+                if flags and on_flags is not None:
+                    on_flags(stamp, flags)
+                self._send(duties, stamp, flags)
+        return self.periods[first:]
+
+    def _send(self, duties: Mapping[str, float], stamp: int, flags: Mapping[str, float]) -> None:
+        if self.command_pub is not None:
+            names = (*(v + DUTY_SUFFIX for v in duties), *(FLAG_PREFIX + f for f in flags))
+            writer = self._commands.get(names)
+            if writer is None:
+                writer = self._commands[names] = NamedVector(names)
+            self.command_pub.publish(writer.encode(stamp, (*duties.values(), *flags.values())))
+            return
+        msg = self._duty_msg                 # refilled: publish serializes it at once
+        for v, d in duties.items():
+            msg.data = d
+            self.duty_pubs[v].publish(msg)
+
+    # --- services ----------------------------------------------------------------------------
+
     def _service_node(self) -> tuple[Any, Any]:
-        """The node service clients live on and the executor that spins it while a call waits."""
-        raise NotImplementedError
+        """The node service clients live on and the executor that spins it while a call waits: the
+        client's own; for a node given, a node of its own made at the first call (spinning the node
+        given would take what its owner polls)."""
+        if self.executor is not None:
+            return self.node, self.executor
+        if self._srv is None:
+            node = rclpy.create_node(f"{self.node.get_name()}_services", namespace=self.node.get_namespace(),
+                                     context=self.node.context)
+            executor = SingleThreadedExecutor(context=node.context)
+            executor.add_node(node)
+            self._srv = (node, executor)
+        return self._srv
 
     def _service(self, srv_type: Any, name: str) -> Any:
         client = self._clients.get(name)
@@ -108,153 +593,45 @@ class DeviceClient:
         """Call the device's `reset` service; its response (TimeoutError if none within `timeout` s)."""
         return self.call(Trigger, topics.RESET, Trigger.Request(), timeout)
 
-    def close(self) -> None:
-        if self._own_node:
-            self.node.destroy_node()
-
-
-@dataclass(frozen=True)
-class PressureSample:
-    stamp_ns: int          # header.stamp: the sample's model time (anchored to the ROS clock in real time)
-    pressure: float        # Pa
-    source_ns: int         # DDS source timestamp (when the emulator published it)
-    received_ns: int       # DDS reception timestamp at this client
-
-
-class EmulatorClient(DeviceClient):
-    """Talks to the emulator in `namespace` (node name `emulator_node`) from its own node."""
-
-    def __init__(
-        self, namespace: str = "/", *, context: Any = None, node_name: str = "pcv_client",
-        emulator_node: str = "emulator", sample_depth: int = 10000, outputs: tuple[str, ...] = (topics.PRESSURE,),
-        on_pressure: Callable[[PressureSample], None] | None = None,
-    ) -> None:
-        super().__init__(namespace, context=context, node_name=node_name)
-        ns = self.node.get_namespace().rstrip("/")
-        self.emulator_name = f"{ns}/{emulator_node}"
-        self.samples: list[PressureSample] = []
-        self.outputs: dict[str, list[tuple[int, float]]] = {topics.CURRENT: [], topics.SPOOL_POSITION: []}
-        self.diagnostics: list[dict[str, str]] = []
-        self.diagnostic_levels: list[int] = []
-        self.diagnostic_messages: list[str] = []
-        self.diagnostic_statuses: list[dict[str, tuple[int, str]]] = []   # concern -> (level, message)
-        self.duty_sent: list[tuple[float, int]] = []
-        self._on_pressure = on_pressure
-        qos = sample_qos(sample_depth)
-        cmd = QoSProfile(depth=10)
-        self.pub_duty = self.node.create_publisher(Float64, topics.DUTY_CYCLE, cmd)
-        self.pub_load_flow = self.node.create_publisher(Float64, topics.LOAD_FLOW, cmd)
-        self.pub_supply = self.node.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, cmd)
-        # Callbacks of (message, MessageInfo): rclpy passes the info to a two-argument callback
-        # (jazzy's annotation names only the one-argument form).
-        with_info: Any
-        if topics.PRESSURE in outputs:
-            with_info = self._pressure
-            self.node.create_subscription(FluidPressure, topics.PRESSURE, with_info, qos)
-        for name in (topics.CURRENT, topics.SPOOL_POSITION):
-            if name in outputs:
-                with_info = self._scalar(name)
-                self.node.create_subscription(Float64, name, with_info, qos)
-        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._diagnostics, QoSProfile(depth=50))
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self._service(Trigger, topics.RESET)
-        self._service(SetParameters, f"{self.emulator_name}/set_parameters")
-
-    # --- callbacks ---------------------------------------------------------------------------
-
-    def _pressure(self, msg: FluidPressure, info: Any) -> None:
-        s = PressureSample(stamp_ns(msg), msg.fluid_pressure, info["source_timestamp"], info["received_timestamp"])
-        self.samples.append(s)
-        if self._on_pressure is not None:
-            self._on_pressure(s)
-
-    def _scalar(self, name: str) -> Callable[[Float64, Any], None]:
-        def callback(msg: Float64, info: Any) -> None:
-            self.outputs[name].append((info["source_timestamp"], msg.data))
-        return callback
-
-    def _diagnostics(self, msg: DiagnosticArray) -> None:
-        """One entry per message of this emulator: the statuses' values merged (the keys are unique
-        across concerns), the highest level, the messages joined; per concern in `diagnostic_statuses`."""
-        ours = [st for st in msg.status if st.name.startswith(self.emulator_name + ":")]
-        if not ours:
-            return
-        merged: dict[str, str] = {}
-        statuses: dict[str, tuple[int, str]] = {}
-        for st in ours:
-            merged.update({kv.key: kv.value for kv in st.values})
-            level = diagnostic_level(st)
-            statuses[st.name[len(self.emulator_name) + 1:].strip()] = (level, st.message)
-        self.diagnostics.append(merged)
-        self.diagnostic_statuses.append(statuses)
-        self.diagnostic_levels.append(max(level for level, _ in statuses.values()))
-        self.diagnostic_messages.append("; ".join(m for _, m in statuses.values()))
-
-    # --- spinning ----------------------------------------------------------------------------
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=min(0.01, max(0.0, end - time.monotonic())))
-
-    def spin_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
-        end = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > end:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
-
-    def wait_for_emulator(self, timeout: float = 20.0) -> bool:
-        """Until the emulator's endpoints are matched and a sample has arrived."""
-        n = len(self.samples)
-        return self.spin_until(lambda: (self.pub_duty.get_subscription_count() > 0 and len(self.samples) > n),
-                               timeout)
-
-    def wait_for_diagnostics(self, predicate: Callable[[dict[str, str]], bool] = lambda d: True,
-                             timeout: float = 10.0) -> dict[str, str] | None:
-        """The first diagnostics message from now on that satisfies predicate (None on timeout)."""
-        start = len(self.diagnostics)
-        found: list[dict[str, str]] = []
-
-        def check() -> bool:
-            found[:] = [d for d in self.diagnostics[start:] if predicate(d)]
-            return bool(found)
-
-        return found[0] if self.spin_until(check, timeout) else None
-
-    # --- inputs ------------------------------------------------------------------------------
-
-    def send_duty(self, duty: float) -> None:
-        self.pub_duty.publish(Float64(data=float(duty)))
-        self.duty_sent.append((duty, time.time_ns()))
-
-    def send_load_flow(self, q: float) -> None:
-        self.pub_load_flow.publish(Float64(data=float(q)))
-
-    def send_supply_pressure(self, p: float) -> None:
-        msg = FluidPressure()
-        msg.fluid_pressure = float(p)
-        self.pub_supply.publish(msg)
-
-    # --- services ----------------------------------------------------------------------------
-
-    def _service_node(self) -> tuple[Any, Any]:
-        return self.node, self.executor
-
     def set_parameters(self, values: dict[str, Any], timeout: float = 10.0) -> list[SetParametersResult]:
-        """Set the emulator's parameters one by one (as `ros2 param set`); one result per name."""
+        """Set the node's parameters one by one (as `ros2 param set`); one result per name."""
         request = SetParameters.Request()
         request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        return list(self.call(SetParameters, f"{self.emulator_name}/set_parameters", request, timeout,
+        return list(self.call(SetParameters, f"{self.device_name}/set_parameters", request, timeout,
                               again=SERVICE_AGAIN).results)
 
     def close(self) -> None:
         # Detach the node before the executor goes and before its handles are destroyed: a wait
         # set still holding them is what rclpy's teardown segfaults have in common.
-        self.executor.remove_node(self.node)
-        self.executor.shutdown(timeout_sec=1.0)
-        super().close()
+        if self.executor is not None:
+            self.executor.remove_node(self.node)
+            self.executor.shutdown(timeout_sec=1.0)
+        if self._srv is not None:
+            self._srv[1].shutdown()
+            self._srv[0].destroy_node()
+            self._srv = None
+        self._clients.clear()
+        if self._own_node:
+            self.node.destroy_node()
 
 
+class EmulatorClient(DeviceClient):
+    """The emulator's client: `DeviceClient` of the one bare valve, its pressure collected."""
+
+    def __init__(self, namespace: str = "/", *, context: Any = None, node_name: str = "pcv_client",
+                 emulator_node: str = "emulator", sample_depth: int = 10000,
+                 outputs: tuple[str, ...] = (topics.PRESSURE,),
+                 on_pressure: Callable[[PressureSample], None] | None = None, **kw: Any) -> None:
+        super().__init__(namespace, context=context, node_name=node_name, device_node=emulator_node,
+                         sample_depth=sample_depth, outputs=outputs, on_pressure=on_pressure, **kw)
+
+
+class RigClient(DeviceClient):
+    """The rig's lockstep controller: `DeviceClient` of its named valves, subscribed for `run`."""
+
+    def __init__(self, namespace: str | None, valves: tuple[str, ...], *, context: Any = None,
+                 node_name: str = "rig_controller", currents: bool = False, node: Any = None,
+                 history: bool = True, channel: bool = False, **kw: Any) -> None:
+        super().__init__(namespace, valves, context=context, node_name=node_name, node=node, device_node="rig",
+                         lockstep=True, currents=currents, history=history, channel=channel,
+                         sample_depth=kw.pop("sample_depth", 1000), **kw)

@@ -21,8 +21,9 @@ also `cylinder/pressure_<chamber>`.
     in   /clock                   rosgraph_msgs/Clock (use_sim_time only: the model follows it)
     srv  reset                    std_srvs/Trigger: the device back to rest, a fault cleared; model time goes on
 
-The loops, parameters, services and QoS events are `pcv_sim.node.base.NodeBase`'s. Here: the
-device's samples published as measured (sensor faults applied; a non-finite value is not), one
+The loops, parameters, inputs, services and QoS events are `pcv_sim.node.base.NodeBase`'s (a
+module per idea). Here: the device's samples published as measured (sensor faults applied; a
+non-finite value is not), one
 sample period at a time so that the hook (a scenario) and the recorder see the device at the
 sample's step; its inputs checked by the device on arrival and acting at the step `acting_step`
 gives; its log (watchdogs, faults, resets) forwarded once per event; parameter changes and reset
@@ -47,12 +48,14 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from pcv_sim.device.device import Sample
-from pcv_sim.device.diagnostics import Shown, Status
+from pcv_sim.device.diagnostics import DiagnosticsBuilder, Shown, Status
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
-from pcv_sim.node.base import COMMAND_HINT, COMMAND_QOS, DIAGNOSTICS_QOS, SAMPLE_HINT, NodeBase
+from pcv_sim.node.base import DIAGNOSTICS_QOS, NodeBase
+from pcv_sim.node.inputs import COMMAND_QOS
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
+from pcv_sim.node.qos_events import COMMAND_HINT, SAMPLE_HINT
 from pcv_sim.node.samples import SamplePublisher
 
 __all__ = ["DeviceNode"]
@@ -61,8 +64,6 @@ __all__ = ["DeviceNode"]
 class DeviceNode(NodeBase):
     """ROS parameters in, the device of `kind` (`pcv_sim.node.kinds.NodeKind`) out. Construct, then
     `run(stop)`."""
-
-    _diag: Any          # the kind's diagnostics builder (`build(now, device=, settings=, ...)`)
 
     def __init__(self, kind: Any, *, argv: list[str] | None = None, **kwargs: Any) -> None:
         self.kind = kind
@@ -102,7 +103,7 @@ class DeviceNode(NodeBase):
         self.follow_clock()
         self.create_service(Trigger, RESET, self._on_reset)
         self._deferred_callbacks += (self._on_reset,)       # rest states are computed off the loop
-        self._diag = kind.diagnostics(self.get_fully_qualified_name(), time.monotonic())
+        self._diag = DiagnosticsBuilder(self.get_fully_qualified_name(), time.monotonic(), kind.chambers(dev))
         self.recorder = self.open_recorder(kind.recorder(self))
         if self.recorder is not None:
             self.recorder.attach(dev)
@@ -270,13 +271,12 @@ class DeviceNode(NodeBase):
     # --- diagnostics -----------------------------------------------------------------------------
 
     def _statuses(self, now: float, recorder: RecorderStatus | None) -> list[Status]:
-        """The device's statuses, one per concern (`kind.diagnostics`)."""
+        """The device's statuses, one per concern and one per named valve (`DiagnosticsBuilder`)."""
         dev, s = self.device, self.settings
         waiting = tuple(v for v in dev.valve_names if v not in self._answered) \
             if self.simulated and s.lockstep else ()
-        last = dict(zip(dev.signals, self._last[1])) if self._last is not None else {}
         shown = Shown("external_clock" if self.external_clock else s.time_mode, self.samples_published, self.resets,
-                      last, waiting)
+                      waiting)
         statuses: list[Status] = self._diag.build(now, device=dev, settings=s, schedule=self._schedule,
                                                   recorder=recorder, shown=shown)
         return statuses

@@ -2,8 +2,9 @@
 load volume, `pcv_sim.device.valve.ValveDevice`) and the `rig` (valves on the steering cylinder,
 `pcv_sim.rig.Rig`) are one node class (`pcv_sim.node.device_node.DeviceNode`) over a `NodeKind`:
 the node's name, its settings schema, how the device is made from them, where its parameters come
-from (the valve YAML and `model.*` parameters; the rig YAML), its bag recorder and diagnostics, and
-the start-up log line. Topics, inputs and signals are the device's own names (`pcv_sim.io.topics`).
+from (the valve YAML and `model.*` parameters; the rig YAML), its bag recorder and the start-up log
+line (the diagnostics are every device's: `pcv_sim.device.diagnostics`). Topics, inputs and
+signals are the device's own names (`pcv_sim.io.topics`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-from pcv_sim.device.diagnostics import DiagnosticsBuilder
 from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.device.settings import MODEL_PREFIX, NodeSettings, SettingsSchema, model_parameters, params_with
 from pcv_sim.device.settings import SCHEMA as EMULATOR_SCHEMA
@@ -22,7 +22,6 @@ from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import CommandError, ParameterError
 from pcv_sim.params import ValveParams, check_value, load_params
 from pcv_sim.rig import Rig, load_rig
-from pcv_sim.rig.diagnostics import RigDiagnostics
 from pcv_sim.rig.params import RigParams, TimingParams
 from pcv_sim.rig.settings import SCHEMA as RIG_SCHEMA
 from pcv_sim.rig.settings import RigNodeSettings
@@ -48,7 +47,6 @@ class NodeKind:
     apply_settings: Callable[[Any, Any], None]                # (device, settings): changed settings into it
     chambers: Callable[[Any], dict[str, str]]                 # device -> valve: chamber (a | b)
     recorder: Callable[[Any], Callable[..., Any]]             # node -> the recorder's maker (`open_recorder`)
-    diagnostics: type[Any]                                    # its statuses' builder
     describe: Callable[[Any], str]                            # node -> the start-up log line
 
 
@@ -126,7 +124,6 @@ EMULATOR = NodeKind(
     apply_settings=_valve_settings,
     chambers=lambda dev: {},
     recorder=_valve_recorder,
-    diagnostics=DiagnosticsBuilder,
     describe=_describe_valve,
 )
 
@@ -210,6 +207,5 @@ RIG = NodeKind(
     apply_settings=lambda dev, s: None,
     chambers=lambda rig: {v.name: v.chamber for v in rig.params.valves if v.chamber in ("a", "b")},
     recorder=_rig_recorder,
-    diagnostics=RigDiagnostics,
     describe=_describe_rig,
 )

@@ -1,37 +1,20 @@
-"""What the emulator, the rig node and the rig's client share instead of an executor: taking
-pending messages by polling (`take_message`: a few µs per empty topic, against ~125 µs for an
-executor's `spin_once`; BENCHMARKS.md), and a start-up error's last chance to reach /rosout."""
+"""What the node and the rig's client share instead of an executor: blocking until a message comes
+without using a core (`Waiter`; the messages are then taken by `pcv_sim.node.inputs.drain`), and
+a start-up error's last chance to reach /rosout."""
 
 from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
 
-__all__ = ["ROSOUT_LINGER", "ROSOUT_LINGER_ENV", "Waiter", "drain", "linger_for_rosout"]
+__all__ = ["ROSOUT_LINGER", "ROSOUT_LINGER_ENV", "Waiter", "linger_for_rosout"]
 
 ROSOUT_LINGER = 3.0                          # s a node that cannot start waits for a /rosout subscriber
 ROSOUT_LINGER_ENV = "PCV_SIM_ROSOUT_LINGER"  # another budget (s): discovery on a loaded machine may take longer
-
-
-def drain(subscriptions: Iterable[tuple[Any, Callable[..., None]]]) -> int:
-    """Take every pending message of each (subscription, handler) pair, in order; how many."""
-    taken = 0
-    for sub, handler in subscriptions:
-        while True:
-            try:
-                with sub.handle:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
-            except InvalidHandle:            # destroyed during shutdown
-                break
-            if got is None:
-                break
-            handler(*got)
-            taken += 1
-    return taken
 
 
 class Waiter:

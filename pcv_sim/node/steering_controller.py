@@ -8,7 +8,7 @@ in-process (examples/steering.py): the node only moves its inputs and outputs ov
 to the rig node (`ros2 run pcv_sim rig`) in its namespace, in lockstep: every control period it
 takes the sample the rig published (stamped with its model time), calls the controller with it
 and answers with both valves' duties and its flags, over the rig's lockstep channel
-(`pcv_sim.node.lockstep_channel`; `pcv_sim.node.rig_client.RigClient`, no executor: `take_message`
+(`pcv_sim.node.lockstep_channel`; `pcv_sim.node.client.RigClient`, no executor: `take_message`
 and a wait set, as the rig). Topics, relative to the namespace:
 
     in   lockstep/sample         sensor_msgs/JointState      the rig's signals (Pa, A, m, m/s, N) by name,
@@ -118,9 +118,9 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
 
     from pcv_sim.control.steering import PositionController
     from pcv_sim.errors import ParameterError
-    from pcv_sim.node.base import freeze_heap, tighten_timer_slack
+    from pcv_sim.node.client import RigClient
     from pcv_sim.node.polling import linger_for_rosout
-    from pcv_sim.node.rig_client import RigClient, _ignore
+    from pcv_sim.node.tuning import freeze_heap, tighten_timer_slack
 
     class SteeringControllerNode(Node):
         """PositionController between the rig's samples and its duty commands; `run(stop)`."""
@@ -139,7 +139,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.setpoint: float | None = None
             self._setpoint_fresh = False
             self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
-            sub = self.create_subscription(Float64, SETPOINT_TOPIC, _ignore, QoSProfile(depth=10))
+            sub = self.create_subscription(Float64, SETPOINT_TOPIC, self._on_setpoint, QoSProfile(depth=10))
             self.client.add_input(sub, self._on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])

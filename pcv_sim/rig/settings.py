@@ -1,5 +1,6 @@
-"""The rig node's parameters, without ROS: the rig's settings schema, beside the rig (as its
-diagnostics, `pcv_sim.rig.diagnostics`).
+"""The rig node's parameters, without ROS: the rig's settings schema, beside the rig (its bag
+layout and recorder are every device's, `pcv_sim.device.recording`, and so are its diagnostics,
+`pcv_sim.device.diagnostics`).
 
 Node settings follow the emulator's mechanism (`pcv_sim.params.setting`: default, unit,
 description, check and read-only declared once; `SCHEMA`, a `SettingsSchema` as the emulator's,

@@ -44,7 +44,7 @@ class Rig:
 
     def statuses(self):
         out = self.builder.build(self.now, device=self.device, settings=self.settings, schedule=self.schedule,
-                                 recorder=self.recorder, shown=Shown(self.settings.time_mode, 0, 0, {}))
+                                 recorder=self.recorder, shown=Shown(self.settings.time_mode, 0, 0))
         assert [s.name for s in out] == [f'{NAME}: {c}' for c in CONCERNS]
         assert {s.hardware_id for s in out} == {NAME}
         return {s.name.split(': ')[1]: s for s in out}
@@ -157,3 +157,47 @@ def test_recorder_status_fields_match():
     # The test above builds RecorderStatus by keyword: keep it in step with the recorder.
     assert {f.name for f in dataclasses.fields(RecorderStatus)} >= {'state', 'path', 'messages', 'bytes', 'files',
                                                                      'queued', 'dropped', 'error'}
+
+
+def test_a_rig_of_named_valves_gets_the_same_four_concerns_and_one_status_per_valve():
+    """One builder over any device: the rig's statuses are the emulator's four concerns (the rig's
+    watchdogs, faults and cylinder input summed up in `inputs`) and one per valve with that valve's
+    inputs, chamber and last sample; each cause raises the status it belongs to."""
+    from pcv_sim.rig import Rig as SteeringRig
+    from pcv_sim.rig import load_rig
+    from pcv_sim.rig.settings import RigNodeSettings
+
+    dev = SteeringRig(load_rig(None))
+    settings = RigNodeSettings(time_mode='simulated')
+    builder = DiagnosticsBuilder(NAME, 0.0, {'left': 'a', 'right': 'b'})
+
+    def statuses(now):
+        out = builder.build(now, device=dev, settings=settings, schedule=None, recorder=None,
+                            shown=Shown('simulated', 7, 1, ('right',)))
+        assert {s.hardware_id for s in out} == {NAME}
+        return {s.name.split(': ')[1]: s for s in out}
+
+    for v in dev.valve_names:
+        assert dev.submit(f'{v}.duty_cycle', 0.6) is None
+    dev.run_to(100)
+    st = statuses(1.0)
+    assert list(st) == [*CONCERNS, 'left', 'right']
+    assert {k: s.level for k, s in st.items()} == dict.fromkeys(st, OK), {k: s.message for k, s in st.items()}
+    left = st['left'].values
+    assert left['chamber'] == 'a' and left['duty_command'] == '0.6' and left['accepted.duty_cycle'] == '1'
+    assert left['pressure_pa'] == f"{dev.last_sample.values[dev.signals.index('left.pressure')]:.1f}"
+    assert st['timing'].values['waiting_for'] == 'right' and st['model'].values['resets'] == '1'
+    assert 'pressure_pa' not in st['model'].values                  # a named valve's sample is its own
+
+    assert dev.submit('cylinder.external_force', 5000.0) is None
+    assert dev.submit('cylinder.external_force', float('nan')) is not None
+    assert dev.submit_fault('{fault: coil_open, valve: left}') is None
+    dev.run_to(200)
+    st = statuses(2.0)
+    inputs = st['inputs']
+    assert inputs.level == WARN and 'coil_open@left' in inputs.message and 'external_force 1' in inputs.message
+    assert inputs.values['external_force_n'] == '5000' and inputs.values['rejected.external_force'] == '1'
+    assert st['left'].level == WARN and 'coil_open@left' in st['left'].message
+    assert st['right'].level == OK and st['model'].level == OK and st['timing'].level == OK
+    dev.set_fault('injected')
+    assert statuses(3.0)['model'].level == ERROR

@@ -8,7 +8,7 @@ import time
 import rclpy
 from std_msgs.msg import String
 
-from pcv_sim.node.base import publisher_name
+from pcv_sim.node.inputs import publisher_name
 
 
 def _graph(ros, names, topic='faults'):

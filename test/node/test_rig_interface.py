@@ -1,7 +1,7 @@
 """The rig node's interface beside the samples and duty commands, over real DDS (the node a separate
 process): recording (record.*), the reset service, cylinder/external_force, use_sim_time.
 
-A lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period; each test
+A lockstep controller (`pcv_sim.node.client.RigClient`) answers every control period; each test
 has its own ROS domain and namespace (test/node/conftest.py).
 """
 import dataclasses
@@ -115,10 +115,10 @@ def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(r
     pushed = client.run(hold, 100, timeout=120)
     assert pushed[-1].measured['cylinder.position'] > 5e-3                     # 5 kN extends it
     assert pushed[-1].measured['cylinder.velocity'] > 0
-    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: inputs', (0, '', {}))[2]
                        .get('rejected.external_force') == '2')
     assert diag is not None, rig.output()
-    values = diag[f'{ros.ns("rig")}/rig: rig'][2]
+    values = diag[f'{ros.ns("rig")}/rig: inputs'][2]
     assert values['external_force_n'] == '5000' and values['accepted.external_force'] == '1'
     assert 'coil_open@right' in values['faults_active']
     assert ('rejected cylinder/external_force: external force nan: accepted is a finite number of N within '
@@ -132,10 +132,11 @@ def test_external_force_moves_the_piston_and_reset_brings_the_rig_back_to_rest(r
     assert after[0].measured['cylinder.position'] > 5e-3
     shifted = [(p.stamp_ns - t_reset, p.measured) for p in after[1:]]
     assert shifted == [(p.stamp_ns, p.measured) for p in fresh[1:]]            # == on floats: bit for bit
-    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2].get('resets') == '1')
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: model', (0, '', {}))[2].get('resets') == '1')
     assert diag is not None, rig.output()
-    level, _, values = diag[f'{ros.ns("rig")}/rig: rig']
+    level, _, values = diag[f'{ros.ns("rig")}/rig: inputs']
     assert values['faults_active'] == '' and values['external_force_n'] == '0' and level == 0
+    assert diag[f'{ros.ns("rig")}/rig: model'][0] == 0
     assert 'reset: valves at rest at their initial duty' in rig.output()
 
 
@@ -187,10 +188,10 @@ def test_use_sim_time_follows_an_external_clock_and_simulated_time_with_it_is_re
     n = len(seen)
     time.sleep(0.3)                                    # the clock stands still: so does the model
     assert len(collect()) == n
-    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+    diag = _rig_status(client, lambda d: d.get(f'{ros.ns("rig")}/rig: timing', (0, '', {}))[2]
                        .get('time_mode') == 'external_clock')
     assert diag is not None, rig.output()
-    assert diag[f'{ros.ns("rig")}/rig: rig'][2]['recording'] == 'recording'
+    assert diag[f'{ros.ns("rig")}/rig: recording'][2]['recording'] == 'recording'
     assert rig.stop(signal.SIGTERM) == 0
     [bag] = ros.tmp_path.glob('rig_pcv*')                   # rig_<namespace>_<date>: the default name
     [mcap_file] = bag.glob('*.mcap')

@@ -1,6 +1,6 @@
 """The rig node (`python -m pcv_sim.node.rig`) as a separate process over real DDS.
 
-A small lockstep controller (`pcv_sim.node.rig_client.RigClient`) answers every control period
+A small lockstep controller (`pcv_sim.node.client.RigClient`) answers every control period
 for both valves. Each test has its own ROS domain and namespace (test/node/conftest.py).
 """
 import itertools
@@ -27,7 +27,7 @@ def start_rig(ros, name='rig', *, params=None, args=()):
 
 
 def rig_client(ros, name='rig', **kw):
-    from pcv_sim.node.rig_client import RigClient
+    from pcv_sim.node.client import RigClient
 
     client = RigClient(ros.ns(name), VALVES, context=ros.context, node_name=f'rig_ctl_{len(ros.clients)}', **kw)
     ros.clients.append(client)
@@ -117,12 +117,12 @@ def test_the_lockstep_channel_runs_bit_for_bit_as_the_topics_under_load_and_the_
 
 def _rig_status(client, predicate, timeout=10.0):
     """The first diagnostics message (from now) whose statuses satisfy predicate."""
-    start = len(client.diagnostics)
+    start = len(client.statuses)
     found = []
 
     def check():
         client.poll()
-        found[:] = [d for d in client.diagnostics[start:] if predicate(d)]
+        found[:] = [d for d in client.statuses[start:] if predicate(d)]
         return bool(found)
 
     return found[0] if wait_until(check, timeout) else None
@@ -143,10 +143,10 @@ def test_a_fault_over_the_topic_acts_and_shows_in_diagnostics_and_clears(ros):
     right = [i for _, i in client.currents['right'][-20:]]
     assert max(abs(i) for i in left) < 0.02 * i_before             # the open coil carries no current
     assert min(right) > 0.9 * i_before                             # the other valve is untouched
-    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: rig', (0, '', {}))[2]
+    diag = _rig_status(client, lambda d: 'coil_open@left' in d.get(f'{ros.ns("rig")}/rig: inputs', (0, '', {}))[2]
                        .get('faults_active', ''))
     assert diag is not None, rig.output()
-    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: rig']
+    rig_level, rig_message, rig_values = diag[f'{ros.ns("rig")}/rig: inputs']
     assert rig_level == 1 and 'coil_open@left' in rig_message
     assert rig_values['rejected.faults'] == '1'
     left_level, left_message, _ = diag[f'{ros.ns("rig")}/rig: left']

@@ -57,7 +57,7 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
     ns = ros.ns('rig')
     diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: probe', (0, '', {}))[2].get('oil_temperature_k')
                        == f'{kelvin(50.0):.2f}', timeout=10)
-    assert diag is not None, (client.diagnostics[-1:], rig.output())
+    assert diag is not None, (client.statuses[-1:], rig.output())
     probe = diag[f'{ns}/rig: probe'][2]
     assert probe['accepted.oil_temperature'] == '1' and probe['rejected.oil_temperature'] == '0'
     assert float(probe['coil_temperature_k']) > temps[0] and float(probe['coil_resistance_ohm']) > 0.5
@@ -67,8 +67,8 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
     client.run(heat, 100, timeout=60)
     diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: probe', (0, '', {}))[2].get('rejected.oil_temperature')
                        == '1', timeout=10)
-    assert diag is not None, (client.diagnostics[-1:], rig.output())
-    assert 'the unit is K, not degC' in diag[f'{ns}/rig: rig'][2]['last_rejection']
+    assert diag is not None, (client.statuses[-1:], rig.output())
+    assert 'the unit is K, not degC' in diag[f'{ns}/rig: inputs'][2]['last_rejection']
     for valve in ('left', 'right'):
         for e in ('coil_temperature', 'coil_resistance', 'core_position'):
             assert node.count_publishers(f'{ns}/{valve}/{e}') == 0, (valve, e)
@@ -97,7 +97,7 @@ def test_a_rig_valves_options_are_topics_diagnostics_and_in_its_bag(ros, options
 
 
 def _client(ros):
-    from pcv_sim.node.rig_client import RigClient
+    from pcv_sim.node.client import RigClient
 
     client = RigClient(ros.ns('rig'), VALVES, context=ros.context, node_name=f'rig_ctl_{len(ros.clients)}')
     ros.clients.append(client)
