@@ -104,6 +104,13 @@ def test_split_files(tmp_path: Path, emulator_recorder) -> None:
     assert len(bag["/pressure"]) == 6001 and np.all(np.diff(bag["/pressure"].t_ns) == DT)
 
 
+def test_a_bag_name_is_any_directory_name(tmp_path: Path, emulator_recorder) -> None:
+    """An offline run's bag takes the name it is given (`pcv-sim scenario --bag 'run 1'`); the nodes'
+    record.name has its own, stricter check."""
+    emulator_recorder(tmp_path, name="run 1 (left)", writing=WriterSettings(writer="inline")).close()
+    assert read_bag(tmp_path / "run 1 (left)").closed_cleanly
+
+
 def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path, emulator_recorder) -> None:
     (tmp_path / "b").mkdir()
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
@@ -133,6 +140,8 @@ def test_timestamped_default_name(tmp_path: Path, emulator_recorder) -> None:
     ({"max_queue_s": math.inf}, "max_queue_s"),
     ({"name": "../x"}, "plain directory name"),
     ({"name": ".."}, "plain directory name"),
+    ({"name": "a/b"}, "plain directory name, without '/'"),
+    ({"name": ""}, "plain directory name"),
 ])
 def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str, emulator_recorder) -> None:
     with pytest.raises(BagError, match=match):
