@@ -57,8 +57,14 @@ class Emulator:
         try:
             return self.wait(timeout)
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+            # SIGABRT first: the child's faulthandler (PYTHONFAULTHANDLER, RosTest's env) writes every
+            # thread's stack into the log, so a hang names where it hangs.
+            self.proc.send_signal(signal.SIGABRT)
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
             raise AssertionError(f'emulator did not stop on {sig!r} within {timeout} s:\n{self.output()}') from None
 
 
@@ -71,7 +77,8 @@ class RosTest:
         self.domain = _domain_id()
         self.prefix = f'/pcv{os.getpid()}_{next(_counter)}'
         self.tmp_path = tmp_path
-        self.env = clean_child_env(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        self.env = clean_child_env(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                                   PYTHONFAULTHANDLER='1')
         monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         monkeypatch.setenv('ROS_DOMAIN_ID', str(self.domain))
         self.context = rclpy.Context()
