@@ -8,7 +8,7 @@ from typing import Any
 
 from pcv_sim.errors import ParameterError, PcvSimError
 
-__all__ = ["check_keys", "closest", "missing_message", "unknown_message"]
+__all__ = ["check_keys", "closest", "exactly_one", "missing_message", "unknown_message"]
 
 
 def closest(word: Any, accepted: Iterable[str], *, cutoff: float = 0.6) -> str | None:
@@ -65,3 +65,15 @@ def check_keys(where: str, given: Any, accepted: tuple[str, ...], required: tupl
     if missing:
         raise error(f"{where}: {', '.join(missing)} missing; accepted keys: {', '.join(accepted)}")
     return given
+
+
+def exactly_one(where: str, given: Mapping[Any, Any], choices: tuple[str, ...],
+                error: type[PcvSimError] = ParameterError) -> str:
+    """The one key of `choices` that `given` holds (a timeline entry's action, a profile's
+    shape); `error` naming what was there instead, or the keys given together, otherwise."""
+    found = [c for c in choices if c in given]
+    if len(found) != 1:
+        if not found:
+            raise error(missing_message(where, given, choices))
+        raise error(f"{where}: accepted is exactly one of {', '.join(choices)} (got {', '.join(found)})")
+    return found[0]

@@ -21,17 +21,19 @@ valve YAML key, a `model.*` ROS parameter or a node setting, is converted and ch
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import yaml
 
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.units import quantity, si_kind
+from pcv_sim.keys import unknown_message
+from pcv_sim.units import KINDS, quantity, si_kind
 
 __all__ = [
     "DEFAULT_CONFIG",
@@ -47,13 +49,20 @@ __all__ = [
     "SpoolParams",
     "ValveParams",
     "any_value",
+    "at_least",
+    "between",
     "check_field",
+    "check_mapping",
+    "check_si",
     "check_value",
+    "declarations",
     "default_params",
     "duty_fraction",
     "fraction",
     "int_range",
+    "key_table",
     "load_params",
+    "non_empty",
     "non_negative",
     "one_of",
     "parameter",
@@ -61,7 +70,9 @@ __all__ = [
     "params_to_mapping",
     "plausible_range",
     "positive",
+    "read",
     "read_yaml",
+    "refused_as",
     "replace_param",
     "section_from_mapping",
     "setting",
@@ -70,6 +81,8 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+R = TypeVar("R")
+P = ParamSpec("P")
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "valve.yaml"
 
@@ -118,7 +131,33 @@ def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
     def check(v: int) -> str | None:
         return None if lo <= v <= hi else (accepted or f"an integer {lo}..{hi}")
 
+    check.lo, check.hi = lo, hi  # type: ignore[attr-defined]  # the range, for the tables of keys
     return check
+
+
+def between(lo: float, hi: float, what: str = "a value") -> Check:
+    """lo <= value <= hi (inclusive), in the message's words `what` ("a duration", "a position")."""
+
+    def check(v: float) -> str | None:
+        return None if lo <= v <= hi else f"{what} in {lo:g} .. {hi:g}"
+
+    check.lo, check.hi = lo, hi  # type: ignore[attr-defined]  # the range, for the tables of keys
+    return check
+
+
+def at_least(lo: float, what: str = "a value", *, strict: bool = False) -> Check:
+    """value >= lo (> lo when `strict`), in the message's words `what`."""
+
+    def check(v: float) -> str | None:
+        return None if (v > lo if strict else v >= lo) else f"{what} {'>' if strict else '>='} {lo:g}"
+
+    check.accepted = f"{'>' if strict else '>='} {lo:g}"  # type: ignore[attr-defined]  # for the tables of keys
+    return check
+
+
+def non_empty(v: Any) -> str | None:
+    """A list or mapping with at least one entry (a string with at least one character)."""
+    return None if len(v) else ("a non-empty string" if isinstance(v, str) else "at least one entry")
 
 
 def speed_factor(name: str, v: Any) -> float:
@@ -156,6 +195,7 @@ def one_of(*choices: str) -> Check:
     def check(v: str) -> str | None:
         return None if v in choices else "one of " + ", ".join(repr(c) for c in choices)
 
+    check.accepted = " \\| ".join(choices)  # type: ignore[attr-defined]  # for the tables of keys
     return check
 
 
@@ -164,16 +204,28 @@ _one_of = one_of
 
 def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "float", default: Any = dataclasses.MISSING,
               source: str = "", name: str | None = None, read_only: bool = False,
-              convert: Callable[[str, Any], Any] | None = None) -> Any:
+              convert: Callable[[str, Any], Any] | None = None, item: Any = None, section: type | None = None,
+              role: str = "", difference: bool = False) -> Any:
     """One parameter, declared once: its unit, one line of doc, its check (a plausible range, a
-    choice...), its type (`kind`: float, int, str, bool, float_or_null, vectorN, ...) and its default
-    (none: required). `source`: where the value comes from (the paper's table or section); `name`:
-    the parameter's name if not the field's (`record.enabled`); `read_only`: a node setting that
-    cannot change while the node runs; `convert`: a converter `(name, value) -> value` raising
-    ParameterError, for values no kind describes."""
+    choice...), its type (`kind`) and its default (none: required). `source`: where the value
+    comes from (the paper's table or section); `name`: the parameter's name if not the field's
+    (`record.enabled`, `from`); `read_only`: a node setting that cannot change while the node runs;
+    `convert`: a converter `(name, value) -> value` raising ParameterError, for values no kind
+    describes.
+
+    Kinds: float, int, str, bool, float_or_null, float_or_equivalent, vectorN, matrix4x4,
+    matrixNx3; a kind of `pcv_sim.units.KINDS` (time, pressure, length, fraction...): a bare SI
+    number or a value with a unit ("20 ms"), read by `units.quantity` (`role` words its hint for
+    a bare number of the wrong size; `difference`: an amplitude, to which degC's zero does not
+    apply); value: the same with the kind the loader names (`of=` of
+    `check_value`: a profile's quantity, an assertion's signal's); list and mapping (each entry
+    checked as `item`, a declaration, when given); section: a mapping of the keys declared by the
+    dataclass `section`; any: taken as written (the loader checks it)."""
     return field(default=default, metadata={"unit": unit, "source": source or doc, "description": doc,
                                             "check": check, "kind": kind, "name": name, "read_only": read_only,
-                                            "convert": convert})
+                                            "convert": convert, "role": role, "section": section,
+                                            "difference": difference,
+                                            "item": item.metadata if isinstance(item, dataclasses.Field) else item})
 
 
 def _param(unit: str, source: str, check: Check = _any_finite, kind: str = "float", default: Any = dataclasses.MISSING) -> Any:
@@ -505,7 +557,7 @@ def validate_section_value(section: str, key: str, value: Any, *, prefix: str = 
     cls = _SECTIONS.get(section)
     if cls is None:
         raise ParameterError(f"unknown section {section!r}; accepted are: {', '.join(_SECTIONS)}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = declarations(cls)
     if key not in fields:
         raise ParameterError(f"unknown parameter {prefix}{section}.{key}; accepted in {section}: {', '.join(fields)}")
     return check_value(f"{prefix}{section}.{key}", fields[key].metadata, value)
@@ -515,10 +567,17 @@ def validate_section_value(section: str, key: str, value: Any, *, prefix: str = 
 _WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[^\d\s.+eE-]")
 
 
-def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check | None = None,
+                of: str | None = None) -> Any:
     """Convert and check one value of a declared parameter (its field's metadata: kind, unit, check,
-    convert); ParameterError naming `path` and what is accepted."""
-    kind, check, unit = meta["kind"], meta["check"], meta["unit"]
+    convert); ParameterError naming `path`, what was wrong and what is accepted. `check`: the
+    check in force instead of the declared one (a range the rest of the file narrows: a scenario's
+    duration at least the rig's control period); `of`: the units kind of a `value` parameter."""
+    kind, unit = meta["kind"], meta["unit"]
+    check = check or meta["check"]
+    if kind == "value":
+        kind = of or "number"
+        unit = KINDS[kind].si
     in_unit = f" in {unit}" if unit not in ("", "-") else ""
     if meta.get("convert") is not None:
         return meta["convert"](path, value)
@@ -527,6 +586,14 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
         value = quantity(value, str(si_kind(unit)), path)       # "200 bar": a value with its unit, to SI
     if kind == "float":
         out: Any = _number(path, value, f"a number{in_unit}")
+    elif kind in KINDS:
+        out = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False))
+    elif kind in ("list", "mapping"):
+        return _entries(path, meta, value)
+    elif kind == "section":
+        return section_from_mapping(meta["section"], value, path, defaults=True)
+    elif kind == "any":
+        out = value
     elif kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{path}: got {value!r}; accepted is an integer")
@@ -561,6 +628,138 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any) -> Any:
     return out
 
 
+def check_si(path: str, meta: Mapping[str, Any], value: float, *, check: Check | None = None,
+             of: str | None = None) -> float:
+    """An SI value the loader worked out from what the file holds (the reach of a profile: offset
+    +- amplitude, a table's values) against the declared check (or `check`), named `path`."""
+    problem = (check or meta["check"])(value)
+    if problem is not None:
+        unit = KINDS[of].si if meta["kind"] == "value" and of else meta["unit"]
+        shown = f" {unit}" if unit not in ("", "-") else ""
+        raise ParameterError(f"{path}: {value:g}{shown}; accepted is {problem}{f' ({unit})' if shown else ''}")
+    return value
+
+
+def _entries(path: str, meta: Mapping[str, Any], value: Any) -> Any:
+    """A list (kind list) or a mapping (kind mapping) with each entry checked as `meta["item"]`."""
+    item, what = meta.get("item"), _accepted(meta)
+    if meta["kind"] == "list":
+        if not isinstance(value, list):
+            raise ParameterError(f"{path}: got {value!r}; accepted is {what}")
+        out: Any = value if item is None else [check_value(f"{path}[{k}]", item, v) for k, v in enumerate(value)]
+    else:
+        if not isinstance(value, Mapping):
+            raise ParameterError(f"{path}: got {value!r}; accepted is {what}")
+        out = value if item is None else {k: check_value(f"{path}.{k}", item, v) for k, v in value.items()}
+    problem = meta["check"](out)
+    if problem is not None:
+        raise ParameterError(f"{path}: got {value!r}; accepted is {what}, {problem}")
+    return out
+
+
+@functools.cache
+def declarations(cls: type) -> dict[str, dataclasses.Field[Any]]:
+    """The declared keys of `cls` (a dataclass declared with `parameter`), as a file names them."""
+    return {f.metadata.get("name") or f.name: f for f in dataclasses.fields(cls)}
+
+
+def _required(f: dataclasses.Field[Any]) -> bool:
+    return f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+
+
+def check_mapping(cls: type, data: Any, where: str, prefix: str | None = None, *,
+                  also: tuple[str, ...] = ()) -> Mapping[str, Any]:
+    """`data` as a mapping of the keys `cls` declares (and `also`, keys the caller reads itself);
+    ParameterError naming `where` when it is none, for an unknown key (with the key it was likely
+    meant as) or a missing required one (`prefix.key`; prefix defaults to `where`)."""
+    keys = (*declarations(cls), *also)
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{where}: got {data!r}; accepted is a mapping with {', '.join(keys)}")
+    msg = unknown_message(where, data, keys)
+    if msg:
+        raise ParameterError(msg)
+    for key, f in declarations(cls).items():
+        if key not in data and _required(f):
+            raise ParameterError(f"{_join(where if prefix is None else prefix, key)}: missing; accepted is "
+                                 f"{_accepted(f.metadata)}")
+    return data
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _accepted(meta: Mapping[str, Any]) -> str:
+    """A declaration in words: its doc and unit ("the run's length (s)"); a list's or mapping's
+    doc says what of ("a list of segments {t, ...}")."""
+    unit, doc = meta["unit"], meta["description"]
+    if meta["kind"] in ("list", "mapping"):
+        doc = f"a {meta['kind']} {doc}"
+    return f"{doc}{f' ({unit})' if unit not in ('', '-') else ''}"
+
+
+def read(cls: type, data: Mapping[str, Any], key: str, prefix: str = "", *, check: Check | None = None,
+         of: str | None = None) -> Any:
+    """The value of the declared key `key` of `cls` in `data` (checked: `check_value`; its
+    default when absent), named `prefix.key` in a refusal."""
+    f = declarations(cls)[key]
+    if key not in data or (data[key] is None and f.default is None):     # YAML's `key:` (null): not given
+        if _required(f):
+            raise ParameterError(f"{_join(prefix, key)}: missing; accepted is {_accepted(f.metadata)}")
+        return f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+    return check_value(_join(prefix, key), f.metadata, data[key], check=check, of=of)
+
+
+def _range_words(check: Check) -> str:
+    """What a check accepts, in a table's cell ("0 .. 1", ">= 0", "product | zip"; '' for none)."""
+    lo, hi = getattr(check, "lo", None), getattr(check, "hi", None)
+    if lo is not None and hi is not None:
+        return f"{lo:g} .. {hi:g}"
+    return str(getattr(check, "accepted", ""))
+
+
+_KIND_WORDS = {"str": "a string", "bool": "true, false", "int": "an integer", "list": "a list", "mapping": "a mapping",
+               "section": "a mapping"}
+
+
+def refused_as(error: type[PcvSimError]) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """A decorator: a refusal by these declarations in the decorated loader is raised as `error`,
+    the file's own class (ScenarioError, ProfileError...), with its text."""
+
+    def wrap(fn: Callable[P, R]) -> Callable[P, R]:
+        @functools.wraps(fn)
+        def loader(*args: P.args, **kwargs: P.kwargs) -> R:
+            try:
+                return fn(*args, **kwargs)
+            except error:
+                raise
+            except ParameterError as err:
+                raise error(str(err)) from None
+
+        return loader
+
+    return wrap
+
+
+def key_table(cls: type) -> str:
+    """The keys `cls` declares as a Markdown table (key, unit, accepted, default, meaning): the
+    tables of the docs are these, and a test holds them equal."""
+    rows = ["| key | unit | accepted | default | meaning |", "|---|---|---|---|---|"]
+    for key, f in declarations(cls).items():
+        meta = f.metadata
+        unit = "the quantity's" if meta["kind"] == "value" else meta["unit"]
+        if _required(f):
+            default = "required"
+        elif f.default_factory is not dataclasses.MISSING or f.default is None:
+            default = "none"
+        else:
+            default = f"`{str(f.default).lower() if isinstance(f.default, bool) else f.default or repr(f.default)}`"
+        doc = _accepted({**meta, "unit": "-"}).replace("|", "\\|")
+        accepted = _range_words(meta["check"]) or _KIND_WORDS.get(meta["kind"], "")
+        rows.append(f"| `{key}` | {unit} | {accepted} | {default} | {doc} |")
+    return "\n".join(rows)
+
+
 def check_field(path: str, f: dataclasses.Field[Any], value: Any) -> Any:
     """`check_value` for a declared field; a refusal also says what the parameter is (its doc)."""
     try:
@@ -575,16 +774,15 @@ def section_from_mapping(cls: type[T], data: Any, path: str, *, defaults: bool =
     unknown keys and missing ones (with `defaults`, only those without a default), naming `path.key`."""
     if not isinstance(data, Mapping):
         raise ParameterError(f"{path}: got {data!r}; accepted is a mapping of key: value")
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = sorted(str(k) for k in data if k not in fields)
+    fields = declarations(cls)  # type: ignore[arg-type]  # a dataclass type (hashable)
+    unknown = unknown_message(path, data, fields)
     if unknown:
-        raise ParameterError(f"{path}: unknown key(s) {', '.join(f'{path}.{k}' for k in unknown)}; "
-                             f"accepted: {', '.join(fields)}")
+        raise ParameterError(unknown)
     missing = [k for k, f in fields.items() if k not in data
                and not (defaults and (f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING))]
     if missing:
         raise ParameterError(f"{path}: missing key(s) {', '.join(f'{path}.{k}' for k in missing)}")
-    values = {k: check_field(f"{path}.{k}", fields[k], v) for k, v in data.items()}
+    values = {fields[k].name: check_field(f"{path}.{k}", fields[k], v) for k, v in data.items()}
     try:
         return cls(**values)
     except ParameterError as err:

@@ -50,17 +50,141 @@ from pcv_sim.campaign.sensitivity import METHODS, Dimension, Sensitivity
 from pcv_sim.campaign.sensitivity import size as sensitivity_size
 from pcv_sim.campaign.targets import Base, CampaignError, Target, load_base, parse_target, scenario_path
 from pcv_sim.device.faults import CYLINDER, CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS
-from pcv_sim.errors import PcvSimError
+from pcv_sim.errors import ParameterError, PcvSimError
 from pcv_sim.keys import check_keys
-from pcv_sim.params import read_yaml
+from pcv_sim.params import (
+    at_least,
+    between,
+    check_mapping,
+    check_si,
+    check_value,
+    int_range,
+    non_empty,
+    one_of,
+    parameter,
+    read,
+    read_yaml,
+)
 from pcv_sim.units import UnitError, quantity, value_kind
 
-__all__ = ["Campaign", "Distribution", "FaultMatrix", "MonteCarlo", "Sweep", "campaign_from_mapping", "load_campaign"]
+__all__ = ["Campaign", "CampaignKeys", "Distribution", "DistributionKeys", "FaultMatrix", "FaultsKeys", "GateKeys",
+           "MonteCarlo", "MonteCarloKeys", "RangeKeys", "SensitivityKeys", "SensitivityParameterKeys", "Sweep",
+           "SweepKeys", "campaign_from_mapping", "load_campaign"]
 
-_TOP = ("name", "scenario", "sweep", "monte_carlo", "faults", "sensitivity", "gate", "worst")
 _MAX_VARIANTS = 1_000_000
 DISTRIBUTIONS = ("normal", "uniform")
 SAMPLINGS = ("random", "latin_hypercube")
+_FAULT_KINDS = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
+_SI_OR_UNIT = "SI, or with a unit of the nominal value's kind"
+_RELATIVE = "SI, with a unit, or N% of the nominal value"
+
+
+# --- the keys of a campaign file, declared once (pcv_sim.params); the loader below reads them -----
+
+
+@dataclass(frozen=True, kw_only=True)
+class SweepKeys:
+    parameters: Mapping[str, Any] = parameter("-", "key -> values (a list or {from, to, steps})", non_empty,
+                                              kind="mapping")
+    combine: str = parameter("-", "product (every combination) or zip (lists of one length)",
+                             one_of("product", "zip"), kind="str", default="product")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RangeKeys:
+    """A sweep's values as a grid: `steps` values from `from` to `to`."""
+
+    start: float = parameter("-", "the first value (SI)", kind="float", name="from")
+    stop: float = parameter("-", "the last value (SI)", kind="float", name="to")
+    steps: int = parameter("-", "the number of values", int_range(1, 100_000), kind="int")
+
+
+@dataclass(frozen=True, kw_only=True)
+class MonteCarloKeys:
+    samples: int = parameter("-", "the number of variants", int_range(1, _MAX_VARIANTS), kind="int")
+    seed: int = parameter("-", "the draws' seed", int_range(0, 2**63 - 1), kind="int", default=0)
+    sampling: str = parameter("-", "random, or latin_hypercube (scipy.stats.qmc)", one_of(*SAMPLINGS), kind="str",
+                              default="random")
+    parameters: Mapping[str, Any] = parameter("-", "key -> {distribution, ...}", non_empty, kind="mapping")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DistributionKeys:
+    """A Monte Carlo parameter's distribution (normal: mean, sd, truncate; uniform: low and high,
+    or tolerance)."""
+
+    distribution: str = parameter("-", "normal or uniform", one_of(*DISTRIBUTIONS), kind="str")
+    mean: Any = parameter("-", f"normal: the mean ({_SI_OR_UNIT}; default: the nominal value)", kind="any",
+                          default=None)
+    sd: Any = parameter("-", f"normal: the standard deviation > 0 ({_RELATIVE})", kind="any", default=None)
+    truncate: Any = parameter("-", f"normal: truncated at mean +- this ({_RELATIVE}) or at [low, high]", kind="any",
+                              default=None)
+    low: Any = parameter("-", f"uniform: the lower bound ({_SI_OR_UNIT})", kind="any", default=None)
+    high: Any = parameter("-", f"uniform: the upper bound ({_SI_OR_UNIT})", kind="any", default=None)
+    tolerance: Any = parameter("-", f"uniform: the nominal value +- this ({_RELATIVE})", kind="any", default=None)
+    tied: bool = parameter("-", "one draw for every valve of a valves.<section>.<key> (default: each its own)",
+                           kind="bool", default=False)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaultsKeys:
+    kinds: list[str] = parameter("-", "of fault kinds (pcv_sim.device.faults)", non_empty, kind="list",
+                                 item=parameter("-", "a fault's kind", one_of(*_FAULT_KINDS), kind="str"))
+    targets: list[str] = parameter("-", "of targets: valves, cylinder, measured signals (left.pressure)", non_empty,
+                                   kind="list")
+    onsets: list[float] = parameter("s", "of onsets within the scenario's duration", non_empty, kind="list",
+                                    item=parameter("s", "an onset", kind="time"))
+    values: Mapping[str, Any] | None = parameter("-", "kind -> {key: value}: the values a kind takes (SI)",
+                                                 kind="mapping", default=None)
+    clear_after: float | None = parameter("s", "the fault is cleared this long after its onset",
+                                          at_least(0.0, "a time", strict=True), kind="time", default=None)
+    at_onset: list[str] | None = parameter("-", "of scenario values that follow the onset (scenario.<path>)",
+                                           kind="list", default=None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensitivityKeys:
+    method: str = parameter("-", "sobol or morris (SALib)", one_of(*METHODS), kind="str")
+    samples: int = parameter("-", "N: sobol N (D + 2) variants (N a power of 2), morris N (D + 1)",
+                             int_range(2, 1 << 16), kind="int")
+    seed: int = parameter("-", "the design's seed", int_range(0, 2**32 - 1), kind="int", default=0)
+    levels: int = parameter("-", "morris: the grid's levels", int_range(2, 100), kind="int", default=4)
+    parameters: Mapping[str, Any] = parameter("-", "key -> {low, high} or {tolerance}", non_empty, kind="mapping")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensitivityParameterKeys:
+    low: Any = parameter("-", f"the lower bound ({_SI_OR_UNIT})", kind="any", default=None)
+    high: Any = parameter("-", f"the upper bound ({_SI_OR_UNIT})", kind="any", default=None)
+    tolerance: Any = parameter("-", f"the nominal value +- this ({_RELATIVE})", kind="any", default=None)
+    tied: bool = parameter("-", "one dimension for every valve of a valves.<section>.<key>", kind="bool",
+                           default=False)
+
+
+@dataclass(frozen=True, kw_only=True)
+class GateKeys:
+    pass_rate: float = parameter("-", "exit 0 when at least this fraction of the variants passes",
+                                 between(0.0, 1.0, "a fraction"), kind="fraction", default=1.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CampaignKeys:
+    """The top level of a campaign file."""
+
+    name: str | None = parameter("-", "the campaign's name (default: the file name)", non_empty, kind="str",
+                                 default=None)
+    scenario: Any = parameter("-", "the scenario: its file, relative to this one, or inline (a mapping)", kind="any")
+    sweep: SweepKeys | None = parameter("-", "a grid of values", kind="section", section=SweepKeys, default=None)
+    monte_carlo: MonteCarloKeys | None = parameter("-", "tolerances drawn from distributions", kind="section",
+                                                   section=MonteCarloKeys, default=None)
+    faults: FaultsKeys | None = parameter("-", "a matrix: every kind x target x onset", kind="section",
+                                          section=FaultsKeys, default=None)
+    sensitivity: SensitivityKeys | None = parameter("-", "alone: SALib's Sobol or Morris design", kind="section",
+                                                    section=SensitivityKeys, default=None)
+    gate: GateKeys | None = parameter("-", "when the campaign passes", kind="section", section=GateKeys,
+                                      default=None)
+    worst: int = parameter("-", "the worst variants whose own scenario reports the report links",
+                           int_range(0, 1000), kind="int", default=5)
 
 
 @dataclass(frozen=True)
@@ -132,31 +256,13 @@ class Campaign:
         return self.monte_carlo.samples if self.monte_carlo else 1
 
 
-def _num(where: str, v: Any, what: str = "a finite number") -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise CampaignError(f"{where}: got {v!r}; accepted is {what}")
-    return float(v)
-
-
-def _int(where: str, v: Any, lo: int, hi: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise CampaignError(f"{where}: got {v!r}; accepted is an integer {lo} .. {hi}")
-    return v
-
-
-def _keys(where: str, v: Any, accepted: tuple[str, ...], required: tuple[str, ...] = ()) -> Mapping[str, Any]:
-    return check_keys(where, v, accepted, required, CampaignError)
+_VALUE = parameter("-", "a number in SI or a value with its unit (e.g. 20 mm)", kind="value").metadata
 
 
 def _si(where: str, v: Any, kind: str) -> float:
     """A number (SI) or a value with a unit of `kind` ("20 mm"; any unit when `kind` is "number",
     the nominal value having been written without one) in SI."""
-    if not isinstance(v, str):
-        return _num(where, v, "a number in SI or a value with its unit (e.g. 20 mm)")
-    try:
-        return quantity(v, kind if kind != "number" else value_kind(v) or "number", where)
-    except UnitError as err:
-        raise CampaignError(str(err)) from None
+    return float(check_value(where, _VALUE, v, of=value_kind(v) or "number" if kind == "number" else kind))
 
 
 def _nominal(where: str, target: Target, nominal: Any) -> tuple[float, str]:
@@ -181,16 +287,13 @@ def _relative(where: str, v: Any, nominal: float, kind: str = "number") -> float
         if not math.isfinite(pct) or pct < 0:
             raise CampaignError(f"{where}: got {v!r}; accepted is a percentage >= 0 of the nominal value (e.g. 5%)")
         return abs(nominal) * pct / 100.0
-    if isinstance(v, str):
-        return _si(where, v, kind)
-    return _num(where, v, "a number in SI, a value with its unit or a percentage of the nominal value (e.g. 5%)")
+    return _si(where, v, kind)
 
 
 def _values(where: str, raw: Any) -> tuple[Any, ...]:
     if isinstance(raw, Mapping):
-        spec = _keys(where, raw, ("from", "to", "steps"), ("from", "to", "steps"))
-        lo, hi = _num(f"{where}.from", spec["from"]), _num(f"{where}.to", spec["to"])
-        n = _int(f"{where}.steps", spec["steps"], 1, 100_000)
+        spec = check_mapping(RangeKeys, raw, where)
+        lo, hi, n = (read(RangeKeys, spec, k, where) for k in ("from", "to", "steps"))
         if n == 1:
             return (lo,)
         return tuple(lo + (hi - lo) * k / (n - 1) for k in range(n))
@@ -210,22 +313,11 @@ def _check_value(base: Base, column: str, value: Any, where: str) -> None:
         raise CampaignError(f"{where}: {column} = {value!r}: {err}") from None
 
 
-def _parameters(section: str, spec: Mapping[str, Any], accepted: str) -> Mapping[str, Any]:
-    """A section's `parameters`: a non-empty mapping key -> `accepted`, or CampaignError saying so."""
-    params = spec["parameters"]
-    if not isinstance(params, Mapping) or not params:
-        raise CampaignError(f"{section}.parameters: accepted is a mapping key -> {accepted}")
-    return params
-
-
 def _sweep(raw: Any, base: Base) -> Sweep:
-    spec = _keys("sweep", raw, ("parameters", "combine"), ("parameters",))
-    combine = spec.get("combine", "product")
-    if combine not in ("product", "zip"):
-        raise CampaignError(f"sweep.combine: got {combine!r}; accepted is product or zip")
-    params = _parameters("sweep", spec, "values (a list or {from, to, steps})")
+    spec = check_mapping(SweepKeys, raw, "sweep")
+    combine = read(SweepKeys, spec, "combine", "sweep")
     out = []
-    for key, raw_values in params.items():
+    for key, raw_values in read(SweepKeys, spec, "parameters", "sweep").items():
         where = f"sweep.parameters.{key}"
         target = parse_target(key, base, "sweep.parameters")
         values = _values(where, raw_values)
@@ -240,15 +332,10 @@ def _sweep(raw: Any, base: Base) -> Sweep:
 
 
 def _distribution(where: str, raw: Any, target: Target, nominal: Any) -> Distribution:
-    spec = _keys(where, raw, ("distribution", "mean", "sd", "truncate", "low", "high", "tolerance", "tied"),
-                 ("distribution",))
-    kind = spec["distribution"]
-    if kind not in DISTRIBUTIONS:
-        raise CampaignError(f"{where}.distribution: got {kind!r}; accepted is {' or '.join(DISTRIBUTIONS)}")
+    spec = check_mapping(DistributionKeys, raw, where)
+    kind = read(DistributionKeys, spec, "distribution", where)
     nominal, unit_kind = _nominal(where, target, nominal)
-    tied = spec.get("tied", False)
-    if not isinstance(tied, bool):
-        raise CampaignError(f"{where}.tied: got {tied!r}; accepted is true or false")
+    tied = read(DistributionKeys, spec, "tied", where)
     if tied and target.kind != "valve":
         raise CampaignError(f"{where}.tied: only for a key of every valve (valves.<section>.<key>)")
     if kind == "normal":
@@ -299,13 +386,9 @@ def _bounds(where: str, spec: Mapping[str, Any], nominal: float, kind: str) -> t
 
 
 def _monte_carlo(raw: Any, base: Base) -> MonteCarlo:
-    spec = _keys("monte_carlo", raw, ("samples", "seed", "sampling", "parameters"), ("samples", "parameters"))
-    samples = _int("monte_carlo.samples", spec["samples"], 1, _MAX_VARIANTS)
-    seed = _int("monte_carlo.seed", spec.get("seed", 0), 0, 2**63 - 1)
-    sampling = spec.get("sampling", "random")
-    if sampling not in SAMPLINGS:
-        raise CampaignError(f"monte_carlo.sampling: got {sampling!r}; accepted is {' or '.join(SAMPLINGS)}")
-    params = _parameters("monte_carlo", spec, "{distribution, ...}")
+    spec = check_mapping(MonteCarloKeys, raw, "monte_carlo")
+    samples, seed, sampling, params = (read(MonteCarloKeys, spec, k, "monte_carlo")
+                                       for k in ("samples", "seed", "sampling", "parameters"))
     out = []
     for key, raw_d in params.items():
         where = f"monte_carlo.parameters.{key}"
@@ -315,48 +398,30 @@ def _monte_carlo(raw: Any, base: Base) -> MonteCarlo:
     return MonteCarlo(samples, seed, sampling, tuple(out))
 
 
+_ONSET = FaultsKeys.__dataclass_fields__["onsets"].metadata["item"]
+
+
 def _faults(raw: Any, base: Base) -> FaultMatrix:
-    spec = _keys("faults", raw, ("kinds", "targets", "onsets", "values", "clear_after", "at_onset"),
-                 ("kinds", "targets", "onsets"))
-    known = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
-    lists = {}
-    for k in ("kinds", "targets", "onsets"):
-        v = spec[k]
-        if not isinstance(v, list) or not v:
-            raise CampaignError(f"faults.{k}: got {v!r}; accepted is a non-empty list")
-        lists[k] = v
-    for j, kind in enumerate(lists["kinds"]):
-        if kind not in known:
-            raise CampaignError(f"faults.kinds[{j}]: got {kind!r}; accepted are {', '.join(known)}")
+    spec = check_mapping(FaultsKeys, raw, "faults")
+    kinds, targets, raw_onsets, values, clear, at_onset_raw = (
+        read(FaultsKeys, spec, k, "faults") for k in ("kinds", "targets", "onsets", "values", "clear_after", "at_onset"))
     duration = base.scenario.duration
-    onsets = tuple(_num(f"faults.onsets[{j}]", t, "a time in s") for j, t in enumerate(lists["onsets"]))
-    for j, t in enumerate(onsets):
-        if not 0.0 <= t <= duration:
-            raise CampaignError(f"faults.onsets[{j}]: {t:g} s; accepted is a time in 0 .. {duration:g} s (the "
-                                "scenario's duration)")
-    values = spec.get("values", {})
-    _keys("faults.values", values, known)
-    clear = spec.get("clear_after")
-    if clear is not None:
-        clear = _num("faults.clear_after", clear, "a time in s > 0")
-        if clear <= 0:
-            raise CampaignError(f"faults.clear_after: got {clear!r}; accepted is a time in s > 0")
-    at_onset_raw = spec.get("at_onset", [])
-    if not isinstance(at_onset_raw, list):
-        raise CampaignError("faults.at_onset: accepted is a list of scenario values (scenario.<path>)")
+    onsets = tuple(check_si(f"faults.onsets[{j}]", _ONSET, t, check=between(
+        0.0, duration, "a time within the scenario's duration")) for j, t in enumerate(raw_onsets))
+    values = check_keys("faults.values", values or {}, _FAULT_KINDS)
     at_onset = []
-    for j, key in enumerate(at_onset_raw):
+    for j, key in enumerate(at_onset_raw or ()):
         if not isinstance(key, str) or not key.startswith("scenario."):
             raise CampaignError(f"faults.at_onset[{j}]: got {key!r}; accepted is scenario.<path> (e.g. "
                                 "scenario.assertions[0].at)")
         parse_target(key, base, f"faults.at_onset[{j}]")
         at_onset.append(scenario_path(key.partition(".")[2]))
-    for j, target in enumerate(lists["targets"]):
-        if not any(fault_applies(kind, target, base.valves) for kind in lists["kinds"]):
+    for j, target in enumerate(targets):
+        if not any(fault_applies(kind, target, base.valves) for kind in kinds):
             raise CampaignError(f"faults.targets[{j}]: {target!r} takes none of the kinds listed; accepted are the "
                                 f"valves ({', '.join(base.valves)}) for valve faults, {CYLINDER} for "
                                 f"{', '.join(CYLINDER_FAULTS)}, a measured signal (left.pressure...) for sensor faults")
-    cells = tuple((kind, target, t) for kind in lists["kinds"] for target in lists["targets"]
+    cells = tuple((kind, target, t) for kind in kinds for target in targets
                   if fault_applies(kind, target, base.valves) for t in onsets)
     matrix = FaultMatrix(cells, {str(k): dict(v) for k, v in values.items()}, clear, tuple(at_onset))
     # every kind on every target, through the scenario's own validation (fault values, targets)
@@ -390,26 +455,20 @@ def fault_applies(kind: str, target: str, valves: tuple[str, ...]) -> bool:
 
 
 def _sensitivity(raw: Any, base: Base) -> Sensitivity:
-    spec = _keys("sensitivity", raw, ("method", "samples", "seed", "levels", "parameters"), ("method", "samples",
-                                                                                            "parameters"))
-    method = spec["method"]
-    if method not in METHODS:
-        raise CampaignError(f"sensitivity.method: got {method!r}; accepted is {' or '.join(METHODS)} (SALib)")
-    samples = _int("sensitivity.samples", spec["samples"], 2, 1 << 16)
+    spec = check_mapping(SensitivityKeys, raw, "sensitivity")
+    method, samples, seed, levels, params = (read(SensitivityKeys, spec, k, "sensitivity")
+                                             for k in ("method", "samples", "seed", "levels", "parameters"))
     if method == "sobol" and samples & (samples - 1):
         raise CampaignError(f"sensitivity.samples: got {samples}; accepted for sobol is a power of 2 (Sobol' "
                             "sequences keep their balance only then), e.g. 64")
-    seed = _int("sensitivity.seed", spec.get("seed", 0), 0, 2**32 - 1)
-    levels = _int("sensitivity.levels", spec.get("levels", 4), 2, 100)
-    params = _parameters("sensitivity", spec, "{low, high} or {tolerance}")
     dims: list[Dimension] = []
     for key, raw_p in params.items():
         where = f"sensitivity.parameters.{key}"
         target = parse_target(key, base, "sensitivity.parameters")
-        p = _keys(where, raw_p, ("low", "high", "tolerance", "tied"))
-        tied = p.get("tied", False)
-        if not isinstance(tied, bool) or (tied and target.kind != "valve"):
-            raise CampaignError(f"{where}.tied: accepted is true or false, true only for a key of every valve")
+        p = check_mapping(SensitivityParameterKeys, raw_p, where)
+        tied = read(SensitivityParameterKeys, p, "tied", where)
+        if tied and target.kind != "valve":
+            raise CampaignError(f"{where}.tied: true only for a key of every valve (valves.<section>.<key>)")
         bounds = []
         for col, raw_nominal in zip(target.columns, target.nominals):
             nominal, unit_kind = _nominal(where, target, raw_nominal)
@@ -427,7 +486,7 @@ def _sensitivity(raw: Any, base: Base) -> Sensitivity:
 def campaign_from_mapping(data: Any, path: Path) -> Campaign:
     """A validated Campaign from the file's mapping (`path`: the file, for relative paths)."""
     try:
-        _keys("campaign", data, _TOP, ("scenario",))
+        check_mapping(CampaignKeys, data, "campaign", "")
         base = load_base(data["scenario"], path)
         sweep = _sweep(data["sweep"], base) if data.get("sweep") is not None else None
         mc = _monte_carlo(data["monte_carlo"], base) if data.get("monte_carlo") is not None else None
@@ -441,15 +500,11 @@ def campaign_from_mapping(data: Any, path: Path) -> Campaign:
         if twice:
             raise CampaignError(f"{', '.join(twice)}: varied in more than one place (sweep, monte_carlo); accepted "
                                 "is each key once")
-        gate = _keys("gate", data.get("gate", {}), ("pass_rate",))
-        pass_rate = _num("gate.pass_rate", gate.get("pass_rate", 1.0), "a fraction 0 .. 1")
-        if not 0.0 <= pass_rate <= 1.0:
-            raise CampaignError(f"gate.pass_rate: got {pass_rate!r}; accepted is a fraction 0 .. 1")
-        worst = _int("worst", data.get("worst", 5), 0, 1000)
-        name = data.get("name", path.stem)
-        if not isinstance(name, str) or not name:
-            raise CampaignError(f"name: got {name!r}; accepted is a non-empty string")
-    except CampaignError as err:
+        gate = read(CampaignKeys, data, "gate")
+        pass_rate = gate.pass_rate if gate is not None else GateKeys().pass_rate
+        worst = read(CampaignKeys, data, "worst")
+        name = read(CampaignKeys, data, "name") or path.stem
+    except (CampaignError, ParameterError) as err:
         raise CampaignError(f"{path}: {err}") from None
     digest = hashlib.sha256(pickle.dumps((json.dumps(data, sort_keys=True, default=str), base.scenario_data,
                                           base.rig_data, base.valve_data))).hexdigest()[:16]

@@ -44,6 +44,7 @@ from pcv_sim.io.recorder import WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_
 from pcv_sim.io.topics import (
     CYLINDER,
     DUTY_CYCLE,
+    EMULATOR_INTERFACE,
     EVENTS,
     FAULTS,
     INPUT_ROLES,
@@ -51,16 +52,17 @@ from pcv_sim.io.topics import (
     JOINT_STATE,
     LOAD_FLOW,
     OPTION_INTERFACE,
-    OUTPUT_ROLES,
+    RIG_INTERFACE,
     ROLE_ALIASES,
-    ROLE_QOS,
     ROLE_TYPES,
     ROLES,
+    SCENARIO_INTERFACE,
     STRING,
     bag_topic,
     input_topics,
     output_topics,
     role_of,
+    topic_of,
 )
 
 __all__ = ["RECORDABLE", "BagLayout", "DeviceRecorder", "Topic", "check_signals"]
@@ -68,7 +70,15 @@ __all__ = ["RECORDABLE", "BagLayout", "DeviceRecorder", "Topic", "check_signals"
 #: Signals the emulator's recording can select, by role (`record.signals`).
 RECORDABLE: Final = ROLES
 _OPTION_DIRECTION: Final = {e.name: e.direction for e in OPTION_INTERFACE}
-_OPTION_QOS: Final = {e.name: e.qos or COMMAND_QOS for e in OPTION_INTERFACE}
+#: The QoS the nodes offer per relative topic (a valve's topics by role); a topic only bags have
+#: (the events, the controller's flags) as a command's.
+_QOS: Final = {e.name: e.qos for e in (*EMULATOR_INTERFACE, *OPTION_INTERFACE, *RIG_INTERFACE, *SCENARIO_INTERFACE)
+               if e.qos is not None}
+
+
+def _qos(relative: str) -> Qos:
+    """The QoS of a relative topic (``left/pressure``: the role's) from the registry."""
+    return _QOS.get(relative, _QOS.get(relative.rpartition("/")[2], COMMAND_QOS))
 
 
 def check_signals(signals: Iterable[str]) -> tuple[str, ...]:
@@ -170,9 +180,9 @@ class BagLayout:
         out_topic = {o.signals: o for o in output_topics(signals, chambers)}
         topics: list[Topic] = []
 
-        def add(kind: Literal["input", "column", "joint", "text"], name: str, where: str, msgtype: str, qos: Qos,
+        def add(kind: Literal["input", "column", "joint", "text"], name: str, where: str, msgtype: str,
                 frame: str = "", source: str | tuple[int, ...] = "") -> None:
-            topics.append(Topic(kind, name, bag_topic(where, namespace), msgtype, qos, frame, source))
+            topics.append(Topic(kind, name, bag_topic(where, namespace), msgtype, _qos(where), frame, source))
 
         def stamped(msgtype: str) -> str:
             return frame_id if msgtype != FLOAT64 else ""
@@ -180,40 +190,37 @@ class BagLayout:
         for v in valves:
             for role in (r for r in ROLES if r in roles):
                 name = f"{prefix[v]}{role}"
-                where, msgtype = relative.get(name, name.replace(".", "/")), ROLE_TYPES[role]
+                where, msgtype = relative.get(name, topic_of(name)), ROLE_TYPES[role]
                 if name in row:
-                    add("column", name, where, msgtype, ROLE_QOS[role], stamped(msgtype), (row.index(name),))
+                    add("column", name, where, msgtype, stamped(msgtype), (row.index(name),))
                 elif role in INPUT_ROLES:
                     # At model steps the duty is the one the model used (after the fall-rate limiter).
                     key = f"{prefix[v]}duty" if every is not None and role == DUTY_CYCLE else name
-                    add("input", name, where, msgtype, ROLE_QOS[role], stamped(msgtype), key)
+                    add("input", name, where, msgtype, stamped(msgtype), key)
             if v in chambers:
                 o = out_topic[(f"{v}.pressure",)]
-                add("column", f"{v}.pressure", o.topic, o.type, ROLE_QOS[OUTPUT_ROLES[0]], o.frame_id,
-                    (row.index(o.signals[0]),))
+                add("column", o.signals[0], o.topic, o.type, o.frame_id, (row.index(o.signals[0]),))
         for o in out_topic.values():
             if o.type == JOINT_STATE:
-                add("joint", CYLINDER, o.topic, o.type, ROLE_QOS[OUTPUT_ROLES[0]], o.frame_id,
-                    tuple(row.index(s) for s in o.signals))
+                add("joint", CYLINDER, o.topic, o.type, o.frame_id, tuple(row.index(s) for s in o.signals))
         for name in inputs:                         # the plant's
             owner = name.rpartition(".")[0]
             if owner and owner not in valves:
                 e = input_topic[name]
-                add("input", name, e.topic, e.type, ROLE_QOS[INPUT_ROLES[0]], stamped(e.type), name)
+                add("input", name, e.topic, e.type, stamped(e.type), name)
         if options:
             for name in (n for n in inputs if n.rpartition(".")[2] in _OPTION_DIRECTION):
-                add("input", name, input_topic[name].topic, FLOAT64, _OPTION_QOS[name.rpartition(".")[2]], "", name)
+                add("input", name, input_topic[name].topic, FLOAT64, "", name)
             for name in (s for s in signals if s.rpartition(".")[2] in _OPTION_DIRECTION):
-                add("column", name, name.replace(".", "/"), FLOAT64, _OPTION_QOS[name.rpartition(".")[2]], "",
-                    (row.index(name),))
+                add("column", name, topic_of(name), FLOAT64, "", (row.index(name),))
         named = {t.name for t in topics}
         for name, where in extra:
             if name not in named:
-                add("column", name, where, FLOAT64, ROLE_QOS[DUTY_CYCLE], "", (row.index(name),))
+                add("column", name, where, FLOAT64, "", (row.index(name),))
         if faults:
-            add("text", FAULTS, FAULTS, STRING, ROLE_QOS[DUTY_CYCLE])
+            add("text", FAULTS, FAULTS, STRING)
         if events:
-            add("text", EVENTS, EVENTS, STRING, ROLE_QOS[DUTY_CYCLE])
+            add("text", EVENTS, EVENTS, STRING)
         flows = tuple(f"{prefix[v]}{LOAD_FLOW}" for v in valves if every is None and LOAD_FLOW in roles)
         return cls(tuple(topics), row, every, flows, "emulator" if lone else "rig")
 

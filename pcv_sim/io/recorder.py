@@ -74,7 +74,8 @@ Writer = Literal["process", "thread", "inline"]
 SWITCH_INTERVAL: Final = 1e-3
 
 _SHIP_ITEMS: Final = 4096   # items per batch to the writer process at most (besides batch_period)
-_NAME_OK: Final = re.compile(r"^[A-Za-z0-9_.\-]+$")
+#: A bag directory's name: anything but a path (the nodes' record.name is stricter, its own check).
+_NAME_OK: Final = re.compile(r"^[^/\x00]+$")
 
 
 def bag_name(namespace: str = "/", when: float | None = None, *, prefix: str = "emulator") -> str:
@@ -165,8 +166,8 @@ class QueuedBag:
     ) -> None:
         writer, batch_period = writing.writer, writing.batch_period
         if not isinstance(name, str) or not _NAME_OK.match(name) or name in (".", ".."):
-            msg = (f"bag name {name!r}: accepted is a plain directory name of letters, digits, "
-                   f"'_', '-', '.' (the directory is given separately)")
+            msg = (f"bag name {name!r}: accepted is a plain directory name, without '/' and other than "
+                   f"'.' and '..' (the directory is given separately)")
             raise BagError(msg)
         self.path = Path(directory) / name
         if self.path.exists():

@@ -69,6 +69,7 @@ __all__ = [
     "input_topics",
     "output_topics",
     "role_of",
+    "topic_of",
     "valve_topic",
 ]
 
@@ -251,8 +252,9 @@ JOINT_FIELDS: Final = ("position", "velocity", "effort")
 _PRESSURE_ROLES: Final = (SUPPLY_PRESSURE, PRESSURE)
 
 
-def _topic_of(name: str) -> str:
-    """A device's input or signal name as its relative topic: `left.duty_cycle` -> `left/duty_cycle`."""
+def topic_of(name: str) -> str:
+    """A device's input or signal name as its relative topic: `left.duty_cycle` -> `left/duty_cycle`,
+    the emulator's `duty_cycle` -> `duty_cycle`."""
     owner, _, role = name.rpartition(".")
     return valve_topic(owner, role) if owner else role
 
@@ -289,7 +291,7 @@ def input_topics(inputs: tuple[str, ...] | list[str], valves: tuple[str, ...] | 
         return owner or valves[0]
 
     duties = sorted((n for n in inputs if answers(n)), key=lambda n: valves.index(answers(n)))
-    return tuple(InputTopic(_topic_of(n), FLUID_PRESSURE if n.rpartition(".")[2] in _PRESSURE_ROLES else FLOAT64,
+    return tuple(InputTopic(topic_of(n), FLUID_PRESSURE if n.rpartition(".")[2] in _PRESSURE_ROLES else FLOAT64,
                             n, answers(n))
                  for n in (*duties, *(n for n in inputs if n not in duties)))
 
@@ -303,7 +305,7 @@ def output_topics(signals: tuple[str, ...] | list[str], chambers: dict[str, str]
         owner, _, role = name.rpartition(".")
         if owner == CYLINDER:
             continue
-        out.append(OutputTopic(_topic_of(name), FLUID_PRESSURE if role in _PRESSURE_ROLES else FLOAT64, (name,)))
+        out.append(OutputTopic(topic_of(name), FLUID_PRESSURE if role in _PRESSURE_ROLES else FLOAT64, (name,)))
     for valve, chamber in (chambers or {}).items():
         out.append(OutputTopic(chamber_topic(chamber), FLUID_PRESSURE, (f"{valve}.{PRESSURE}",), f"chamber_{chamber}"))
     joint = tuple(f"{CYLINDER}.{f}" for f in JOINT_FIELDS)

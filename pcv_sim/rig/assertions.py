@@ -37,13 +37,14 @@ from typing import Any
 
 import numpy as np
 
-from pcv_sim.errors import PcvSimError
-from pcv_sim.keys import closest, unknown_message
+from pcv_sim.errors import ParameterError, PcvSimError
+from pcv_sim.keys import check_keys, closest
+from pcv_sim.params import check_mapping, check_value, declarations, non_empty, one_of, parameter, read, refused_as
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.rig import signal_kind
-from pcv_sim.units import quantity
 
-__all__ = ["ASSERTION_TYPES", "EVENTS", "Outcome", "check_assertions", "outcome_kind", "outcomes", "signal_kind"]
+__all__ = ["ASSERTION_TYPES", "EVENTS", "AssertionKeys", "BaselineSignalKeys", "EventKeys", "Outcome",
+           "check_assertions", "outcome_kind", "outcomes", "signal_kind"]
 
 ASSERTION_TYPES = ("max_error", "within_band", "never_above", "never_below", "flag_within", "step_response",
                    "baseline")
@@ -64,8 +65,75 @@ _STEP_LIMITS = ("rise_time", "overshoot", "settling_time", "steady_state_error")
 _EPS = 1e-12
 
 
-class AssertionSpecError(PcvSimError, ValueError):
+class AssertionSpecError(ParameterError):
     """An assertion that cannot be checked as written (the scenario loader names its path)."""
+
+
+# --- the keys of an assertion, declared once (pcv_sim.params; kind value: the signal's unit) ------
+
+_TIME_OR_EVENT = "a time (s, or with a unit) or {event, delay}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class AssertionKeys:
+    """Every key of an assertion; `KEYS` says which a type takes."""
+
+    type: str = parameter("-", "what it checks: " + " | ".join(ASSERTION_TYPES), one_of(*ASSERTION_TYPES), kind="str")
+    name: str | None = parameter("-", "its name in reports (default: its type and signal)", non_empty, kind="str",
+                                 default=None)
+    signal: str | None = parameter("-", "the signal checked (step_response: default cylinder.position)", kind="str",
+                                   default=None)
+    measured: bool = parameter("-", "check what the controller saw (sensor faults applied)", kind="bool",
+                               default=False)
+    reference: Any = parameter("-", "a signal, or a value in the signal's unit (default: setpoint)", kind="any",
+                               default=None)
+    max: float | None = parameter("-", "the limit: of max_error's |signal - reference|, of never_above's signal",
+                                  kind="value", default=None)
+    min: float | None = parameter("-", "never_below's limit", kind="value", default=None)
+    tolerance: float | None = parameter("-", "within_band: the band's half width; baseline with a --json file: the "
+                                        "margin each assertion may lose, a fraction of its limit", kind="value",
+                                        default=None)
+    after: Any = parameter("s", f"the window's start: {_TIME_OR_EVENT}", kind="any", default=None)
+    before: Any = parameter("s", f"the window's end: {_TIME_OR_EVENT}", kind="any", default=None)
+    at: Any = parameter("s", f"flag_within's event, step_response's step: {_TIME_OR_EVENT}", kind="any", default=None)
+    within: float | None = parameter("s", "flag_within: the flag raised at most this long after `at`", kind="time",
+                                     default=None)
+    rise_time: float | None = parameter("s", "step_response: 10 % -> 90 % of the step at most", kind="time",
+                                        default=None)
+    overshoot: float | None = parameter("-", "step_response: beyond the step at most (a fraction: 10 %)",
+                                        kind="fraction", default=None)
+    settling_time: float | None = parameter("s", "step_response: from `at` until the signal stays within `band`",
+                                            kind="time", default=None)
+    band: Any = parameter("-", "step_response's settling band: a percentage of the step (2 %, the default) or a value",
+                          kind="any", default=None)
+    steady_state_error: float | None = parameter("-", "step_response: mean |error| over the window's last 5 % at most",
+                                                 kind="value", default=None)
+    file: str | None = parameter("-", "baseline: a bag directory, a --csv directory or a --json file of an earlier "
+                                 "run, relative to the scenario", kind="str", default=None)
+    signals: Mapping[str, Any] | None = parameter("-", "baseline: signal -> {nrmse, max_error}", non_empty,
+                                                  kind="mapping", default=None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EventKeys:
+    """A time on the timeline: `{event: fault, delay: 200 ms}`."""
+
+    event: str = parameter("-", f"the first timeline event of this kind ({' | '.join(EVENTS)}) or of this fault",
+                           kind="str")
+    delay: float = parameter("s", "after the event", kind="time", default=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BaselineSignalKeys:
+    """A signal compared with the baseline's (either or both)."""
+
+    nrmse: float | None = parameter("-", "RMS error / the baseline's range at most (a fraction: 2 %)", kind="fraction",
+                                    default=None)
+    max_error: float | None = parameter("-", "|signal - baseline| at most, in the signal's unit", kind="value",
+                                        default=None)
+
+
+_KEY = declarations(AssertionKeys)
 
 
 @dataclass(frozen=True)
@@ -99,44 +167,38 @@ def outcome_kind(o: Outcome) -> str:
 # --- validation -------------------------------------------------------------------------------
 
 
-def _err(msg: str) -> AssertionSpecError:
-    return AssertionSpecError(msg)
-
-
 def event_time(where: str, raw: Any, events: list[tuple[float, str, str]]) -> float:
     """A time: a value (s, or with a unit) or `{event: KIND, delay: D}` resolved on the timeline
     (`events`: (t, kind, fault kind or '') in time order)."""
     if not isinstance(raw, Mapping):
-        return quantity(raw, "time", where)
-    msg = unknown_message(where, raw, ("event", "delay"))
-    if msg:
-        raise _err(msg)
-    ev = raw.get("event")
-    delay = quantity(raw.get("delay", 0.0), "time", f"{where}.delay")
+        return float(check_value(where, declarations(EventKeys)["delay"].metadata, raw))
+    check_mapping(EventKeys, raw, where)
+    ev = read(EventKeys, raw, "event", where)
+    delay = read(EventKeys, raw, "delay", where)
     kinds = {k for _, k, _ in events} | {f for _, _, f in events if f}
     for t, k, f in events:
         if ev in (k, f):
-            return t + delay
+            return float(t + delay)
     near = closest(ev, [*EVENTS, *kinds])
-    raise _err(f"{where}.event: {ev!r} is not on the timeline{f' (did you mean {near!r}?)' if near else ''}; "
-               f"accepted are {', '.join(EVENTS)} or a fault's kind, of an event the timeline has "
-               f"({', '.join(sorted(kinds)) or 'none'})")
+    raise AssertionSpecError(f"{where}.event: {ev!r} is not on the timeline{f' (did you mean {near!r}?)' if near else ''}; "
+                             f"accepted are {', '.join(EVENTS)} or a fault's kind, of an event the timeline has "
+                             f"({', '.join(sorted(kinds)) or 'none'})")
 
 
+@refused_as(AssertionSpecError)
 def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: bool,
               events: list[tuple[float, str, str]], base: Path | None) -> dict[str, Any]:
     """The assertion with its values in SI and event times resolved; AssertionSpecError naming
     the key and what is accepted."""
     if not isinstance(raw, Mapping):
-        raise _err(f"{where}: got {raw!r}; accepted is a mapping {{type: {' | '.join(ASSERTION_TYPES)}, ...}}")
+        raise AssertionSpecError(f"{where}: got {raw!r}; accepted is a mapping {{type: {' | '.join(ASSERTION_TYPES)}, "
+                                 "...}")
     kind = raw.get("type")
     if kind not in KEYS:
         near = closest(kind, ASSERTION_TYPES)
-        raise _err(f"{where}.type: got {kind!r}{f' (did you mean {near!r}?)' if near else ''}; accepted are "
-                   f"{', '.join(ASSERTION_TYPES)}")
-    msg = unknown_message(where, raw, KEYS[kind])
-    if msg:
-        raise _err(msg)
+        raise AssertionSpecError(f"{where}.type: got {kind!r}{f' (did you mean {near!r}?)' if near else ''}; accepted "
+                                 f"are {', '.join(ASSERTION_TYPES)}")
+    check_keys(where, raw, KEYS[kind])
     out: dict[str, Any] = dict(raw)
     known = signals if has_setpoint else tuple(s for s in signals if s != "setpoint")
 
@@ -146,51 +208,45 @@ def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: b
         near = closest(sig, known)
         extra = " and controller.<flag>" if flags else ""
         no_sp = " (the scenario has no setpoint)" if sig == "setpoint" else ""
-        raise _err(f"{where}.{key}: got {sig!r}{no_sp}{f' (did you mean {near!r}?)' if near else ''}; accepted are "
-                   f"{', '.join(known)}{extra}")
+        raise AssertionSpecError(f"{where}.{key}: got {sig!r}{no_sp}{f' (did you mean {near!r}?)' if near else ''}; "
+                                 f"accepted are {', '.join(known)}{extra}")
 
     sk = "number"
     if kind != "baseline":
         default = "cylinder.position" if kind == "step_response" else None
         if "signal" not in raw and default is None:
-            raise _err(f"{where}: {kind} needs signal")
+            raise AssertionSpecError(f"{where}: {kind} needs signal")
         out["signal"] = sig = check_signal("signal", raw.get("signal", default))
         sk = signal_kind(sig)
     for key in (*_WINDOW, "at"):
         if key in raw:
             out[key] = event_time(f"{where}.{key}", raw[key], events)
-    if "within" in raw:
-        out["within"] = quantity(raw["within"], "time", f"{where}.within")
-    if "measured" in raw and not isinstance(raw["measured"], bool):
-        raise _err(f"{where}.measured: got {raw['measured']!r}; accepted is true or false")
+    for key in ("name", "measured", "within", "rise_time", "settling_time", "overshoot"):
+        if key in raw:
+            out[key] = read(AssertionKeys, raw, key, where)
     need = {"max_error": ("reference", "max"), "within_band": ("reference", "tolerance"), "never_above": ("max",),
             "never_below": ("min",), "flag_within": ("at", "within"), "step_response": ("at",),
             "baseline": ("file",)}[kind]
     for key in need:
         if key not in raw:
-            raise _err(f"{where}: {kind} needs {key}")
+            raise AssertionSpecError(f"{where}: {kind} needs {key}")
     for key in ("max", "min", "tolerance", "steady_state_error"):
         if key in raw and kind != "baseline":
-            out[key] = quantity(raw[key], sk, f"{where}.{key}")
-    for key in ("rise_time", "settling_time"):
-        if key in raw:
-            out[key] = quantity(raw[key], "time", f"{where}.{key}")
-    if "overshoot" in raw:
-        out["overshoot"] = quantity(raw["overshoot"], "fraction", f"{where}.overshoot")
+            out[key] = read(AssertionKeys, raw, key, where, of=sk)
     if kind in ("max_error", "within_band", "step_response"):
         ref = raw.get("reference", "setpoint")
         if isinstance(ref, str) and not ref[:1].isdigit() and not ref.startswith(("-", "+", ".")):
             out["reference"] = check_signal("reference", ref, flags=False)
         else:
-            out["reference"] = quantity(ref, sk, f"{where}.reference")
+            out["reference"] = check_value(f"{where}.reference", _KEY["max"].metadata, ref, of=sk)
     if kind == "step_response":
         if not any(k in raw for k in _STEP_LIMITS):
-            raise _err(f"{where}: step_response needs at least one of {', '.join(_STEP_LIMITS)}")
+            raise AssertionSpecError(f"{where}: step_response needs at least one of {', '.join(_STEP_LIMITS)}")
         band = raw.get("band", "2 %")
         if isinstance(band, str) and band.strip().endswith("%"):
-            out["band"] = ("fraction", quantity(band, "fraction", f"{where}.band"))
+            out["band"] = ("fraction", check_value(f"{where}.band", _KEY["overshoot"].metadata, band))
         else:
-            out["band"] = ("value", quantity(band, sk, f"{where}.band"))
+            out["band"] = ("value", check_value(f"{where}.band", _KEY["max"].metadata, band, of=sk))
     if kind == "baseline":
         _baseline_spec(where, raw, out, known, base)
     return out
@@ -198,38 +254,33 @@ def normalize(where: str, raw: Any, *, signals: tuple[str, ...], has_setpoint: b
 
 def _baseline_spec(where: str, raw: Mapping[str, Any], out: dict[str, Any], known: tuple[str, ...],
                    base: Path | None) -> None:
-    f = raw["file"]
+    f = read(AssertionKeys, raw, "file", where)
     p = (base / str(f)) if base is not None else Path(str(f))
     if not p.exists():
-        raise _err(f"{where}.file: {p} does not exist; accepted is a bag directory, a --csv directory or a --json file "
-                   "of an earlier run")
+        raise AssertionSpecError(f"{where}.file: {p} does not exist; accepted is a bag directory, a --csv directory or "
+                                 "a --json file of an earlier run")
     out["file"] = p
-    sigs = raw.get("signals")
     if p.suffix == ".json":
-        if sigs is not None:
-            raise _err(f"{where}.signals: a --json baseline holds assertion values, not signals; accepted is "
-                       "tolerance (a fraction of each limit)")
-        out["tolerance"] = quantity(raw.get("tolerance", 0.0), "fraction", f"{where}.tolerance")
+        if raw.get("signals") is not None:
+            raise AssertionSpecError(f"{where}.signals: a --json baseline holds assertion values, not signals; "
+                                     "accepted is tolerance (a fraction of each limit)")
+        out["tolerance"] = check_value(f"{where}.tolerance", _KEY["tolerance"].metadata, raw.get("tolerance", 0.0),
+                                       of="fraction")
         return
-    if not isinstance(sigs, Mapping) or not sigs:
-        raise _err(f"{where}.signals: got {sigs!r}; accepted is a mapping signal -> {{nrmse, max_error}}")
+    if raw.get("signals") is None:
+        raise AssertionSpecError(f"{where}.signals: missing; accepted is a mapping {_KEY['signals'].metadata['description']}")
+    sigs = read(AssertionKeys, raw, "signals", where)
     spec: dict[str, dict[str, float]] = {}
     for sig, tol in sigs.items():
         w = f"{where}.signals.{sig}"
         if sig not in known and not str(sig).startswith("controller."):
             near = closest(sig, known)
-            raise _err(f"{w}: no signal {sig!r}{f' (did you mean {near!r}?)' if near else ''}; accepted are "
-                       f"{', '.join(known)}")
-        if not isinstance(tol, Mapping) or not tol:
-            raise _err(f"{w}: got {tol!r}; accepted is a mapping with nrmse (a fraction) and/or max_error (a value)")
-        msg = unknown_message(w, tol, ("nrmse", "max_error"))
-        if msg:
-            raise _err(msg)
-        spec[str(sig)] = {}
-        if "nrmse" in tol:
-            spec[str(sig)]["nrmse"] = quantity(tol["nrmse"], "fraction", f"{w}.nrmse")
-        if "max_error" in tol:
-            spec[str(sig)]["max_error"] = quantity(tol["max_error"], signal_kind(str(sig)), f"{w}.max_error")
+            raise AssertionSpecError(f"{w}: no signal {sig!r}{f' (did you mean {near!r}?)' if near else ''}; accepted "
+                                     f"are {', '.join(known)}")
+        check_mapping(BaselineSignalKeys, tol, w)
+        if not tol:
+            raise AssertionSpecError(f"{w}: got {tol!r}; accepted is nrmse (a fraction) and/or max_error (a value)")
+        spec[str(sig)] = {k: read(BaselineSignalKeys, tol, k, w, of=signal_kind(str(sig))) for k in tol}
     out["signals"] = spec
 
 

@@ -32,23 +32,92 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.errors import ParameterError
-from pcv_sim.keys import missing_message, unknown_message
+from pcv_sim.keys import closest, exactly_one, unknown_message
+from pcv_sim.params import (
+    Check,
+    at_least,
+    between,
+    check_mapping,
+    check_si,
+    check_value,
+    declarations,
+    non_empty,
+    parameter,
+    read,
+    refused_as,
+)
 from pcv_sim.units import quantity
 
-__all__ = ["SHAPES", "Profile", "ProfileError", "Segment", "parse_segment"]
+__all__ = ["SHAPES", "ChirpKeys", "FileKeys", "Profile", "ProfileError", "RampKeys", "Segment", "ShapeKeys", "SineKeys",
+           "parse_segment"]
 
-SHAPES = ("value", "ramp", "table", "sine", "chirp", "file")
-_KEYS = {
-    "ramp": ("to", "duration", "from"),
-    "sine": ("amplitude", "frequency", "offset"),
-    "chirp": ("amplitude", "from", "to", "duration", "offset"),
-    "file": ("path", "column", "unit", "time", "time_unit"),
-}
 _HEADER = re.compile(r"^\s*(.*?)\s*\[(.*)\]\s*$")
+_FREQUENCY = between(0.0, 1000.0, "a frequency")
 
 
 class ProfileError(ParameterError):
     """A profile segment that cannot be evaluated as written."""
+
+
+# --- the keys of each shape, declared once (kind value: the profile's quantity) -----------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class RampKeys:
+    to: float = parameter("-", "the final value", kind="value")
+    duration: float = parameter("s", "the ramp's time", at_least(0.0, "a time"), kind="time")
+    start: float | None = parameter("-", "the start value (default: the value just before t)", kind="value",
+                                    default=None, name="from")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SineKeys:
+    amplitude: float = parameter("-", "half the peak-to-peak swing", at_least(0.0), kind="value", difference=True)
+    frequency: float = parameter("Hz", "the sine's frequency", _FREQUENCY, kind="frequency")
+    offset: float = parameter("-", "the value it swings about", kind="value", default=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChirpKeys:
+    amplitude: float = parameter("-", "half the peak-to-peak swing", at_least(0.0), kind="value", difference=True)
+    f0: float = parameter("Hz", "the start frequency", _FREQUENCY, kind="frequency", name="from")
+    f1: float = parameter("Hz", "the end frequency (held after the sweep)", _FREQUENCY, kind="frequency", name="to")
+    duration: float = parameter("s", "the sweep's time", at_least(0.0, "a duration", strict=True), kind="time")
+    offset: float = parameter("-", "the value it swings about", kind="value", default=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FileKeys:
+    path: str = parameter("-", "a CSV file with a header row, relative to the scenario", kind="str")
+    column: str = parameter("-", "the column's name in the header row", kind="str")
+    unit: str | None = parameter("-", "the column's unit (default: the header's `name [unit]`, else SI)", kind="str",
+                                 default=None)
+    time: str | None = parameter("-", "the time column (default: the first)", kind="str", default=None)
+    time_unit: str | None = parameter("-", "the time column's unit (default: its header's, else s)", kind="str",
+                                      default=None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ShapeKeys:
+    """A segment: exactly one of these (or a bare value: `value`)."""
+
+    value: float = parameter("-", "the value from t on (a step)", kind="value")
+    ramp: RampKeys = parameter("-", "linear from the value before t (or `from`) to `to` over `duration`",
+                               kind="section", section=RampKeys)
+    table: list[Any] = parameter("-", "[[time, value], ...] piecewise linear, times from t; the last value held",
+                                 non_empty, kind="list")
+    sine: SineKeys = parameter("-", "offset + amplitude sin(2 pi frequency (time - t))", kind="section",
+                               section=SineKeys)
+    chirp: ChirpKeys = parameter("-", "a sine sweeping from `from` to `to` Hz over `duration`, phase continuous",
+                                 kind="section", section=ChirpKeys)
+    file: FileKeys = parameter("-", "a table from a CSV column, times from the file's first row", kind="section",
+                               section=FileKeys)
+
+
+SHAPES = tuple(declarations(ShapeKeys))
+_SHAPE = declarations(ShapeKeys)
+#: A table row's time (from the segment's t).
+_ROW_TIME = parameter("s", "a row's time from t", kind="time").metadata
 
 
 @dataclass(frozen=True)
@@ -175,30 +244,17 @@ class Profile:
         return seg.at(max(0.0, t - seg.t), self._before[k])
 
 
-def _mapping(where: str, raw: Any, keys: tuple[str, ...]) -> Mapping[str, Any]:
-    if not isinstance(raw, Mapping):
-        raise ProfileError(f"{where}: got {raw!r}; accepted is a mapping with {', '.join(keys)}")
-    msg = unknown_message(where, raw, keys)
-    if msg:
-        raise ProfileError(msg)
-    return raw
-
-
-def _need(where: str, raw: Mapping[str, Any], key: str, what: str) -> Any:
-    if key not in raw:
-        raise ProfileError(f"{where}: needs {key} ({what})")
-    return raw[key]
-
-
-def _table(where: str, raw: Any, kind: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def _table(where: str, raw: Any, kind: str, check: Callable[[str, float], float]
+           ) -> tuple[tuple[float, ...], tuple[float, ...]]:
     if not isinstance(raw, list) or len(raw) < 2:
         raise ProfileError(f"{where}: got {raw!r}; accepted is a list of at least two [time, value] pairs")
     times, values = [], []
     for k, row in enumerate(raw):
         if not isinstance(row, (list, tuple)) or len(row) != 2:
             raise ProfileError(f"{where}[{k}]: got {row!r}; accepted is a pair [time, value]")
-        times.append(quantity(row[0], "time", f"{where}[{k}][0]"))
-        values.append(quantity(row[1], kind, f"{where}[{k}][1]"))
+        times.append(check_value(f"{where}[{k}][0]", _ROW_TIME, row[0]))
+        values.append(check_value(f"{where}[{k}][1]", _SHAPE["value"].metadata, row[1], of=kind))
+        check(f"{where}[{k}][1]", values[-1])
     _check_times(where, times)
     return tuple(times), tuple(values)
 
@@ -210,8 +266,8 @@ def _check_times(where: str, times: Sequence[float]) -> None:
 
 def _csv(where: str, spec: Mapping[str, Any], kind: str, base: Path | None) -> tuple[
         tuple[float, ...], tuple[float, ...], str]:
-    path = _need(where, spec, "path", "a CSV file, relative to the scenario")
-    column = _need(where, spec, "column", "the column's name in the header row")
+    path = read(FileKeys, spec, "path", where)
+    column = read(FileKeys, spec, "column", where)
     p = (base / str(path)) if base is not None else Path(str(path))
     try:
         with p.open(newline="", encoding="utf-8") as fh:
@@ -225,21 +281,20 @@ def _csv(where: str, spec: Mapping[str, Any], kind: str, base: Path | None) -> t
         m = _HEADER.match(h)
         names.append(m.group(1) if m else h.strip())
         units.append(m.group(2).strip() if m else None)
-    tcol = spec.get("time", names[0])
+    tcol = read(FileKeys, spec, "time", where) or names[0]
     for key, col in (("column", column), ("time", tcol)):
         if col not in names:
-            from pcv_sim.keys import closest
-
             near = closest(col, names)
             raise ProfileError(f"{where}.{key}: no column {col!r} in {p}{f' (did you mean {near!r}?)' if near else ''};"
                                f" columns: {', '.join(names)}")
     jt, jv = names.index(tcol), names.index(column)
-    unit = spec.get("unit", units[jv])
-    tunit = spec.get("time_unit", units[jt] or "s")
+    unit = read(FileKeys, spec, "unit", where) or units[jv]
+    tunit = read(FileKeys, spec, "time_unit", where) or units[jt] or "s"
+    t_factor = quantity(f"1 {tunit}", "time", f"{where}.time_unit")
     times, values = [], []
     for r, row in enumerate(rows[1:], start=2):
         try:
-            t = float(row[jt]) * quantity(f"1 {tunit}", "time", f"{where}.time_unit")
+            t = float(row[jt]) * t_factor
             v = quantity(f"{row[jv]} {unit}" if unit else float(row[jv]), kind, f"{p}:{r} {column}")
         except (ValueError, IndexError):
             raise ProfileError(f"{p}:{r}: {row!r}; accepted are numbers in columns {tcol} and {column}") from None
@@ -251,68 +306,50 @@ def _csv(where: str, spec: Mapping[str, Any], kind: str, base: Path | None) -> t
     return tuple(times), tuple(values), str(path)
 
 
+@refused_as(ProfileError)
 def parse_segment(where: str, t: float, raw: Any, kind: str, *, base: Path | None = None,
-                  check: Callable[[str, float], None] | None = None) -> Segment:
+                  check: Check | None = None) -> Segment:
     """One segment at `t` from the file's `raw` (a bare value, or a mapping with one of SHAPES).
-    `kind` is the quantity's kind (`pcv_sim.units.KINDS`); `check(where, value)` range-checks each
-    value the profile can reach (ProfileError, or the caller's error)."""
-    def val(w: str, x: Any) -> float:
-        v = quantity(x, kind, w)
-        if check is not None:
-            check(w, v)
-        return v
+    `kind` is the quantity's kind (`pcv_sim.units.KINDS`); `check` (a `pcv_sim.params` check:
+    None when fine, else what is accepted) holds each value the profile can reach. ProfileError
+    naming the key and what is accepted."""
+    value = _SHAPE["value"].metadata
+
+    def reach(w: str, v: float) -> float:
+        return check_si(w, value, v, check=check, of=kind)
 
     if not isinstance(raw, Mapping):
-        return Segment(t, "value", value=val(where, raw))
-    shapes = [s for s in SHAPES if s in raw]
-    if len(shapes) != 1:
-        if not shapes:
-            raise ProfileError(missing_message(where, raw, SHAPES))
-        raise ProfileError(f"{where}: accepted is exactly one of {', '.join(SHAPES)}; got {', '.join(shapes)}")
-    shape = shapes[0]
+        return Segment(t, "value", value=check_value(where, value, raw, check=check, of=kind))
+    shape = exactly_one(where, raw, SHAPES)
     extra = unknown_message(where, {k: v for k, v in raw.items() if k != "t"}, (shape,))
     if extra:
         raise ProfileError(extra)
     spec = raw[shape]
     w = f"{where}.{shape}"
     if shape == "value":
-        return Segment(t, "value", value=val(w, spec))
+        return Segment(t, "value", value=check_value(w, value, spec, check=check, of=kind))
     if shape == "table":
-        times, values = _table(w, spec, kind)
-        for k, v in enumerate(values):
-            val(f"{w}[{k}][1]", v)
+        times, values = _table(w, spec, kind, reach)
         return Segment(t, "table", times=times, values=values)
     if shape == "file":
         if isinstance(spec, str):
             raise ProfileError(f"{w}: got {spec!r}; accepted is {{path: {spec}, column: NAME, unit: U}}")
-        spec = _mapping(w, spec, _KEYS["file"])
-        times, values, src = _csv(w, spec, kind, base)
+        times, values, src = _csv(w, check_mapping(FileKeys, spec, w), kind, base)
         for v in (min(values), max(values)):
-            val(f"{w}.column", v)
+            reach(f"{w}.column", v)
         return Segment(t, "file", times=times, values=values, source=src)
-    spec = _mapping(w, spec, _KEYS[shape])
     if shape == "ramp":
-        d = quantity(_need(w, spec, "duration", "a time"), "time", f"{w}.duration")
-        if d < 0.0:
-            raise ProfileError(f"{w}.duration: {d:g} s; accepted is a time >= 0")
-        start = val(f"{w}.from", spec["from"]) if "from" in spec else None
-        return Segment(t, "ramp", value=val(f"{w}.to", _need(w, spec, "to", "the final value")), start=start,
-                       duration=d)
-    amp = quantity(_need(w, spec, "amplitude", "a value"), kind, f"{w}.amplitude", difference=True)
-    offset = val(f"{w}.offset", spec.get("offset", 0.0))
-    if amp < 0.0:
-        raise ProfileError(f"{w}.amplitude: {amp:g}; accepted is a value >= 0")
+        spec = check_mapping(RampKeys, spec, w)
+        d = read(RampKeys, spec, "duration", w)
+        start = read(RampKeys, spec, "from", w, check=check, of=kind)
+        return Segment(t, "ramp", value=read(RampKeys, spec, "to", w, check=check, of=kind), start=start, duration=d)
+    keys = SineKeys if shape == "sine" else ChirpKeys
+    spec = check_mapping(keys, spec, w)
+    amp = read(keys, spec, "amplitude", w, of=kind)
+    offset = read(keys, spec, "offset", w, check=check, of=kind)
     for x in (offset - amp, offset + amp):
-        val(f"{w} (offset +- amplitude)", x)
+        reach(f"{w} (offset +- amplitude)", x)
     if shape == "sine":
-        f = quantity(_need(w, spec, "frequency", "Hz"), "frequency", f"{w}.frequency")
-        if not 0.0 <= f <= 1000.0:
-            raise ProfileError(f"{w}.frequency: {f:g} Hz; accepted is 0 .. 1000 Hz")
-        return Segment(t, "sine", value=offset, amplitude=amp, f0=f)
-    f0 = quantity(_need(w, spec, "from", "the start frequency, Hz"), "frequency", f"{w}.from")
-    f1 = quantity(_need(w, spec, "to", "the end frequency, Hz"), "frequency", f"{w}.to")
-    d = quantity(_need(w, spec, "duration", "the sweep's time"), "time", f"{w}.duration")
-    if not (0.0 <= f0 <= 1000.0 and 0.0 <= f1 <= 1000.0 and d > 0.0):
-        raise ProfileError(f"{w}: from {f0:g} Hz, to {f1:g} Hz, duration {d:g} s; accepted are 0 .. 1000 Hz and a "
-                           "duration > 0")
-    return Segment(t, "chirp", value=offset, amplitude=amp, f0=f0, f1=f1, duration=d)
+        return Segment(t, "sine", value=offset, amplitude=amp, f0=read(SineKeys, spec, "frequency", w))
+    return Segment(t, "chirp", value=offset, amplitude=amp, f0=read(ChirpKeys, spec, "from", w),
+                   f1=read(ChirpKeys, spec, "to", w), duration=read(ChirpKeys, spec, "duration", w))

@@ -31,12 +31,28 @@ from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.errors import BagError
 from pcv_sim.io import FLUID_PRESSURE
 from pcv_sim.io.recorder import WriterSettings
-from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, PRESSURE, SETPOINT, SPOOL_POSITION, valve_topic
+from pcv_sim.io.topics import (
+    CURRENT,
+    CYLINDER,
+    DUTY_CYCLE,
+    EVENTS,
+    JOINT_FIELDS,
+    JOINT_STATES,
+    PRESSURE,
+    SETPOINT,
+    SPOOL_POSITION,
+    bag_topic,
+    chamber_topic,
+    cylinder_topic,
+    valve_topic,
+)
 from pcv_sim.rig.lockstep import RigRun
 
 __all__ = ["read_signals", "signal_unit", "write_bag", "write_csv"]
 
 _NS = 1_000_000_000
+#: The controller's flags (`controller.<flag>`) in a run's bag: `/controller/<flag>`.
+_FLAGS = "controller"
 
 
 def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None = None) -> Path:
@@ -50,7 +66,7 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
         extra.append((SETPOINT, SETPOINT))
         columns.append(run.setpoint[:, None])
     for flag, values in run.flags.items():
-        extra.append((flag, f"controller/{flag.removeprefix('controller.')}"))
+        extra.append((flag, f"{_FLAGS}/{flag.removeprefix(_FLAGS + '.')}"))
         columns.append(np.asarray(values, dtype=np.float64)[:, None])
     layout = BagLayout.of_names(run.valves, run.signals, (), chambers=chambers or {}, faults=False, options=False,
                                 record=(DUTY_CYCLE, PRESSURE, CURRENT, SPOOL_POSITION), extra=extra)
@@ -142,22 +158,22 @@ def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     with AnyReader([p], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         for conn, t_ns, raw in reader.messages():
             topic, t = conn.topic, t_ns * 1e-9
-            if topic == "/rig/events" or topic.startswith("/cylinder/pressure_"):
+            if topic == bag_topic(EVENTS) or topic.startswith(bag_topic(chamber_topic(""))):
                 continue
             msg = reader.deserialize(raw, conn.msgtype)
-            if topic == "/cylinder/joint_states":
-                for field in ("position", "velocity", "effort"):
+            if topic == bag_topic(cylinder_topic(JOINT_STATES)):
+                for field in JOINT_FIELDS:
                     vals = getattr(msg, field)
                     if len(vals):
-                        add(f"cylinder.{field}", t, float(vals[0]))
+                        add(f"{CYLINDER}.{field}", t, float(vals[0]))
                 continue
             decoded: Any = msg
             value = float(decoded.fluid_pressure) if conn.msgtype == FLUID_PRESSURE else float(decoded.data)
             parts = topic.strip("/").split("/")
-            if parts[0] == "controller":
-                add(f"controller.{parts[1]}", t, value)
-            elif parts == ["setpoint"]:
-                add("setpoint", t, value)
+            if parts[0] == _FLAGS:
+                add(f"{_FLAGS}.{parts[1]}", t, value)
+            elif parts == [SETPOINT]:
+                add(SETPOINT, t, value)
             elif len(parts) == 2:
-                add(f"{parts[0]}.{'duty' if parts[1] == 'duty_cycle' else parts[1]}", t, value)
+                add(f"{parts[0]}.{'duty' if parts[1] == DUTY_CYCLE else parts[1]}", t, value)
     return {k: (np.array(ts), np.array(vs)) for k, (ts, vs) in series.items()}

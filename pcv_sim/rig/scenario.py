@@ -88,17 +88,30 @@ from typing import Any
 import numpy as np
 
 from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
-from pcv_sim.errors import CommandError, PcvSimError
-from pcv_sim.keys import closest, missing_message, unknown_message
+from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.keys import check_keys, closest, exactly_one
 from pcv_sim.model import kernel
-from pcv_sim.params import ValveParams, read_yaml
-from pcv_sim.rig.assertions import ASSERTION_TYPES, AssertionSpecError, Outcome, check_assertions, normalize, signal_kind
+from pcv_sim.params import (
+    Check,
+    ValveParams,
+    at_least,
+    between,
+    check_mapping,
+    check_value,
+    declarations,
+    non_empty,
+    parameter,
+    read,
+    read_yaml,
+    refused_as,
+)
+from pcv_sim.rig.assertions import ASSERTION_TYPES, Outcome, check_assertions, normalize, signal_kind
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, ValveChanges, load_rig
-from pcv_sim.rig.profiles import SHAPES, Profile, ProfileError, Segment, parse_segment
+from pcv_sim.rig.profiles import SHAPES, Profile, Segment, parse_segment
 from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, rig_signals
 from pcv_sim.simulation.stepper import MAX_TEMPERATURE, MIN_TEMPERATURE
-from pcv_sim.units import KINDS, UnitError, fmt, quantity
+from pcv_sim.units import fmt, quantity
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -107,7 +120,10 @@ __all__ = [
     "RosController",
     "Scenario",
     "ScenarioError",
+    "ScenarioKeys",
     "ScenarioResult",
+    "SetpointKeys",
+    "TimelineKeys",
     "load_scenario",
     "run_scenario",
     "scenario_from_mapping",
@@ -116,20 +132,120 @@ __all__ = [
     "schedule_timeline",
 ]
 
-_TOP = ("name", "rig", "duration", "seed", "controller", "controller_params", "setpoint", "timeline", "assertions",
-        "valves")
 _MAX_DURATION = 3600.0
-_ROS_KEYS = ("namespace", "command", "wait")
 #: The sections of a valve YAML (the `valves:` overlay's keys for every valve).
 VALVE_SECTIONS = tuple(f.name for f in dataclasses.fields(ValveParams))
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
-_ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
 #: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
 _FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
+_FAULT_KINDS = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
 
 
 class ScenarioError(PcvSimError, ValueError):
     """A scenario file that cannot be run as written."""
+
+
+# --- the keys of a scenario file, declared once (pcv_sim.params); the loader below reads them -----
+
+
+def _controller(v: Any) -> str | None:
+    ok = v is None or isinstance(v, Mapping) or (isinstance(v, str) and v.count(":") == 1 and all(v.split(":")))
+    return None if ok else "'module:callable' (e.g. steering:controller) or {ros: {namespace, command, wait}}"
+
+
+def _rig_file(v: str) -> str | None:
+    return None if v else "the path of a rig YAML (relative to the scenario)"
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScenarioKeys:
+    """The top level of a scenario file."""
+
+    name: str | None = parameter("-", "the scenario's name (default: the file name)", non_empty, kind="str",
+                                 default=None)
+    rig: str | None = parameter("-", "the rig YAML, relative to the scenario (default: the shipped config/rig.yaml)",
+                                _rig_file, kind="str", default=None)
+    duration: float = parameter("s", "the run's length, at least the rig's control period",
+                                between(0.0, _MAX_DURATION, "a duration"), kind="time")
+    seed: int = parameter("-", "the seed of the sensor noise", at_least(0, "an integer"), kind="int", default=0)
+    controller: Any = parameter("-", "`module:callable` (module.py beside the file, or importable), or a ROS node "
+                                "{ros: {namespace, command, wait}}", _controller, kind="any", default=None)
+    controller_params: Mapping[str, Any] | None = parameter(
+        "-", "of keyword arguments: a class is instantiated, a function called with them", kind="mapping",
+        default=None)
+    setpoint: list[Any] | None = parameter(
+        "-", "of segments {t, value | ramp | table | sine | chirp | file} of the position setpoint (m)", non_empty,
+        kind="list", item=parameter("-", "{t, value | ramp | table | sine | chirp | file}", kind="mapping"),
+        default=None)
+    timeline: list[Any] | None = parameter(
+        "-", "of entries {t, duty | force | supply | ambient_temperature | oil_temperature | fault | clear, ...}",
+        kind="list", item=parameter("-", "{t, duty | force | supply | ... | fault | clear, ...}", kind="mapping"),
+        default=None)
+    assertions: list[Any] | None = parameter(
+        "-", f"of checks {{type: {' | '.join(ASSERTION_TYPES)}, ...}} (pcv_sim.rig.assertions)", kind="list",
+        default=None)
+    valves: Mapping[str, Any] | None = parameter(
+        "-", "of valve YAML keys written over the rig's valve files: a section for every valve, a valve's name for "
+        "that valve", kind="mapping", default=None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetpointKeys:
+    """A segment of the setpoint: its start and one shape of pcv_sim.rig.profiles (in m)."""
+
+    t: float = parameter("s", "the segment's start, after the previous one's", at_least(0.0, "a time"), kind="time")
+    position: float | None = parameter("m", "the setpoint from t on (or one of the other shapes: a profile)",
+                                       between(-1.0, 1.0, "a position"), kind="length", default=None, name="value")
+
+
+_DUTY = parameter("-", "a duty profile", between(0.0, 1.0, "a duty fraction"), kind="fraction")
+_SUPPLY = parameter("Pa", "a supply pressure profile, up to the configured one (acts as supply_drop)",
+                    kind="pressure", role="supply pressure")
+_TEMPERATURE = parameter("K", "a temperature profile", between(MIN_TEMPERATURE, MAX_TEMPERATURE), kind="temperature")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TimelineKeys:
+    """An entry of the timeline: its time and exactly one action (a fault's values beside it, as
+    the tables of pcv_sim.device.faults declare them)."""
+
+    t: float = parameter("s", "the entry's time: it acts at the first step at or after it",
+                         at_least(0.0, "a time"), kind="time")
+    duty: Mapping[str, Any] | None = parameter("-", "valve -> duty profile (a fraction)", kind="mapping",
+                                               default=None)
+    force: float | None = parameter("N", "the external force on the rod, + extends (a profile)",
+                                    between(-MAX_EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, "a force"), kind="force",
+                                    default=None)
+    supply: Mapping[str, Any] | None = parameter("-", "valve -> supply pressure profile (Pa), up to the configured "
+                                                 "one", kind="mapping", default=None)
+    ambient_temperature: Any = parameter("K", "a coil's ambient (solenoid.coil_temperature: lumped): one profile "
+                                         "for every valve with it, or valve -> profile", kind="any", default=None)
+    oil_temperature: Any = parameter("K", "the oil's temperature (fluid.temperature: input): one profile for every "
+                                     "valve with it, or valve -> profile", kind="any", default=None)
+    fault: str | None = parameter("-", "a fault's kind, injected on `target` with its values",
+                                  kind="str", default=None)
+    clear: str | None = parameter("-", "a fault's kind, cleared on `target`", kind="str", default=None)
+    target: str | None = parameter("-", "a fault's target: a valve, cylinder, or a measured signal (left.pressure)",
+                                   kind="str", default=None)
+
+
+_TOP = tuple(declarations(ScenarioKeys))
+_ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
+
+
+def _ros_namespace(v: str) -> str | None:
+    return None if _NAMESPACE.match("" if v == "/" else v) else "a ROS namespace such as /rig ('' or / for the root)"
+
+
+def _command(v: list[Any]) -> str | None:
+    if not v or not all(isinstance(c, str) and c for c in v):
+        return "at least one string, none empty"
+    for c in v:
+        try:
+            c.format(namespace="", python="")
+        except (KeyError, IndexError, ValueError) as err:
+            return f"in {c!r} {err!r}; accepted placeholders are {{namespace}} and {{python}}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -137,9 +253,14 @@ class RosController:
     """A controller that is a ROS 2 node: in `namespace` ('' = the root), started by the runner
     with `command` (None: the user starts it), answering within `wait` s."""
 
-    namespace: str = ""
-    command: tuple[str, ...] | None = None
-    wait: float = 30.0
+    namespace: str = parameter("-", "the namespace of the rig node and the controller ('' or / for the root)",
+                               _ros_namespace, kind="str", default="")
+    command: tuple[str, ...] | None = parameter(
+        "-", "of strings: the command the runner starts, {namespace} and {python} replaced (none: you start the "
+        "node)", _command,
+        kind="list", default=None)
+    wait: float = parameter("s", "how long the runner waits for the node to answer",
+                            between(0.1, _MAX_DURATION, "a time"), kind="time", default=30.0)
 
     def argv(self, python: str) -> list[str]:
         """The command with `{namespace}` and `{python}` replaced."""
@@ -259,65 +380,35 @@ class ScenarioResult:
 # --- loading and validation ------------------------------------------------------------------------
 
 
-def _num(where: str, v: Any, *, lo: float = -math.inf, hi: float = math.inf, what: str = "a finite number",
-         kind: str = "number", role: str = "") -> float:
-    """`v` (a bare SI number or a value with a unit of `kind`) in SI, within lo .. hi."""
-    try:
-        x = quantity(v, kind, where, role=role)
-    except UnitError as err:
-        raise ScenarioError(str(err)) from None
-    if not lo <= x <= hi:
-        rng = "" if (lo, hi) == (-math.inf, math.inf) else f" in {lo:g} .. {hi:g}"
-        raise ScenarioError(f"{where}: got {v!r}; accepted is {what}{rng}")
-    return x
-
-
-def _mapping(where: str, v: Any, keys: tuple[str, ...]) -> Mapping[str, Any]:
-    if not isinstance(v, Mapping):
-        raise ScenarioError(f"{where}: got {v!r}; accepted is a mapping with {', '.join(keys)}")
-    return v
-
-
-def _unknown(where: str, v: Mapping[str, Any], keys: tuple[str, ...]) -> None:
-    msg = unknown_message(where, v, keys)
-    if msg:
-        raise ScenarioError(msg)
-
-
 def _signals(rig: RigParams) -> tuple[str, ...]:
     return (*rig_signals(rig), *(f"{v.name}.duty" for v in rig.valves), "setpoint")
 
 
-def _segment(where: str, t: float, raw: Any, kind: str, base: Path | None, lo: float, hi: float, what: str,
-             role: str = "") -> Segment:
-    def check(w: str, v: float) -> None:
-        if not lo <= v <= hi:
-            raise ScenarioError(f"{w}: {v:g} {KINDS[kind].si}; accepted is {what} in {lo:g} .. {hi:g}")
-    try:
-        if not isinstance(raw, Mapping):       # a plain value: its own hint for a unit slip
-            return Segment(t, "value", value=_num(where, raw, lo=lo, hi=hi, what=what, kind=kind, role=role))
-        return parse_segment(where, t, raw, kind, base=base, check=check)
-    except (UnitError, ProfileError) as err:
-        raise ScenarioError(str(err)) from None
+def _segment(where: str, t: float, raw: Any, meta: Mapping[str, Any], base: Path | None,
+             check: Check | None = None) -> Segment:
+    """A profile of the declared quantity `meta` (its check, or `check` in force): a bare value
+    read by its own declaration (its hint for a unit slip), else one of the shapes."""
+    if not isinstance(raw, Mapping):
+        return Segment(t, "value", value=check_value(where, meta, raw, check=check))
+    return parse_segment(where, t, raw, meta["kind"], base=base, check=check or meta["check"])
 
 
-def _check_setpoint(raw: Any, base: Path | None) -> tuple[Segment, ...]:
+_POSITION = declarations(SetpointKeys)["value"].metadata
+
+
+def _check_setpoint(raw: list[Any] | None, base: Path | None) -> tuple[Segment, ...]:
     if raw is None:
         return ()
-    if not isinstance(raw, list) or not raw:
-        raise ScenarioError(f"setpoint: accepted is a list of {{t, {' | '.join(SHAPES)}}}")
     last = -math.inf
     out = []
     for k, seg in enumerate(raw):
         where = f"setpoint[{k}]"
-        _mapping(where, seg, ("t", *SHAPES))
-        _unknown(where, seg, ("t", *SHAPES))
-        t = _num(f"{where}.t", seg.get("t"), lo=0.0, what="a time in s", kind="time")
-        if t <= last:
-            raise ScenarioError(f"{where}.t: {t:g} s; accepted is a time after the previous segment's ({last:g} s)")
+        check_mapping(SetpointKeys, seg, where, also=SHAPES[1:])
+        t = read(SetpointKeys, seg, "t", where,
+                 check=at_least(last, "a time after the previous segment's", strict=True) if k else None)
         last = t
-        shape = {k: v for k, v in seg.items() if k != "t"}
-        out.append(_segment(where, t, shape, "length", base, -1.0, 1.0, "a position in m"))
+        shape = {key: v for key, v in seg.items() if key != "t"}
+        out.append(_segment(where, t, shape, _POSITION, base))
     return tuple(out)
 
 
@@ -344,54 +435,41 @@ def _fault_values(where: str, e: Mapping[str, Any], kind: Any, target: Any) -> d
         else:
             k = _FAULT_UNITS.get(unit, "number")
         role = "supply pressure" if kind == "supply_drop" else ""
-        try:
-            out[str(key)] = quantity(v, k, f"{where}.{key}", rate=rate, role=role)
-        except UnitError as err:
-            raise ScenarioError(str(err)) from None
+        out[str(key)] = quantity(v, k, f"{where}.{key}", rate=rate, role=role)
     return out
 
 
-def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
+def _check_timeline(raw: list[Any] | None, rig: RigParams, duration: float, base: Path | None
                     ) -> tuple[tuple[Mapping[str, Any], ...], list[str]]:
     """The timeline normalized (SI, profiles as segments) and notes on events dropped (after the
     duration: a run shortened from the file's)."""
     if raw is None:
         return (), []
-    if not isinstance(raw, list):
-        raise ScenarioError(f"timeline: accepted is a list of entries {{t, {' | '.join(_ACTIONS)}, ...}}")
     valves = tuple(v.name for v in rig.valves)
     signals = rig_signals(rig)
     supply = {v.name: v.params.circuit.supply_pressure for v in rig.valves}
+    keys = declarations(TimelineKeys)
     out: list[Mapping[str, Any]] = []
     notes: list[str] = []
     for k, e in enumerate(raw):
         where = f"timeline[{k}]"
-        _mapping(where, e, ("t",))
-        t = _num(f"{where}.t", e.get("t"), lo=0.0, what="a time in s", kind="time")
-        actions = [a for a in _ACTIONS if a in e]
-        if len(actions) != 1:
-            if not actions:
-                raise ScenarioError(missing_message(where, e, _ACTIONS))
-            raise ScenarioError(f"{where}: accepted is exactly one of {', '.join(_ACTIONS)} (got {', '.join(actions)})")
-        a = actions[0]
+        t = read(TimelineKeys, e, "t", where)
+        a = exactly_one(where, e, _ACTIONS)
         entry: dict[str, Any] = {"t": t}
         if a in ("duty", "supply"):
-            _unknown(where, e, ("t", a))
-            per = _mapping(f"{where}.{a}", e[a], valves)
-            _unknown(f"{where}.{a}", per, valves)
+            check_keys(where, e, ("t", a))
+            per = check_keys(f"{where}.{a}", check_value(f"{where}.{a}", keys[a].metadata, e[a]), valves)
+            item = (_DUTY if a == "duty" else _SUPPLY).metadata
             entry[a] = {
-                str(v): _segment(f"{where}.{a}.{v}", t, d, "fraction", base, 0.0, 1.0, "a duty fraction")
-                if a == "duty" else
-                _segment(f"{where}.{a}.{v}", t, d, "pressure", base, 0.0, supply[str(v)],
-                         "a supply pressure (Pa) up to the configured one", role="supply pressure")
+                str(v): _segment(f"{where}.{a}.{v}", t, d, item, base, None if a == "duty" else
+                                 between(0.0, supply[str(v)], "a supply pressure up to the configured one"))
                 for v, d in per.items()}
         elif a in TEMPERATURE_INPUTS:
-            _unknown(where, e, ("t", a))
+            check_keys(where, e, ("t", a))
             entry[a] = _temperatures(f"{where}.{a}", t, e[a], rig, a, base)
         elif a == "force":
-            _unknown(where, e, ("t", "force"))
-            entry["force"] = _segment(f"{where}.force", t, e["force"], "force", base, -MAX_EXTERNAL_FORCE,
-                                      MAX_EXTERNAL_FORCE, "a force in N")
+            check_keys(where, e, ("t", "force"))
+            entry["force"] = _segment(f"{where}.force", t, e["force"], keys["force"].metadata, base)
         else:
             values = _fault_values(where, e, e[a], e.get("target"))
             try:
@@ -401,8 +479,7 @@ def _check_timeline(raw: Any, rig: RigParams, duration: float, base: Path | None
                     for k, (lo, hi, _u, _o) in (VALVE_FAULTS | CYLINDER_FAULTS | SENSOR_FAULTS).get(e[a], {}).items()}
                 parse_fault(e[a], e.get("target"), check, valves=valves, signals=signals, where=f"{where}.{a}")
             except FaultError as err:
-                kinds = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
-                near = closest(e[a], kinds) if e[a] not in kinds else None
+                near = closest(e[a], _FAULT_KINDS) if e[a] not in _FAULT_KINDS else None
                 raise ScenarioError(f"{err}{f' (did you mean {near!r}?)' if near else ''}") from None
             if a == "clear" and values:
                 raise ScenarioError(f"{where}: clear takes t, clear, target; unknown: {', '.join(values)}")
@@ -425,9 +502,9 @@ def _temperatures(where: str, t: float, raw: Any, rig: RigParams, name: str, bas
     if without:
         raise ScenarioError(f"{where}: valve {', '.join(without)} has no {name.replace('_', ' ')} input; its valve "
                             f"YAML's {TEMPERATURE_INPUTS[name]} brings it")
-    return {v: _segment(f"{where}.{v}" if per_valve else where, t, d, "temperature", base, MIN_TEMPERATURE,
-                        MAX_TEMPERATURE, f"the {name.replace('_', ' ')} (K, or written in degC)")
-            for v, d in wanted.items()}
+    meta = _TEMPERATURE.metadata
+    check = between(MIN_TEMPERATURE, MAX_TEMPERATURE, f"the {name.replace('_', ' ')} (K, or written in degC)")
+    return {v: _segment(f"{where}.{v}" if per_valve else where, t, d, meta, base, check) for v, d in wanted.items()}
 
 
 def _timeline_events(timeline: tuple[Mapping[str, Any], ...]) -> list[tuple[float, str, str]]:
@@ -438,31 +515,21 @@ def _timeline_events(timeline: tuple[Mapping[str, Any], ...]) -> list[tuple[floa
     return sorted(ev, key=lambda x: x[0])
 
 
-def _check_assertions(raw: Any, rig: RigParams, has_setpoint: bool, timeline: tuple[Mapping[str, Any], ...],
-                      base: Path | None) -> tuple[Mapping[str, Any], ...]:
+def _check_assertions(raw: list[Any] | None, rig: RigParams, has_setpoint: bool,
+                      timeline: tuple[Mapping[str, Any], ...], base: Path | None) -> tuple[Mapping[str, Any], ...]:
     if raw is None:
         return ()
-    if not isinstance(raw, list):
-        raise ScenarioError(f"assertions: accepted is a list of {{type: {' | '.join(ASSERTION_TYPES)}, ...}}")
-    events = _timeline_events(timeline)
-    out = []
-    for k, a in enumerate(raw):
-        try:
-            out.append(normalize(f"assertions[{k}]", a, signals=_signals(rig), has_setpoint=has_setpoint,
-                                 events=events, base=base))
-        except (AssertionSpecError, UnitError) as err:
-            raise ScenarioError(str(err)) from None
-    return tuple(out)
+    events, signals = _timeline_events(timeline), _signals(rig)
+    return tuple(normalize(f"assertions[{k}]", a, signals=signals, has_setpoint=has_setpoint, events=events,
+                           base=base) for k, a in enumerate(raw))
 
 
-def _valve_changes(raw: Any, valves: tuple[str, ...]) -> dict[str, ValveChanges]:
+def _valve_changes(raw: Mapping[str, Any] | None, valves: tuple[str, ...]) -> dict[str, ValveChanges]:
     """The file's `valves:` as changes per valve: a section's keys for every valve, a valve's own
     (`{left: {solenoid: {...}}}`) over them."""
     if raw is None:
         return {}
-    accepted = (*VALVE_SECTIONS, *valves)
-    _mapping("valves", raw, accepted)
-    _unknown("valves", raw, accepted)
+    check_keys("valves", raw, (*VALVE_SECTIONS, *valves))
     clash = sorted(set(valves) & set(VALVE_SECTIONS))
     if clash:
         raise ScenarioError(f"valves: the rig has a valve named {clash[0]!r}, a section of the valve YAML too, so the "
@@ -480,8 +547,7 @@ def _valve_changes(raw: Any, valves: tuple[str, ...]) -> dict[str, ValveChanges]
         if key in VALVE_SECTIONS:
             every.update(section(f"valves.{key}", value))
         else:
-            _mapping(f"valves.{key}", value, VALVE_SECTIONS)
-            _unknown(f"valves.{key}", value, VALVE_SECTIONS)
+            check_keys(f"valves.{key}", value, VALVE_SECTIONS)
             own[key] = {}
             for name, keys in value.items():
                 own[key].update(section(f"valves.{key}.{name}", keys))
@@ -496,39 +562,28 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
     try:
         if not isinstance(data, Mapping):
             raise ScenarioError(f"the top level must be a mapping with {', '.join(_TOP)}")
-        _unknown("scenario", data, _TOP)
+        check_mapping(ScenarioKeys, data, "scenario", "")
         base = path.parent if path else Path.cwd()
-        rig_file = data.get("rig")
-        if rig_file is not None and not isinstance(rig_file, str):
-            raise ScenarioError(f"rig: got {rig_file!r}; accepted is the path of a rig YAML (relative to the scenario)")
+        rig_file = read(ScenarioKeys, data, "rig")
         try:
             rig = rig_params if rig_params is not None else load_rig(base / rig_file if rig_file else None)
         except PcvSimError as err:
             raise ScenarioError(f"rig: {err}") from None
-        valve_changes = _valve_changes(data.get("valves"), tuple(v.name for v in rig.valves))
+        valve_changes = _valve_changes(read(ScenarioKeys, data, "valves"), tuple(v.name for v in rig.valves))
         if valve_changes and rig_params is None:
             try:
                 rig = load_rig(base / rig_file if rig_file else None, valve_changes=valve_changes)
             except PcvSimError as err:
                 raise ScenarioError(str(err)) from None
-        if "duration" not in data:
-            raise ScenarioError("duration: missing; accepted is the run's length in s")
-        duration = _num("duration", data["duration"], lo=rig.timing.control_period, hi=_MAX_DURATION,
-                        what="a duration in s", kind="time")
-        seed = data.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ScenarioError(f"seed: got {seed!r}; accepted is an integer >= 0")
-        ctrl = data.get("controller")
+        duration = read(ScenarioKeys, data, "duration",
+                        check=between(rig.timing.control_period, _MAX_DURATION, "a duration"))
+        seed = read(ScenarioKeys, data, "seed")
+        ctrl = read(ScenarioKeys, data, "controller")
         ros = None
         if isinstance(ctrl, Mapping):
             ros = ros_controller(ctrl)
             ctrl = None
-        elif ctrl is not None and (not isinstance(ctrl, str) or ctrl.count(":") != 1 or not all(ctrl.split(":"))):
-            raise ScenarioError(f"controller: got {ctrl!r}; accepted is 'module:callable' (e.g. steering:controller) "
-                                "or {ros: {namespace, command, wait}}")
-        params = data.get("controller_params")
-        if params is not None and not isinstance(params, Mapping):
-            raise ScenarioError(f"controller_params: got {params!r}; accepted is a mapping of keyword arguments")
+        params = read(ScenarioKeys, data, "controller_params")
         if params is not None and ros is not None:
             raise ScenarioError("controller_params: for a Python callable; a ROS controller takes its ROS parameters "
                                 "(in its command: --ros-args -p name:=value)")
@@ -537,44 +592,26 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
         if valve_changes and ros is not None:
             raise ScenarioError("valves: the rig node of a ROS controller loads the rig YAML itself (its rig_config); "
                                 "accepted is a rig whose valve YAMLs hold these keys, named by `rig`")
-        setpoint = _check_setpoint(data.get("setpoint"), base)
-        timeline, notes = _check_timeline(data.get("timeline"), rig, duration, base)
-        assertions = _check_assertions(data.get("assertions"), rig, bool(setpoint), timeline, base)
-        name = data.get("name", path.stem if path else "scenario")
-        if not isinstance(name, str) or not name:
-            raise ScenarioError(f"name: got {name!r}; accepted is a non-empty string")
-    except ScenarioError as err:
+        setpoint = _check_setpoint(read(ScenarioKeys, data, "setpoint"), base)
+        timeline, notes = _check_timeline(read(ScenarioKeys, data, "timeline"), rig, duration, base)
+        assertions = _check_assertions(read(ScenarioKeys, data, "assertions"), rig, bool(setpoint), timeline, base)
+        name = read(ScenarioKeys, data, "name") or (path.stem if path else "scenario")
+    except (ScenarioError, ParameterError) as err:
         raise ScenarioError(f"{origin}: {err}") from None
-    digest = hashlib.sha256(json.dumps([data, repr(rig)], sort_keys=True, default=str).encode()).hexdigest()
+    digest = hashlib.sha256(json.dumps([data, repr(rig)], sort_keys=True, default=str).encode()).hexdigest()[:16]
     return Scenario(name, path, rig, duration, seed, ctrl, params, setpoint, timeline, assertions, ros,
-                    (base / rig_file).resolve() if rig_file else None, tuple(notes), digest[:16], valve_changes)
+                    (base / rig_file).resolve() if rig_file else None, tuple(notes), digest, valve_changes)
 
 
+@refused_as(ScenarioError)
 def ros_controller(raw: Any) -> RosController:
     """`{ros: {namespace, command, wait}}` validated (ScenarioError naming the key)."""
     if not isinstance(raw, Mapping) or set(raw) != {"ros"}:
         raise ScenarioError(f"controller: got {raw!r}; accepted is 'module:callable' or {{ros: {{namespace, command, "
                             "wait}}}")
     spec = raw["ros"] if raw["ros"] is not None else {}
-    _mapping("controller.ros", spec, _ROS_KEYS)
-    _unknown("controller.ros", spec, _ROS_KEYS)
-    ns = spec.get("namespace", "")
-    if not isinstance(ns, str) or not _NAMESPACE.match("" if ns == "/" else ns):
-        raise ScenarioError(f"controller.ros.namespace: got {ns!r}; accepted is a ROS namespace such as /rig ('' or / "
-                            "for the root)")
-    cmd = spec.get("command")
-    if cmd is not None:
-        if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) and c for c in cmd):
-            raise ScenarioError(f"controller.ros.command: got {cmd!r}; accepted is a list of non-empty strings, e.g. "
-                                "[ros2, run, pcv_sim, steering_controller, --ros-args, -r, \"__ns:={namespace}\"]")
-        for c in cmd:
-            try:
-                c.format(namespace="", python="")
-            except (KeyError, IndexError, ValueError) as err:
-                raise ScenarioError(f"controller.ros.command: {c!r}: {err!r}; accepted placeholders are {{namespace}} "
-                                    "and {python}") from None
-    wait = _num("controller.ros.wait", spec.get("wait", 30.0), lo=0.1, hi=_MAX_DURATION, what="a time in s",
-                kind="time")
+    check_mapping(RosController, spec, "controller.ros")
+    ns, cmd, wait = (read(RosController, spec, k, "controller.ros") for k in ("namespace", "command", "wait"))
     return RosController("" if ns == "/" else ns, tuple(cmd) if cmd is not None else None, wait)
 
 

@@ -104,6 +104,13 @@ def test_split_files(tmp_path: Path, emulator_recorder) -> None:
     assert len(bag["/pressure"]) == 6001 and np.all(np.diff(bag["/pressure"].t_ns) == DT)
 
 
+def test_a_bag_name_is_any_directory_name(tmp_path: Path, emulator_recorder) -> None:
+    """An offline run's bag takes the name it is given (`pcv-sim scenario --bag 'run 1'`); the nodes'
+    record.name has its own, stricter check."""
+    emulator_recorder(tmp_path, name="run 1 (left)", writing=WriterSettings(writer="inline")).close()
+    assert read_bag(tmp_path / "run 1 (left)").closed_cleanly
+
+
 def test_refuses_to_overwrite_an_existing_bag(tmp_path: Path, emulator_recorder) -> None:
     (tmp_path / "b").mkdir()
     with pytest.raises(BagError, match=r"exists already; the recorder never overwrites"):
@@ -133,6 +140,8 @@ def test_timestamped_default_name(tmp_path: Path, emulator_recorder) -> None:
     ({"max_queue_s": math.inf}, "max_queue_s"),
     ({"name": "../x"}, "plain directory name"),
     ({"name": ".."}, "plain directory name"),
+    ({"name": "a/b"}, "plain directory name, without '/'"),
+    ({"name": ""}, "plain directory name"),
 ])
 def test_refuses_bad_arguments(tmp_path: Path, kwargs: dict, match: str, emulator_recorder) -> None:
     with pytest.raises(BagError, match=match):
@@ -288,3 +297,36 @@ def test_fault_commands_are_recorded_at_the_step_they_acted_with_faults_on(tmp_p
         assert texts == [(100 * dev.dt_ns, "{fault: coil_open}"), (200 * dev.dt_ns, "{clear: coil_open}")]
     else:
         assert "/faults" not in topics and "/pressure" in topics
+
+
+def test_the_valve_options_outputs_go_with_the_outputs_at_every_step(tmp_path: Path) -> None:
+    """A valve with the options of docs/model.md R33, R34 recorded at the full rate: the device hands
+    its stretches of steps over as blocks (`record_block`) with every signal, the options' outputs
+    among them, and each is recorded at every step like the pressure; the options' inputs on change."""
+    import yaml
+
+    from pcv_sim.device.recording import BagLayout
+
+    valve = yaml.safe_load((Path(__file__).parents[2] / "config" / "valve.yaml").read_text())
+    valve["solenoid"].update(coil_temperature="lumped", coil_thermal_resistance=1.0, coil_heat_capacity=1.0)
+    valve["fluid"]["temperature"] = "input"
+    (tmp_path / "valve.yaml").write_text(yaml.safe_dump(valve))
+    dev = ValveDevice(load_params(tmp_path / "valve.yaml"), safe_duty=0.0, watchdog_timeout=0.0, sample_every=10)
+    assert dev.option_outputs == ("coil_temperature", "coil_resistance")
+    rec = DeviceRecorder(tmp_path, BagLayout.of(dev, every=1, faults=False, events=False), name="b",
+                         writing=WriterSettings(writer="inline"))
+    rec.attach(dev)
+    rec.begin(dev)
+    assert dev.submit("duty_cycle", 0.9, 50) is None
+    while dev.steps < 300:
+        dev.run_to(dev.steps + dev.sample_every)
+    st = rec.close()
+    assert st.dropped == 0 and st.error == ""
+    bag = read_bag(tmp_path / "b")
+    p = bag["/pressure"]
+    assert len(p) == 301 and np.all(np.diff(p.t_ns) == dev.dt_ns)
+    for name in ("coil_temperature", "coil_resistance"):
+        assert np.array_equal(bag[f"/{name}"].t_ns, p.t_ns), name
+        assert bag[f"/{name}"].value[-1] == dev.record_values()[name], name
+    assert np.all(np.diff(bag["/coil_temperature"].value) >= 0)            # K: the coil warms at 90 % duty
+    assert len(bag["/ambient_temperature"]) == 1 and len(bag["/oil_temperature"]) == 1

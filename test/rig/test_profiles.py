@@ -57,13 +57,15 @@ def test_a_csv_column_plays_with_its_unit(tmp_path):
 
 
 @pytest.mark.parametrize(("raw", "match"), [
-    ({"ramp": {"to": 1.0}}, r"p\.ramp: needs duration"),
+    ({"ramp": {"to": 1.0}}, r"p\.ramp\.duration: missing; accepted is the ramp's time \(s\)"),
     ({"rampe": {"to": 1.0}}, r"p: accepted is exactly one of value, ramp, table, sine, chirp, file; got 'rampe' "
                              r"\(did you mean 'ramp'\?\)"),
     ({"table": [[0, 1.0]]}, r"at least two"),
     ({"table": [[0.2, 1.0], [0.1, 2.0]]}, r"increasing times"),
-    ({"sine": {"amplitude": -1.0, "frequency": 1.0}}, r"amplitude: -1; accepted is a value >= 0"),
-    ({"chirp": {"amplitude": 1.0, "from": 1.0, "to": 2.0, "duration": 0.0}}, r"a duration > 0"),
+    ({"sine": {"amplitude": -1.0, "frequency": 1.0}}, r"p\.sine\.amplitude: got -1\.0; accepted is a value >= 0"),
+    ({"sine": {"amplitude": 1.0, "frequency": "2 kHz"}}, r"p\.sine\.frequency: got '2 kHz'; accepted is a frequency in 0 \.\. 1000 \(Hz\)"),
+    ({"sine": {"amplitude": 1.0, "frequency": 1.0, "ofset": 1.0}}, r"p\.sine: unknown key 'ofset' \(did you mean 'offset'\?\)"),
+    ({"chirp": {"amplitude": 1.0, "from": 1.0, "to": 2.0, "duration": 0.0}}, r"p\.chirp\.duration: got 0\.0; accepted is a duration > 0 \(s\)"),
 ])
 def test_bad_profiles_are_refused_naming_the_key(raw, match):
     with pytest.raises(ProfileError, match=match):

@@ -180,3 +180,29 @@ def test_the_valve_options_are_recorded_under_their_valve_and_read_back_by_the_m
     assert sampled[-1][1] > sampled[0][1]                              # K: the coil warmed at 90 % duty
     assert got[f"{NS}/probe/oil_temperature"] == [(0, start["probe.oil_temperature"]), (500 * DT_NS, kelvin(50.0))]
     assert got[f"{NS}/probe/ambient_temperature"] == [(0, start["probe.ambient_temperature"])]
+
+
+def test_the_options_outputs_are_recorded_as_published_sensor_faults_included(options_rig, tmp_path):
+    """Through the node's hooks (`attach`, `begin`, `shown` with the measured sample): a sensor fault
+    on a valve option's output shows in the bag as it shows on the wire; read back with rosbags."""
+    from pcv_sim.rig import Rig, load_rig
+
+    rig = Rig(load_rig(options_rig))
+    rec = rig_recorder(rig, tmp_path, name="m", namespace=NS)
+    rec.attach(rig)
+    rec.begin(rig)
+    j = rig.signals.index("probe.coil_temperature")
+    assert rig.submit_fault("{fault: bias, signal: probe.coil_temperature, value: 5.0}", 200) is None
+    shown = []
+    while rig.steps < 400:
+        for sample in rig.run_to(rig.steps + rig.sample_every):
+            measured = rig.measure(sample).tolist()
+            rec.shown(rig, sample, measured)
+            shown.append((rig.stamp_ns(sample.step), measured[j], sample.values[j]))
+    assert rec.close().dropped == 0
+    with AnyReader([tmp_path / "m"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        got = [(t, reader.deserialize(raw, c.msgtype).data) for c, t, raw in reader.messages()
+               if c.topic == f"{NS}/probe/coil_temperature"]
+    assert got == [(t, m) for t, m, _ in shown]
+    assert all(m - true == pytest.approx(5.0) for t, m, true in shown if t >= 200 * DT_NS)
+    assert all(m == true for t, m, true in shown if t < 200 * DT_NS)
