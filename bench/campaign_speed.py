@@ -202,7 +202,7 @@ def _where(mc: Path, k: int) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--k", type=int, default=20, help="variants for the overhead per variant")
-    ap.add_argument("--scaling", type=int, default=100, help="variants for 1 vs 2 workers and Dask vs local")
+    ap.add_argument("--scaling", type=int, default=100, help="variants for 1 vs 2 workers and Dask vs local (0: skip both)")
     ap.add_argument("--big", type=int, default=1000, help="variants of the large Monte Carlo (0: skip)")
     ap.add_argument("--repeats", type=int, default=5,
                     help="alternated pairs for 1 vs 2 workers and for Dask vs local (medians and ranges)")
@@ -259,44 +259,45 @@ def main() -> None:
                         "monte_carlo_run_median_s": statistics.median(run),
                         "setup_share": statistics.median(setup) / (statistics.median(setup) + statistics.median(run)),
                         "parts": _where(mc, k - 1)}
-        n, reps = args.scaling, args.repeats
-        scal = _campaign(tmp, "scaling", _mc(n, seed=2))
-        # Alternated pairs, the order turned each time (1-2, 2-1, ...): a change of the machine's
-        # load in one pair's seconds hits both sides about equally; the ratio is taken per pair.
-        pairs: list[dict[str, dict]] = []
-        for r in range(reps):
-            pair = {}
-            for w in ((1, 2) if r % 2 == 0 else (2, 1)):
-                pair[str(w)] = _measured_campaign(scal, tmp / f"o{w}", workers=w)
-            pairs.append(pair)
-        same = (tmp / "o1" / "results.csv").read_bytes() == (tmp / "o2" / "results.csv").read_bytes()
-        out["scaling"] = {"variants": n, "repeats": reps, "same_table": same,
-                          **_paired(pairs, "1", "2", n, "speed_up")}
-        if not args.no_dask:
-            import psutil
+        if args.scaling:
+            n, reps = args.scaling, args.repeats
+            scal = _campaign(tmp, "scaling", _mc(n, seed=2))
+            # Alternated pairs, the order turned each time (1-2, 2-1, ...): a change of the machine's
+            # load in one pair's seconds hits both sides about equally; the ratio is taken per pair.
+            pairs: list[dict[str, dict]] = []
+            for r in range(reps):
+                pair = {}
+                for w in ((1, 2) if r % 2 == 0 else (2, 1)):
+                    pair[str(w)] = _measured_campaign(scal, tmp / f"o{w}", workers=w)
+                pairs.append(pair)
+            same = (tmp / "o1" / "results.csv").read_bytes() == (tmp / "o2" / "results.csv").read_bytes()
+            out["scaling"] = {"variants": n, "repeats": reps, "same_table": same,
+                              **_paired(pairs, "1", "2", n, "speed_up")}
+            if not args.no_dask:
+                import psutil
 
-            from pcv_sim.testing import dask_cluster
+                from pcv_sim.testing import dask_cluster
 
-            (tmp / "dask").mkdir()
-            dpairs: list[dict[str, dict]] = []
-            with dask_cluster(tmp / "dask", 2) as address:
-                cluster = psutil.Process().children(recursive=True)
-                # The first campaign on fresh workers: their imports and kernels are its set-up,
-                # and its run is reported apart (a new process's first variants).
-                first = _measured_campaign(scal, tmp / "od_first", scheduler=address, processes=cluster)
-                for r in range(reps):
-                    pair = {}
-                    for kind in (("dask", "local") if r % 2 == 0 else ("local", "dask")):
-                        if kind == "dask":
-                            pair[kind] = _measured_campaign(scal, tmp / "od", scheduler=address, processes=cluster)
-                        else:
-                            pair[kind] = _measured_campaign(scal, tmp / "ol", workers=2)
-                    dpairs.append(pair)
-            same = all((tmp / d / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
-                       for d in ("od", "od_first"))
-            out["dask"] = {"variants": n, "repeats": reps, "same_table": same,
-                           "first_setup_s": first["setup_s"], "first_per_s": n / first["run_s"],
-                           **_paired(dpairs, "local", "dask", n, "dask_vs_local")}
+                (tmp / "dask").mkdir()
+                dpairs: list[dict[str, dict]] = []
+                with dask_cluster(tmp / "dask", 2) as address:
+                    cluster = psutil.Process().children(recursive=True)
+                    # The first campaign on fresh workers: their imports and kernels are its set-up,
+                    # and its run is reported apart (a new process's first variants).
+                    first = _measured_campaign(scal, tmp / "od_first", scheduler=address, processes=cluster)
+                    for r in range(reps):
+                        pair = {}
+                        for kind in (("dask", "local") if r % 2 == 0 else ("local", "dask")):
+                            if kind == "dask":
+                                pair[kind] = _measured_campaign(scal, tmp / "od", scheduler=address, processes=cluster)
+                            else:
+                                pair[kind] = _measured_campaign(scal, tmp / "ol", workers=2)
+                        dpairs.append(pair)
+                same = all((tmp / d / "results.csv").read_bytes() == (tmp / "o1" / "results.csv").read_bytes()
+                           for d in ("od", "od_first"))
+                out["dask"] = {"variants": n, "repeats": reps, "same_table": same,
+                               "first_setup_s": first["setup_s"], "first_per_s": n / first["run_s"],
+                               **_paired(dpairs, "local", "dask", n, "dask_vs_local")}
         if args.big:
             big = _campaign(tmp, "big", _mc(args.big, seed=3))
             wb, _, sb = _timed_campaign(big, tmp / "ob", workers=0)
@@ -321,13 +322,14 @@ def main() -> None:
           f"{w['monte_carlo_run_median_s'] * 1e3:.1f} ms (set-up {w['setup_share']:.1%})")
     print("  parts (median): " + ", ".join(f"{name} {v * 1e3:.2f} ms" if name.endswith("_s") else f"{name} {v:.1f}"
                                            for name, v in w["parts"].items()))
-    s = out["scaling"]
-    print(f"{s['variants']} variants, {s['repeats']} alternated pairs: 2 workers against 1 {s['speed_up']:.2f}x "
-          f"(median; range {s['speed_up_range'][0]:.2f}-{s['speed_up_range'][1]:.2f}x); 1 worker "
-          f"{s['1_per_s']:.1f}/s ({s['1_per_s_range'][0]:.1f}-{s['1_per_s_range'][1]:.1f}), 2 workers "
-          f"{s['2_per_s']:.1f}/s ({s['2_per_s_range'][0]:.1f}-{s['2_per_s_range'][1]:.1f}); CPU per variant "
-          f"{s['1_cpu_per_variant_s'] * 1e3:.1f} / {s['2_cpu_per_variant_s'] * 1e3:.1f} ms; set-up of the 2 workers "
-          f"{s['2_setup_s']:.2f} s apart; same table: {s['same_table']}")
+    s = out.get("scaling")
+    if s:
+        print(f"{s['variants']} variants, {s['repeats']} alternated pairs: 2 workers against 1 {s['speed_up']:.2f}x "
+              f"(median; range {s['speed_up_range'][0]:.2f}-{s['speed_up_range'][1]:.2f}x); 1 worker "
+              f"{s['1_per_s']:.1f}/s ({s['1_per_s_range'][0]:.1f}-{s['1_per_s_range'][1]:.1f}), 2 workers "
+              f"{s['2_per_s']:.1f}/s ({s['2_per_s_range'][0]:.1f}-{s['2_per_s_range'][1]:.1f}); CPU per variant "
+              f"{s['1_cpu_per_variant_s'] * 1e3:.1f} / {s['2_cpu_per_variant_s'] * 1e3:.1f} ms; set-up of the 2 workers "
+              f"{s['2_setup_s']:.2f} s apart; same table: {s['same_table']}")
     if "dask" in out:
         d = out["dask"]
         print(f"Dask (2 workers) against 2 local workers, {d['repeats']} alternated pairs: {d['dask_vs_local']:.2f}x "
