@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import statistics
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
@@ -139,8 +139,10 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.setpoint: float | None = None
             self._setpoint_fresh = False
             self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
-            sub = self.create_subscription(Float64, SETPOINT_TOPIC, self._on_setpoint, QoSProfile(depth=10))
-            self.client.add_input(sub, self._on_setpoint)
+            # Taken by the client's poll with its MessageInfo (jazzy's rclpy types callbacks as (msg) only).
+            on_setpoint: Callable[..., None] = self._on_setpoint
+            sub = self.create_subscription(Float64, SETPOINT_TOPIC, on_setpoint, QoSProfile(depth=10))
+            self.client.add_input(sub, on_setpoint)
             self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
             self._clock_msg = Clock()

@@ -18,6 +18,7 @@ from pcv_sim.cli import main
 from pcv_sim.device.recording import BagLayout, DeviceRecorder
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import BagError
+from pcv_sim.io.bag.metadata import detect_ros_distro
 from pcv_sim.io.recorder import WriterSettings
 from pcv_sim.params import load_params
 from pcv_sim.rig import Rig, load_rig
@@ -56,7 +57,8 @@ def metadata(bag: Path) -> dict:
     return {**info, "topics": topics}
 
 
-def assert_same_bag(new: Path, old: Path) -> None:
+def assert_same_bag(new: Path, old: Path, distro: str = "kilted") -> None:
+    """`distro`: the ROS distribution the new bag names (the references were written as kilted's)."""
     got, want = messages(new), messages(old)
     assert sorted(got) == sorted(want)
     for topic, w in want.items():
@@ -65,7 +67,7 @@ def assert_same_bag(new: Path, old: Path) -> None:
         assert len(g["messages"]) == len(w["messages"]), topic
         for k, (a, b) in enumerate(zip(g["messages"], w["messages"], strict=True)):
             assert a == b, f"{topic} message {k}: {a} != {b}"
-    assert metadata(new) == metadata(old)
+    assert metadata(new) == {**metadata(old), "ros_distro": distro}
 
 
 def replayed(bag: Path, capsys: pytest.CaptureFixture[str], *args: str) -> dict:
@@ -108,7 +110,7 @@ def test_the_scenario_runners_bag_is_as_before(tmp_path: Path, monkeypatch: pyte
     (tmp_path / "short.yaml").write_text(SCENARIO.format(rig=REPO / "config" / "rig.yaml"))
     monkeypatch.chdir(tmp_path)
     assert main(["scenario", "run", "short.yaml", "--bag", str(tmp_path / "scenario")]) == 0
-    assert_same_bag(tmp_path / "scenario", DATA / "scenario")
+    assert_same_bag(tmp_path / "scenario", DATA / "scenario", detect_ros_distro())     # it writes the running distro
 
 
 def test_the_layout_follows_the_devices_names() -> None:
