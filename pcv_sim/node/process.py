@@ -15,6 +15,17 @@ an extension module's initialisation it becomes an ImportError. Nothing of the s
 closing: no bag is open yet, the kernel cache is written by rename. From
 `node.run` on, the signal only sets the flag, which the loop checks at every wake: it finishes
 the wake and closes the bag with everything up to the stop.
+
+The stop is bounded. After the loop (worker stopped, bag closed) the node is destroyed and rclpy
+shut down under a watchdog (`Teardown`): a step that has not finished within TEARDOWN_BOUND s
+(the DDS library waiting for a peer that was stopped or vanished, a lock its thread holds) is
+given up, the process says which one and prints every thread's stack, and exits with the code it
+would have had. A step stuck in native code that holds the interpreter lock, where no Python
+thread can run, is ended by faulthandler's own thread TEARDOWN_BACKSTOP s later (its stacks, exit
+1). Then the process ends itself (`os._exit`, output flushed) rather than through the
+interpreter's exit, which would join leftover threads and run the DDS library's static
+destructors without any bound, with nothing left to close. With $PCV_SIM_STACKS set, SIGUSR1
+prints every thread's stack at any moment (a process that seems stuck, while it runs).
 """
 
 from __future__ import annotations
@@ -24,14 +35,22 @@ import faulthandler
 import os
 import signal
 import sys
+import threading
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NoReturn
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "Stop", "main_process", "parameter_help",
-           "run_node", "serve"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "STACKS_ENV", "TEARDOWN_BACKSTOP", "TEARDOWN_BOUND", "Stop",
+           "Teardown", "main_process", "parameter_help", "run_node", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
+#: s the node's teardown after the loop (the node destroyed, rclpy shut down: ~0.1 s, ~1 s under load)
+#: may take before the process gives up on it; within the 15 s a supervisor gives a SIGINT.
+TEARDOWN_BOUND = 5.0
+#: s after TEARDOWN_BOUND at which faulthandler's thread ends a teardown stuck holding the interpreter lock.
+TEARDOWN_BACKSTOP = 3.0
+#: Set (to anything): SIGUSR1 prints every thread's stack (faulthandler), the process goes on.
+STACKS_ENV = "PCV_SIM_STACKS"
 
 
 class Stop:
@@ -58,15 +77,28 @@ class Stop:
 def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) -> int:
     """Install the signal handlers, then `run(argv, stop)`; the previous handlers come back after."""
     faulthandler.enable()      # a crash in the ROS libraries prints the Python stack that led to it
+    if os.environ.get(STACKS_ENV):
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     stop = Stop()
     previous: dict[signal.Signals, Callable[..., Any] | int | None] = {}
     for sig in (signal.SIGINT, signal.SIGTERM):      # first: a signal during the imports is a clean stop
         previous[sig] = signal.signal(sig, stop)
     try:
-        return run(list(sys.argv if args is None else args), stop)
+        code = run(list(sys.argv if args is None else args), stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    _end_process(code)
+
+
+def _end_process(code: int) -> NoReturn:
+    """End the process now with `code`, its output flushed. Everything was closed in order before
+    (the bag, the node, rclpy): the interpreter's exit would only join leftover threads and run the
+    DDS library's static destructors, neither of them bounded (see the module docstring)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 def _abandon(name: str) -> None:
@@ -121,22 +153,69 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
 
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
+    code = EXIT_OK
+    ran = False
     try:
         try:
             node = make_node(argv)
         except ParameterError as err:
             print(f"{prog}: invalid parameters: {err}", file=sys.stderr)
-            return EXIT_INVALID_PARAMETERS
+            code = EXIT_INVALID_PARAMETERS
+            return code
         stop.starting = False       # from here a signal is a flag the loop checks
         try:
             node.run(stop)          # returns at once if a signal came and was swallowed during the start
         except ParameterError as err:           # found while running (e.g. a second /clock at start)
             node.get_logger().error(f"invalid parameters: {err}")
             print(f"{prog}: invalid parameters: {err}", file=sys.stderr)
-            return EXIT_INVALID_PARAMETERS
-        node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
-        return EXIT_OK
+            code = EXIT_INVALID_PARAMETERS
+            return code
+        ran = True
+        return code
     finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+        with Teardown(prog, code) as teardown:
+            if ran and node is not None:
+                teardown.step("saying the stop (the log line, also to /rosout)")
+                node.get_logger().info(f"stopping on {stop.name}" if stop.signal else "stopping")
+            if node is not None:
+                teardown.step("destroying the node (its DDS publishers, subscriptions and services)")
+                node.destroy_node()
+            teardown.step("shutting rclpy down (the DDS participant)")
+            try_shutdown()
+
+
+class Teardown:
+    """A watchdog over the steps after the loop (see the module docstring): `step(what)` names the
+    one now running; one that has not ended TEARDOWN_BOUND s after the teardown began is given up
+    (said on stderr with every thread's stack, the process ended with `code`). Leaving the block
+    disarms it."""
+
+    def __init__(self, prog: str, code: int, bound: float = TEARDOWN_BOUND,
+                 backstop: float = TEARDOWN_BACKSTOP) -> None:
+        self.prog, self.code, self.bound, self.backstop = prog, code, bound, backstop
+        self.what = "starting the teardown"
+        self._done = threading.Event()
+
+    def step(self, what: str) -> None:
+        self.what = what
+
+    def __enter__(self) -> Teardown:
+        # faulthandler's own C thread: fires even while a native call holds the interpreter lock.
+        faulthandler.dump_traceback_later(self.bound + self.backstop, exit=True)
+        threading.Thread(target=self._watch, name="pcv_sim teardown watchdog", daemon=True).start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        faulthandler.cancel_dump_traceback_later()
+
+    def _watch(self) -> None:
+        if self._done.wait(self.bound):
+            return
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+        os.write(2, f"{self.prog}: shutdown: {self.what} did not finish within {self.bound:g} s; "
+                    f"exiting without it (exit {self.code}); every thread's stack:\n".encode())
+        faulthandler.dump_traceback(all_threads=True)
+        _end_process(self.code)
+

@@ -1,0 +1,85 @@
+"""The emulator's stop is bounded: whatever its teardown waits for after the loop (the DDS library
+waiting for a peer that was stopped or vanished, a thread that never ends, a native call that holds
+the interpreter lock), the process ends within TEARDOWN_BOUND s (+ TEARDOWN_BACKSTOP), says what
+it gave up on and prints every thread's stack (pcv_sim.node.process)."""
+import signal
+import sys
+import time
+
+from pcv_sim.node.process import TEARDOWN_BACKSTOP, TEARDOWN_BOUND
+
+#: An emulator process whose teardown is made to hang in one of three ways (argv[1]); the node and
+#: the process machinery are the real ones.
+HANGING = """if True:
+    import atexit, ctypes, sys, threading
+    from pcv_sim.node.emulator import emulator_node
+    from pcv_sim.node.process import main_process, serve
+
+    how = sys.argv.pop(1)
+
+    def make(argv):
+        node = emulator_node(argv=argv)
+        destroy = node.destroy_node
+
+        def destroy_node():
+            if how == 'destroy':            # a wait that releases the interpreter lock and never ends
+                threading.Event().wait()
+            elif how == 'native':           # a native call that holds the interpreter lock (PyDLL keeps it)
+                ctypes.PyDLL(None).sleep(3600)
+            destroy()
+
+        node.destroy_node = destroy_node
+        if how == 'exit':                   # the interpreter's exit would join this thread, and wait in atexit
+            threading.Thread(target=threading.Event().wait, name='never ends').start()
+            atexit.register(threading.Event().wait)
+        return node
+
+    sys.exit(main_process(lambda argv, stop: serve('emulator', argv, stop, make), None))
+"""
+
+#: s beside the bound for the SIGINT to reach the loop and the output to be written, under load.
+MARGIN = 4.0
+
+
+def _emulator(ros, how):
+    from .conftest import Emulator
+
+    cmd = [sys.executable, '-c', HANGING, how, '--ros-args', '-r', f'__ns:={ros.ns(how)}', '-p', 'watchdog_timeout:=0.0']
+    emu = Emulator(cmd, ros.env, ros.tmp_path / f'{how}.log')
+    ros.emulators.append(emu)
+    return emu
+
+
+def test_a_teardown_that_hangs_is_given_up_within_its_bound_saying_where(ros, cpu_load):
+    """Three emulators beside two CPU burners, each with its teardown made to hang: in a wait that
+    releases the interpreter lock (the node's destruction), in a native call that holds it, and in
+    the interpreter's exit (a thread never ending, an atexit handler waiting). Each ends within its
+    bound after the SIGINT with every thread's stack printed: exit 0 where the watchdog could run (it
+    names the step it gave up), exit 1 from faulthandler's own thread where the lock was held."""
+    emus = {how: _emulator(ros, how) for how in ('destroy', 'native', 'exit')}
+    for how, emu in emus.items():
+        end = time.monotonic() + 120
+        while 'samples at' not in emu.output():
+            assert emu.proc.poll() is None and time.monotonic() < end, (how, emu.output())
+            time.sleep(0.05)
+    sent = time.monotonic()
+    for emu in emus.values():
+        emu.proc.send_signal(signal.SIGINT)
+    took = {}
+    while len(took) < len(emus) and time.monotonic() - sent < TEARDOWN_BOUND + TEARDOWN_BACKSTOP + MARGIN + 10:
+        for how, emu in emus.items():
+            if how not in took and emu.proc.poll() is not None:
+                took[how] = (time.monotonic() - sent, emu.proc.returncode)
+        time.sleep(0.01)
+    assert len(took) == len(emus), took
+    out = {how: emu.output() for how, emu in emus.items()}
+    for emu in emus.values():
+        emu.wait(1)
+    assert took['destroy'][1] == 0 and took['destroy'][0] < TEARDOWN_BOUND + MARGIN, (took, out['destroy'])
+    assert ('emulator: shutdown: destroying the node (its DDS publishers, subscriptions and services) did not finish '
+            f'within {TEARDOWN_BOUND:g} s; exiting without it (exit 0)') in out['destroy'], out['destroy']
+    assert 'in destroy_node' in out['destroy'] and 'stopping on SIGINT' in out['destroy'], out['destroy']
+    assert took['native'][1] == 1 and took['native'][0] < TEARDOWN_BOUND + TEARDOWN_BACKSTOP + MARGIN, (took, out['native'])
+    assert 'Timeout' in out['native'] and 'in destroy_node' in out['native'], out['native']
+    assert took['exit'][1] == 0 and took['exit'][0] < MARGIN, (took, out['exit'])
+    assert 'did not finish' not in out['exit'] and 'Traceback' not in out['exit'], out['exit']
