@@ -25,7 +25,8 @@ thread can run, is ended by faulthandler's own thread TEARDOWN_BACKSTOP s later 
 1). Then the process ends itself (`os._exit`, output flushed) rather than through the
 interpreter's exit, which would join leftover threads and run the DDS library's static
 destructors without any bound, with nothing left to close. With $PCV_SIM_STACKS set, SIGUSR1
-prints every thread's stack at any moment (a process that seems stuck, while it runs).
+prints every thread's stack at any moment (a process that seems stuck, while it runs), and a
+given-up step also prints the native stacks (gdb, where installed: the DDS library's threads).
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ import threading
 from collections.abc import Callable
 from typing import Any, NoReturn
 
-__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "STACKS_ENV", "TEARDOWN_BACKSTOP", "TEARDOWN_BOUND", "Stop",
-           "Teardown", "main_process", "parameter_help", "run_node", "serve"]
+__all__ = ["EXIT_INVALID_PARAMETERS", "EXIT_OK", "NATIVE_STACKS_BOUND", "STACKS_ENV", "TEARDOWN_BACKSTOP",
+           "TEARDOWN_BOUND", "Stop", "Teardown", "main_process", "parameter_help", "run_node", "serve"]
 
 EXIT_OK = 0
 EXIT_INVALID_PARAMETERS = 2
@@ -49,8 +50,11 @@ EXIT_INVALID_PARAMETERS = 2
 TEARDOWN_BOUND = 5.0
 #: s after TEARDOWN_BOUND at which faulthandler's thread ends a teardown stuck holding the interpreter lock.
 TEARDOWN_BACKSTOP = 3.0
-#: Set (to anything): SIGUSR1 prints every thread's stack (faulthandler), the process goes on.
+#: Set (to anything): SIGUSR1 prints every thread's stack (faulthandler), the process goes on; a
+#: given-up teardown also prints the native stacks.
 STACKS_ENV = "PCV_SIM_STACKS"
+#: s the native stacks (gdb) may take on the way out.
+NATIVE_STACKS_BOUND = 6.0
 
 
 class Stop:
@@ -212,10 +216,29 @@ class Teardown:
     def _watch(self) -> None:
         if self._done.wait(self.bound):
             return
+        faulthandler.cancel_dump_traceback_later()      # this thread runs: it ends the process itself
         with contextlib.suppress(Exception):
             sys.stdout.flush()
         os.write(2, f"{self.prog}: shutdown: {self.what} did not finish within {self.bound:g} s; "
                     f"exiting without it (exit {self.code}); every thread's stack:\n".encode())
         faulthandler.dump_traceback(all_threads=True)
+        if os.environ.get(STACKS_ENV):
+            _native_stacks()
         _end_process(self.code)
+
+
+def _native_stacks() -> None:
+    """Every thread's native stack on stderr, by gdb where it is installed ($PCV_SIM_STACKS): the DDS
+    library's threads, which faulthandler does not show. Bounded by `timeout` killing gdb: while gdb
+    is attached this process is stopped and could not time it out itself (killed, gdb detaches)."""
+    import shutil
+    import subprocess
+
+    gdb, timeout = shutil.which("gdb"), shutil.which("timeout")
+    if gdb is None or timeout is None:
+        return
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        subprocess.run([timeout, "-s", "KILL", f"{NATIVE_STACKS_BOUND:g}", gdb, "-p", str(os.getpid()), "-batch",
+                        "-nx", "-ex", "thread apply all bt"],
+                       check=False, stdin=subprocess.DEVNULL, stdout=2, stderr=subprocess.DEVNULL)
 

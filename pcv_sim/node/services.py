@@ -8,17 +8,19 @@ from __future__ import annotations
 import sys
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 
-__all__ = ["EVENT_POLL_EVERY", "JOB_SWITCH_INTERVAL", "SERVICE_POLL_PERIOD", "ServicePolling"]
+__all__ = ["EVENT_POLL_EVERY", "JOB_SWITCH_INTERVAL", "SERVICE_POLL_PERIOD", "WORKER_STOP_BOUND", "ServicePolling"]
 
 EVENT_POLL_EVERY = 10                       # service polls between QoS event polls
 SERVICE_POLL_PERIOD = 0.01                  # s (wall) between polls for service requests (reset, parameters)
 JOB_SWITCH_INTERVAL = 2e-4                  # s, interpreter switch interval while the worker computes
+#: s the stop waits for the deferred request in progress (a rest state: 25-60 ms, ~1 s under load).
+WORKER_STOP_BOUND = 3.0
 
 
 class ServicePolling(Node):
@@ -124,5 +126,11 @@ class ServicePolling(Node):
             return response
 
     def _stop_worker(self) -> None:
-        """After the loop: the worker stopped (a job still queued is dropped)."""
-        self._worker.shutdown(wait=True, cancel_futures=True)
+        """After the loop: the worker stopped (a job still queued is dropped). The request in progress
+        is waited for WORKER_STOP_BOUND s at most, then left behind unanswered (said): the process
+        ends without joining its thread (`pcv_sim.node.process`)."""
+        self._worker.shutdown(wait=False, cancel_futures=True)
+        job = self._job
+        if job is not None and wait([job[2]], timeout=WORKER_STOP_BOUND).not_done:
+            self.get_logger().warning(f"stopping: the request to {job[0].srv_name} in progress is left "
+                                      f"unanswered after {WORKER_STOP_BOUND:g} s")

@@ -7,6 +7,7 @@ ros_wheels_bootstrapper mark is cleared from its environment (docs/ros_wheels.md
 """
 import itertools
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,6 +25,10 @@ def clean_child_env(**extra):
     env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
     env.update(extra)
     return env
+
+
+#: What a node says when it gives up a step of its teardown (pcv_sim.node.process.Teardown).
+GIVEN_UP = 'did not finish within'
 
 
 def _domain_id():
@@ -57,15 +62,30 @@ class Emulator:
         try:
             return self.wait(timeout)
         except subprocess.TimeoutExpired:
-            # SIGABRT first: the child's faulthandler (PYTHONFAULTHANDLER, RosTest's env) writes every
-            # thread's stack into the log, so a hang names where it hangs.
+            # The native stacks (the DDS library's threads), then SIGABRT: the child's faulthandler
+            # (PYTHONFAULTHANDLER, RosTest's env) writes every Python thread's stack into the log, so a
+            # hang names where it hangs.
+            native = native_stacks(self.proc.pid)
             self.proc.send_signal(signal.SIGABRT)
             try:
                 self.proc.wait(5)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
-            raise AssertionError(f'emulator did not stop on {sig!r} within {timeout} s:\n{self.output()}') from None
+            raise AssertionError(f'emulator did not stop on {sig!r} within {timeout} s:\n{self.output()}\n'
+                                 f'native stacks:\n{native}') from None
+
+
+def native_stacks(pid):
+    """Every thread's native stack of a running process (gdb; '' where gdb is not installed)."""
+    gdb = shutil.which('gdb')
+    if gdb is None:
+        return ''
+    try:
+        return subprocess.run([gdb, '-p', str(pid), '-batch', '-nx', '-ex', 'thread apply all bt'], capture_output=True,
+                              text=True, timeout=60, stdin=subprocess.DEVNULL).stdout
+    except subprocess.TimeoutExpired:
+        return 'gdb did not answer within 60 s'
 
 
 class RosTest:
@@ -77,8 +97,9 @@ class RosTest:
         self.domain = _domain_id()
         self.prefix = f'/pcv{os.getpid()}_{next(_counter)}'
         self.tmp_path = tmp_path
+        # PCV_SIM_STACKS: a node whose teardown is given up prints its native stacks too (pcv_sim.node.process).
         self.env = clean_child_env(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                                   PYTHONFAULTHANDLER='1')
+                                   PYTHONFAULTHANDLER='1', PCV_SIM_STACKS='1')
         monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         monkeypatch.setenv('ROS_DOMAIN_ID', str(self.domain))
         self.context = rclpy.Context()
@@ -117,7 +138,8 @@ class RosTest:
             if e.proc.poll() is None:
                 rc = e.stop()
                 out = e.output()
-                if rc != 0 or 'Traceback' in out:
+                # A teardown given up after its bound (pcv_sim.node.process) is a failure too, with its stacks.
+                if rc != 0 or 'Traceback' in out or GIVEN_UP in out:
                     errors.append(f'{e.cmd}: exit {rc} on SIGINT:\n{out}')
             else:
                 e.wait()
