@@ -111,7 +111,7 @@ from pcv_sim.rig.params import RigParams, ValveChanges, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, Segment, parse_segment
 from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, rig_signals
 from pcv_sim.simulation.valve import MAX_TEMPERATURE, MIN_TEMPERATURE
-from pcv_sim.units import fmt, quantity
+from pcv_sim.units import MM_PER_M, PA_PER_BAR, fmt, quantity
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -324,7 +324,7 @@ class Scenario:
             if "duty" in e:
                 out += [(t, f"duty {v}: {seg.describe()}") for v, seg in e["duty"].items()]
             elif "supply" in e:
-                out += [(t, f"supply {v}: {seg.describe('bar', 1e-5)}") for v, seg in e["supply"].items()]
+                out += [(t, f"supply {v}: {seg.describe('bar', 1 / PA_PER_BAR)}") for v, seg in e["supply"].items()]
             elif "force" in e:
                 out.append((t, f"external force: {e['force'].describe('N')}"))
             elif any(n in e for n in TEMPERATURE_INPUTS):
@@ -340,7 +340,7 @@ class Scenario:
                 out.append((t, f"clear {e['clear']} on {e['target']}"))
         for k, seg in enumerate(self.setpoint):
             if (k or seg.t > 0.0) and seg.t <= self.duration:
-                out.append((seg.t, f"setpoint: {seg.describe('mm', 1e3)}"))
+                out.append((seg.t, f"setpoint: {seg.describe('mm', MM_PER_M)}"))
         return sorted(out, key=lambda x: x[0])
 
 
