@@ -57,7 +57,8 @@ class FaultKind:
 
 
 # --- the values of each kind, declared once (pcv_sim.params) --------------------------------------
-# A sensor fault's values are in its signal's unit (kind "value": the signal's kind, by its name).
+# A sensor fault's values are in its signal's unit (kind "value": the signal's kind, by its name),
+# as differences of it: a bias of 2 degC is 2 K, and a small one is no unit slip.
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,7 +100,7 @@ class CylinderFriction:
 
 @dataclass(frozen=True, kw_only=True)
 class Bias:
-    value: float = parameter("the signal's unit", "the offset", any_value, kind="value")
+    value: float = parameter("the signal's unit", "the offset", any_value, kind="value", difference=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -111,7 +112,7 @@ class Drift:
 @dataclass(frozen=True, kw_only=True)
 class Noise:
     std: float = parameter("the signal's unit", "its standard deviation",
-                           at_least(0.0, "a standard deviation", strict=True), kind="value")
+                           at_least(0.0, "a standard deviation", strict=True), kind="value", difference=True)
 
 
 @dataclass(frozen=True, kw_only=True)
