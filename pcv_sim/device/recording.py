@@ -138,16 +138,17 @@ class BagLayout:
     def of(cls, device: Any, *, namespace: str = "/", chambers: Mapping[str, str] | None = None,
            every: int | None = None, record: Iterable[str] = RECORDABLE, frame_id: str = "load_port",
            faults: bool = True, events: bool = True) -> BagLayout:
-        """The layout of `device` (its `valve_names`, `signals`, `input_names`); see `of_names`."""
+        """The layout of `device` (its `valve_names`, `signals`, `input_names`, `lone_valve`); see `of_names`."""
         return cls.of_names(device.valve_names, device.signals, device.input_names, namespace=namespace,
                             chambers=chambers, every=every, record=record, frame_id=frame_id, faults=faults,
-                            events=events)
+                            events=events, lone_valve=device.lone_valve)
 
     @classmethod
     def of_names(cls, valves: Sequence[str], signals: Sequence[str], inputs: Sequence[str], *, namespace: str = "/",
                  chambers: Mapping[str, str] | None = None, every: int | None = None,
                  record: Iterable[str] = RECORDABLE, frame_id: str = "load_port", faults: bool = True,
-                 events: bool = True, options: bool = True, extra: Sequence[tuple[str, str]] = ()) -> BagLayout:
+                 events: bool = True, options: bool = True, extra: Sequence[tuple[str, str]] = (),
+                 lone_valve: bool = False) -> BagLayout:
         """The layout of a device with these names, in `namespace` (the node's; "/" offline).
 
         A row carries the device's `signals` (in their order) and then the `extra` values; a name
@@ -156,6 +157,8 @@ class BagLayout:
 
         Args:
             valves, signals, inputs: The device's `valve_names`, `signals` and `input_names`.
+            lone_valve: The device's `lone_valve`: its one valve's names and topics are its roles
+                alone (the emulator's bag), else `<valve>.<role>` (the rig's).
             chambers: valve -> chamber (a | b) of the valves on the plant's chambers.
             every: Record at every `every`-th model step (the device's per-step hook); None: with
                 each sample shown (inputs as they act, load flows as period means).
@@ -172,7 +175,7 @@ class BagLayout:
         roles = check_signals(record)
         valves, signals, inputs = tuple(valves), tuple(signals), tuple(inputs)
         chambers = dict(chambers or {})
-        lone = len(valves) == 1 and all("." not in s for s in signals)
+        lone = lone_valve
         prefix = {v: "" if lone else f"{v}." for v in valves}
         row = signals + tuple(name for name, _ in extra)
         relative = dict(extra)

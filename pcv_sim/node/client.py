@@ -149,7 +149,9 @@ class _Partial:
 
 class DeviceClient:
     """Talks to the device node `device_node` in `namespace` (see the module docstring). `valves`:
-    the device's valve names, () for the emulator's one valve under bare names. `inputs`: the inputs
+    the device's valve names; `lone_valve`: the device is the emulator's lone valve (the device's
+    `lone_valve`: its names are the roles alone, its valve `valve`; None: when no `valves` are
+    named). `inputs`: the inputs
     whose publishers are made at once (default: the emulator's three, or each valve's duty and the
     cylinder's force); any other is made at its first `send`. `outputs`: the emulator's signals
     collected in `samples` and `outputs`. `lockstep`: subscribed for `run` (with `channel`, to the
@@ -160,16 +162,19 @@ class DeviceClient:
                  node_name: str = "pcv_client", node: Any = None, device_node: str = "emulator",
                  inputs: tuple[str, ...] | None = None, outputs: tuple[str, ...] = (), sample_depth: int = 10000,
                  on_pressure: Callable[[PressureSample], None] | None = None, lockstep: bool = False,
-                 channel: bool = False, currents: bool = False, history: bool = True) -> None:
+                 channel: bool = False, currents: bool = False, history: bool = True,
+                 lone_valve: bool | None = None) -> None:
         self._own_node = node is None
         self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
         node = self.node
         self.context = node.context
         self.device_name = f"{node.get_namespace().rstrip('/')}/{device_node}"
         self.emulator_name = self.device_name
-        self.bare = not valves
-        self.valves = valves or (VALVE,)
-        self.cylinder = not self.bare            # the rig: its valves on the cylinder
+        self.lone_valve = not valves if lone_valve is None else lone_valve
+        if self.lone_valve and valves not in ((), (VALVE,)):
+            raise ValueError(f"the lone valve is {VALVE!r}; got valves {valves!r}")
+        self.valves = (VALVE,) if self.lone_valve else valves
+        self.cylinder = not self.lone_valve      # the rig: its valves on the cylinder
         self.history = history
         self.channel = channel
         self.lockstep = lockstep or channel
@@ -183,7 +188,7 @@ class DeviceClient:
         # --- inputs, by the device's names ---
         self._pubs: dict[str, tuple[Any, Any, Any]] = {}   # input -> (publisher, message, its field's setter)
         if inputs is None:
-            inputs = EMULATOR_INPUTS if self.bare else (
+            inputs = EMULATOR_INPUTS if self.lone_valve else (
                 *(self.key(v, topics.DUTY_CYCLE) for v in self.valves),
                 f"{topics.CYLINDER}.{topics.EXTERNAL_FORCE}")
         for name in inputs:
@@ -263,7 +268,7 @@ class DeviceClient:
 
     def key(self, valve: str, role: str) -> str:
         """A valve's input or signal as the device names it: `left.pressure`, the emulator's `pressure`."""
-        return role if self.bare else f"{valve}.{role}"
+        return role if self.lone_valve else f"{valve}.{role}"
 
     def topic(self, valve: str, role: str) -> str:
         """A valve's signal's relative topic (`pcv_sim.io.topics.output_topics`)."""
@@ -326,7 +331,7 @@ class DeviceClient:
     def _pressure(self, valve: str) -> Callable[[Any, Any], None]:
         key = self.key(valve, topics.PRESSURE)
         lockstep = self.lockstep
-        collect = self.bare and topics.PRESSURE in self._outputs
+        collect = self.lone_valve and topics.PRESSURE in self._outputs
 
         def take(msg: FluidPressure, info: Any) -> None:
             stamp = stamp_ns(msg)
@@ -341,7 +346,7 @@ class DeviceClient:
 
     def _current(self, valve: str) -> Callable[[Any, Any], None]:
         key = self.key(valve, topics.CURRENT)
-        collect = self.bare and topics.CURRENT in self._outputs
+        collect = self.lone_valve and topics.CURRENT in self._outputs
 
         def take(msg: Float64, info: Any) -> None:
             if collect:
@@ -623,7 +628,7 @@ class EmulatorClient(DeviceClient):
                  outputs: tuple[str, ...] = (topics.PRESSURE,),
                  on_pressure: Callable[[PressureSample], None] | None = None, **kw: Any) -> None:
         super().__init__(namespace, context=context, node_name=node_name, device_node=emulator_node,
-                         sample_depth=sample_depth, outputs=outputs, on_pressure=on_pressure, **kw)
+                         sample_depth=sample_depth, outputs=outputs, on_pressure=on_pressure, lone_valve=True, **kw)
 
 
 class RigClient(DeviceClient):
@@ -633,5 +638,5 @@ class RigClient(DeviceClient):
                  node_name: str = "rig_controller", currents: bool = False, node: Any = None,
                  history: bool = True, channel: bool = False, **kw: Any) -> None:
         super().__init__(namespace, valves, context=context, node_name=node_name, node=node, device_node="rig",
-                         lockstep=True, currents=currents, history=history, channel=channel,
+                         lockstep=True, currents=currents, history=history, channel=channel, lone_valve=False,
                          sample_depth=kw.pop("sample_depth", 1000), **kw)
