@@ -121,6 +121,7 @@ class Delay:
                              between(0.0, 10.0, "a delay", above=True), kind="time")
 
 
+#: What a fault acts on (`FaultKind.on`): a valve, the cylinder (`CYLINDER`) or a measured signal.
 VALVE, SIGNAL = "valve", "signal"
 
 VALVE_FAULTS: dict[str, FaultKind] = {
