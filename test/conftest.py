@@ -12,6 +12,24 @@ REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'pcv_sim'
 
 
+def pytest_addoption(parser):
+    parser.addoption('--soak', action='store_true',
+                     help='also run the soaks (tests marked soak: minutes each, repeating a scenario under load)')
+
+
+def pytest_configure(config):
+    config.addinivalue_line('markers', 'soak: a long repetition of a scenario under load; run only with --soak')
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption('--soak'):
+        return
+    skip = pytest.mark.skip(reason='a soak: run with --soak')
+    for item in items:
+        if 'soak' in item.keywords:
+            item.add_marker(skip)
+
+
 def clean_child_env(**extra):
     """Environment for a child process: no inherited ros_wheels_bootstrapper mark.
 
