@@ -55,7 +55,7 @@ from typing import Any, Final, Literal, Self
 
 from pcv_sim.errors import BagError
 from pcv_sim.io.bag import BagWriter, Qos
-from pcv_sim.io.writer_process import WriterProcess
+from pcv_sim.io.writer_process import STALL_TIMEOUT, WriterProcess
 
 __all__ = [
     "SWITCH_INTERVAL",
@@ -118,6 +118,9 @@ class WriterSettings:
         when_full: What a call does when the queue is full: ``drop`` (real time: count the
             messages as dropped) or ``wait`` for the writer (simulated time, where the model may
             run far faster than the writer: a complete bag).
+        stall_timeout: s the loop and the close wait for a writer that takes nothing (a writer
+            process that is alive but stuck): then waiting ends, the messages not handed over are
+            counted as dropped and the failure said; a writer making progress is waited for.
         ros_distro: The ROS 2 distribution for the bag's metadata; None detects it
             (``ROS_DISTRO``, else the installed rclpy: :func:`pcv_sim.io.bag.detect_ros_distro`).
     """
@@ -129,6 +132,7 @@ class WriterSettings:
     chunk_size: int = 1 << 20
     fsync: bool = True
     when_full: Literal["drop", "wait"] = "drop"
+    stall_timeout: float = STALL_TIMEOUT
     ros_distro: str | None = None
 
     def __post_init__(self) -> None:
@@ -140,6 +144,9 @@ class WriterSettings:
             raise BagError(msg)
         if self.when_full not in ("drop", "wait"):
             msg = f"when_full {self.when_full!r}: accepted are 'drop' and 'wait'"
+            raise BagError(msg)
+        if not (math.isfinite(self.stall_timeout) and self.stall_timeout > 0.0):
+            msg = f"stall_timeout {self.stall_timeout!r} s: accepted is a number > 0"
             raise BagError(msg)
 
 
@@ -189,6 +196,7 @@ class QueuedBag:
         self.threaded = writer == "thread"
         self.when_full = writing.when_full
         self.batch_period = batch_period
+        self.stall_timeout = writing.stall_timeout
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._proc: WriterProcess | None = None
@@ -200,7 +208,7 @@ class QueuedBag:
                 (type(self).__module__, type(self).__qualname__,
                  {**build, "directory": directory, "name": name,
                   "writing": dataclasses.replace(writing, writer="inline")}),
-                capacity=max_items * item_bytes, batch_period=batch_period)
+                capacity=max_items * item_bytes, batch_period=batch_period, stall_timeout=writing.stall_timeout)
             self._writer: BagWriter | None = None
             return
         self._writer = BagWriter(
@@ -256,8 +264,16 @@ class QueuedBag:
             return
         payload = pickle.dumps(local, pickle.HIGHEST_PROTOCOL)
         count = sum(map(self._count, local))
+        taken, since = proc.taken, time.monotonic()
         while not proc.put(payload, len(local), count):
             if not (wait or self.when_full == "wait") or proc.failure():
+                self._dropped += count
+                return
+            if proc.taken != taken:
+                taken, since = proc.taken, time.monotonic()
+            elif time.monotonic() - since > self.stall_timeout:      # alive, but it takes nothing
+                proc.ring.set_error(f"the bag writer process took nothing for {self.stall_timeout:g} s")
+                self._error = proc.failure()
                 self._dropped += count
                 return
             time.sleep(self.batch_period / 4)
@@ -365,7 +381,11 @@ class QueuedBag:
             return self._final
         if self._thread is not None:
             self._stop.set()
-            self._thread.join()
+            self._thread.join(self.stall_timeout)
+            if self._thread.is_alive():       # stuck in a write: the BagWriter stays the thread's, not finalized
+                self._fail(BagError(f"the bag writer thread did not finish within {self.stall_timeout:g} s"))
+                self._closed = True
+                return self.status()
             self._thread = None
         if not self._closed:
             self._drain()

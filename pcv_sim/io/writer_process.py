@@ -174,9 +174,12 @@ class WriterProcess:
             process runs (constructed there with ``writer="inline"``).
         capacity: Ring size in bytes: the backlog the writer may have before batches are refused.
         batch_period: s between the writer's turns.
+        stall_timeout: s without progress after which closing gives up on the writer and kills it.
     """
 
-    def __init__(self, build: tuple[str, str, Mapping[str, Any]], *, capacity: int, batch_period: float) -> None:
+    def __init__(self, build: tuple[str, str, Mapping[str, Any]], *, capacity: int, batch_period: float,
+                 stall_timeout: float = STALL_TIMEOUT) -> None:
+        self.stall_timeout = stall_timeout
         self.ring = Ring.create(capacity)
         self.shipped = 0                     # items handed over
         self.shipped_messages = 0            # the messages they make
@@ -243,7 +246,7 @@ class WriterProcess:
 
     def close(self, on_wait: Callable[[], None] | None = None) -> None:
         """Ask the writer to write what it has and finalize the bag; wait for it while it makes
-        progress (at most STALL_TIMEOUT s without), then kill it."""
+        progress (at most `stall_timeout` s without), then kill it."""
         with contextlib.suppress(OSError):
             os.write(self._control, b"c")
         last, since = (-1, -1), time.monotonic()
@@ -251,8 +254,9 @@ class WriterProcess:
             progress = (self.taken, int(self.ring.counters[_TAIL]))
             if progress != last:
                 last, since = progress, time.monotonic()
-            elif time.monotonic() - since > STALL_TIMEOUT:
-                self.ring.set_error(f"the bag writer process made no progress for {STALL_TIMEOUT:g} s and was killed")
+            elif time.monotonic() - since > self.stall_timeout:
+                self.ring.set_error(f"the bag writer process made no progress for {self.stall_timeout:g} s and was "
+                                    f"killed")
                 self.kill()
                 break
             if on_wait is not None:

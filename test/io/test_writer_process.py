@@ -266,3 +266,45 @@ def test_a_full_ring_drops_whole_batches_and_counts_every_message(tmp_path: Path
     assert st.messages + st.dropped == 4 + 3 * 5001, st
     bag = read_bag(tmp_path / "b")
     assert sum(len(bag[t]) for t in bag.topics) == st.messages
+
+
+def test_a_writer_that_is_alive_but_takes_nothing_does_not_hold_up_the_close(tmp_path: Path, emulator_recorder) -> None:
+    """The writer process stopped (alive, taking nothing) with its ring full: the loop's waiting
+    (`when_full: wait`) and the close each give up after `stall_timeout` s without progress, count
+    what they could not hand over as dropped and say why; nothing waits forever."""
+    rec = emulator_recorder(tmp_path, name="b", every=1, max_queue_s=0.01,
+                            writing=WriterSettings(writer="process", when_full="wait", stall_timeout=1.0))
+    assert rec._proc is not None
+    rec._proc.proc.send_signal(signal.SIGSTOP)
+    try:
+        t = time.monotonic()
+        feed(rec, 0, 3000)                                # more than the 64 KiB ring holds: waits, then gives up
+        fed = time.monotonic() - t
+        t = time.monotonic()
+        st = rec.close()
+        closed = time.monotonic() - t
+    finally:
+        rec._proc.proc.send_signal(signal.SIGCONT)
+        rec._proc.proc.kill()
+    assert fed < 1.0 + 5.0 and closed < 2 * 1.0 + 5.0, (fed, closed)
+    assert st.state == "failed" and "took nothing for 1 s" in st.error and st.dropped > 0, st
+
+
+def test_a_writer_thread_stuck_in_a_write_does_not_hold_up_the_close(tmp_path: Path, emulator_recorder,
+                                                                      monkeypatch) -> None:
+    """The thread writer (not the nodes'): a write that never returns (a disk that hangs) is given
+    `stall_timeout` s at the close, then the bag is reported failed rather than waited for."""
+    import threading
+
+    rec = emulator_recorder(tmp_path, name="b", every=1, writing=WriterSettings(writer="thread", stall_timeout=0.5))
+    hang = threading.Event()
+    monkeypatch.setattr(rec, "_write_batch", lambda items: hang.wait())
+    try:
+        feed(rec, 0, 100)
+        time.sleep(3 * rec.batch_period)                  # the writer thread is in its write
+        t = time.monotonic()
+        st = rec.close()
+        assert time.monotonic() - t < 0.5 + 2.0
+    finally:
+        hang.set()
+    assert st.state == "failed" and "did not finish within 0.5 s" in st.error, st
