@@ -308,3 +308,47 @@ def test_a_writer_thread_stuck_in_a_write_does_not_hold_up_the_close(tmp_path: P
     finally:
         hang.set()
     assert st.state == "failed" and "did not finish within 0.5 s" in st.error, st
+
+
+def test_taking_over_from_a_starved_idle_writer_thread_does_not_wait_for_idle_cpu(cpu_load) -> None:
+    """Priority inversion at close: the background writer thread (SCHED_IDLE) holds the lock the
+    main thread needs (a record in progress) and, beside two CPU burners, gets a slice only now and
+    then: 0.2 s of its CPU then took ~a minute, and closing a recording beside four burners 1.5-42 s
+    (a third of the bags killed unfinished after STALL_TIMEOUT). The main thread raises it while it
+    waits, where the process may: the lock comes within seconds."""
+    import threading
+
+    from pcv_sim.io.writer_process import Ring, _set_policy, _Turns
+
+    allowed = []
+
+    def try_policy() -> None:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        allowed.append(_set_policy(threading.get_native_id(), os.SCHED_OTHER))
+
+    t = threading.Thread(target=try_policy)
+    t.start()
+    t.join()
+    if not allowed[0]:
+        pytest.skip("this process may not raise a SCHED_IDLE thread back to normal priority")
+    ring = Ring.create(1 << 16)
+    turns = _Turns(ring, rec=None)
+    holding = threading.Event()
+
+    def starved_record() -> None:              # the background thread's part: SCHED_IDLE, `work` held
+        turns.tid = threading.get_native_id()
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        with turns.work:
+            holding.set()
+            end = time.thread_time() + 0.2    # 0.2 s of its own CPU: a slow record
+            while time.thread_time() < end:
+                pass
+
+    worker = threading.Thread(target=starved_record, daemon=True)
+    worker.start()
+    assert holding.wait(60)
+    t0 = time.monotonic()
+    turns.take_over(until=1)                  # the ring is empty: only the lock is waited for
+    took = time.monotonic() - t0
+    ring.close()
+    assert took < 10.0, f"the main thread waited {took:.1f} s for the idle thread's lock"
