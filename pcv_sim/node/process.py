@@ -16,15 +16,16 @@ closing: no bag is open yet, the kernel cache is written by rename. From
 `node.run` on, the signal only sets the flag, which the loop checks at every wake: it finishes
 the wake and closes the bag with everything up to the stop.
 
-The stop is bounded. After the loop (worker stopped, bag closed) the node is destroyed and rclpy
-shut down under a watchdog (`Teardown`): a step that has not finished within TEARDOWN_BOUND s
-(the DDS library waiting for a peer that was stopped or vanished, a lock its thread holds) is
-given up, the process says which one and prints every thread's stack, and exits with the code it
-would have had. A step stuck in native code that holds the interpreter lock, where no Python
-thread can run, is ended by faulthandler's own thread TEARDOWN_BACKSTOP s later (its stacks, exit
-1). Then the process ends itself (`os._exit`, output flushed) rather than through the
-interpreter's exit, which would join leftover threads and run the DDS library's static
-destructors without any bound, with nothing left to close. With $PCV_SIM_STACKS set, SIGUSR1
+The stop is bounded. After the loop (worker stopped, bag closed) the node is destroyed, rclpy
+shut down and its context destroyed (the DDS participant) under a watchdog (`Teardown`): a step
+that has not finished within TEARDOWN_BOUND s (the DDS library waiting for a peer that was
+stopped or vanished, a lock its thread holds) is given up, the process says which one and
+prints every thread's stack, and exits with the code it would have had. A step stuck in native
+code that holds the interpreter lock, where no Python thread can run, is ended by faulthandler's
+own thread TEARDOWN_BACKSTOP s later (its stacks, exit 1). Then the process ends itself
+(`os._exit`, output flushed) rather than through the interpreter's exit, which would join
+leftover threads and run the DDS library's static destructors without any bound, with nothing
+left to close. With $PCV_SIM_STACKS set, SIGUSR1
 prints every thread's stack at any moment (a process that seems stuck, while it runs), and a
 given-up step also prints the native stacks (gdb, where installed: the DDS library's threads).
 """
@@ -151,7 +152,7 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
     the stop (`node.run(stop)`), then destroyed and rclpy shut down, whatever happened."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
-    from rclpy.utilities import try_shutdown
+    from rclpy.utilities import get_default_context, try_shutdown
 
     from pcv_sim.errors import ParameterError
 
@@ -184,8 +185,14 @@ def serve(prog: str, argv: list[str], stop: Stop, make_node: Callable[[list[str]
             if node is not None:
                 teardown.step("destroying the node (its DDS publishers, subscriptions and services)")
                 node.destroy_node()
-            teardown.step("shutting rclpy down (the DDS participant)")
+            teardown.step("shutting rclpy down")
             try_shutdown()
+            # The DDS participant goes with the context (else only with the interpreter's exit, which
+            # `main_process` skips): its peers are told it left instead of waiting for its lease to end.
+            destroy = getattr(get_default_context(), "destroy", None)
+            if destroy is not None:
+                teardown.step("destroying rclpy's context (the DDS participant)")
+                destroy()
 
 
 class Teardown:
