@@ -216,12 +216,15 @@ def parse_fault(kind: Any, target: Any, values: Mapping[str, Any] | None, *, val
     return Fault(kind, str(target), out)
 
 
-def fault_value_kind(kind: str, name: str, target: str) -> tuple[str, bool]:
+def fault_value_kind(kind: str, name: str, target: str) -> tuple[str, bool, bool]:
     """The units kind (`pcv_sim.units.KINDS`) of the value `name` of a fault `kind` on `target` (a
-    sensor fault's: its signal's), and whether it is that kind per second (a drift's rate)."""
+    sensor fault's: its signal's), whether it is that kind per second (a drift's rate) and whether
+    it is a difference of it (a bias: no unit's zero applies)."""
     cls = FAULT_KINDS[kind].values
     meta = declarations(cls)[name].metadata if cls is not None else {"kind": "number"}
-    return (signal_kind(target) if meta["kind"] == "value" else meta["kind"]), bool(meta.get("rate"))
+    rate = bool(meta.get("rate"))
+    return (signal_kind(target) if meta["kind"] == "value" else meta["kind"]), rate, \
+        rate or bool(meta.get("difference"))
 
 
 def fault_table() -> str:
