@@ -29,7 +29,7 @@ import yaml
 
 from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.keys import closest
+from pcv_sim.keys import closest, unknown_message
 from pcv_sim.model import kernel
 from pcv_sim.params import any_value, at_least, between, declarations, key_cells, parameter, read
 
@@ -203,13 +203,10 @@ def parse_fault(kind: Any, target: Any, values: Mapping[str, Any] | None, *, val
             raise FaultError(f"{prefix}: takes no values (got {', '.join(map(str, given))})")
         return Fault(kind, str(target), {})
     of = signal_kind(str(target)) if spec.on == SIGNAL else None
+    unknown = unknown_message(prefix, given, declarations(spec.values))
+    if unknown:
+        raise FaultError(unknown)
     try:
-        unknown = sorted(set(given) - set(declarations(spec.values)), key=str)
-        if unknown:
-            near = [closest(k, declarations(spec.values)) for k in unknown]
-            raise FaultError(f"{prefix}: unknown key{'s' if len(unknown) > 1 else ''} "
-                             + ", ".join(f"{k!r}" + (f" (did you mean {n!r}?)" if n else "") for k, n in zip(unknown, near))
-                             + f"; accepted: {', '.join(declarations(spec.values))}")
         out = {name: float(read(spec.values, given, name, prefix, of=of)) for name in declarations(spec.values)}
     except ParameterError as err:
         raise FaultError(str(err)) from None
