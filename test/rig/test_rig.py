@@ -366,8 +366,10 @@ def test_feed_refuses_what_the_rig_would_refuse(rig):
         rig.feed(EXTERNAL_FORCE, [10, 20], [0.0, 2e6])
     with pytest.raises(CommandError, match="steps increasing"):
         rig.feed(EXTERNAL_FORCE, [20, 10], [0.0, 1.0])
-    with pytest.raises(CommandError, match=r"accepted is cylinder\.external_force"):
-        rig.feed("left.duty_cycle", [10], [0.5])
+    with pytest.raises(CommandError, match=r"accepted are cylinder\.external_force, left\.duty_cycle, "):
+        rig.feed("left.supply_pressure", [10], [2e7])     # a supply: a fault holds over it (submit it)
+    with pytest.raises(CommandError, match=r"duty cycle 1\.5 is out of range"):
+        rig.feed("left.duty_cycle", [10], [1.5])
     rig.feed(EXTERNAL_FORCE, [0, 30], [5.0, 7.0])           # a second feed of it replaces the first
     rig.feed(EXTERNAL_FORCE, [20], [6.0])
     rig.advance_to(40)
