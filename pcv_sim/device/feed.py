@@ -148,7 +148,7 @@ class FedInputs(Composition):
                 self._fail(f"model step failed ({type(err).__name__}: {err})")
             self._feed_taken(r0, r1)
             got = rows[:end - j, self.signal_outputs]
-            bad = self._rows_problem(got)
+            bad = self._rows_problem(got) if end > j else None
             if bad is not None:
                 sim.steps = int(targets[bad[0]])
                 self._fail(bad[1])

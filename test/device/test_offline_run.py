@@ -77,6 +77,11 @@ def test_a_limited_duty_is_submitted_and_ramps_as_run_to_steps_it():
     got = dev.sample_at(np.arange(501))
     assert np.array_equal(got, ref)
     assert dev.record_values() == ref_dev.record_values()
+    sparse = ValveDevice(limited, safe_duty=0.5, watchdog_timeout=0.0)   # stretches without a sample
+    for k, duty, _ in TIMELINE:
+        sparse.submit('duty_cycle', duty, k)
+    sparse.feed('load_flow', [k for k, _, _ in TIMELINE], [f for _, _, f in TIMELINE])
+    assert np.array_equal(sparse.sample_at([0, 500]), ref[[0, 500]])
 
 
 def test_the_start_at_rest_at_given_inputs():
