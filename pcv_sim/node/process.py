@@ -237,15 +237,21 @@ class Teardown:
 def _native_stacks() -> None:
     """Every thread's native stack on stderr, by gdb where it is installed ($PCV_SIM_STACKS): the DDS
     library's threads, which faulthandler does not show. Bounded by `timeout` killing gdb: while gdb
-    is attached this process is stopped and could not time it out itself (killed, gdb detaches)."""
+    is attached this process is stopped and could not time it out itself. A gdb killed before it
+    took the SIGSTOP of its attach leaves the process stopped (group-stop): the shell sends SIGCONT.
+    (Seen once beside two CPU burners: the stop waited for `timeout` more than 30 s.)"""
+    import shlex
     import shutil
     import subprocess
 
     gdb, timeout = shutil.which("gdb"), shutil.which("timeout")
     if gdb is None or timeout is None:
         return
+    pid = str(os.getpid())
+    script = (f"{shlex.quote(timeout)} -s KILL {NATIVE_STACKS_BOUND:g} {shlex.quote(gdb)} -p {pid} -batch -nx "
+              f"-ex 'thread apply all bt' 2>/dev/null; kill -CONT {pid}")
     with contextlib.suppress(OSError, subprocess.SubprocessError):
-        subprocess.run([timeout, "-s", "KILL", f"{NATIVE_STACKS_BOUND:g}", gdb, "-p", str(os.getpid()), "-batch",
-                        "-nx", "-ex", "thread apply all bt"],
-                       check=False, stdin=subprocess.DEVNULL, stdout=2, stderr=subprocess.DEVNULL)
+        # Waited for here too: once this process runs again it leaves a gdb (or timeout) still going.
+        subprocess.Popen(["/bin/sh", "-c", script], stdin=subprocess.DEVNULL, stdout=2,
+                         stderr=subprocess.DEVNULL).wait(NATIVE_STACKS_BOUND + 2.0)
 
