@@ -60,16 +60,20 @@ def measure(tree: Path) -> dict[str, float | str]:
     return result
 
 
-def main() -> None:
+def _options() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--load", type=int, default=4, help="CPU burners beside (default 4)")
     ap.add_argument("--rounds", type=int, default=6, help="measurements per tree (default 6)")
     ap.add_argument("--before", type=Path, help="a worktree of another commit, alternated with this one")
-    a = ap.parse_args()
+    return ap.parse_args()
+
+
+def main() -> None:
+    a = _options()
     trees = {"before": a.before.resolve(), "this": REPO} if a.before else {"this": REPO}
     print(f"load at start {os.getloadavg()[0]:.2f}; {a.load} burners, {a.rounds} rounds", flush=True)
-    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.load)]
     results: dict[str, list[dict[str, float | str]]] = {name: [] for name in trees}
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.load)]
     try:
         for r in range(a.rounds):
             for name, tree in trees.items():

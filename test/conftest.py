@@ -1,5 +1,6 @@
 """Shared fixtures: `colcon_install`, a real colcon build of this package; `options_rig`, a rig
 YAML with a valve that has the valve options a rig takes as inputs."""
+import contextlib
 import os
 import subprocess
 import sys
@@ -91,12 +92,11 @@ def colcon_install(tmp_path_factory):
     )
 
 
-@pytest.fixture
-def cpu_load():
-    """Two CPU-bound processes beside the test for its duration: on this 2-core machine the node
-    then competes for a core, as it does on a shared machine. Ordering promises must hold so."""
+@contextlib.contextmanager
+def burning(n):
+    """n CPU-bound processes for the block's duration."""
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env())
-            for _ in range(2)]
+            for _ in range(n)]
     try:
         yield hogs
     finally:
@@ -104,6 +104,22 @@ def cpu_load():
             h.kill()
         for h in hogs:
             h.wait(5)
+
+
+@pytest.fixture
+def cpu_load():
+    """Two CPU-bound processes beside the test for its duration: on this 2-core machine the node
+    then competes for a core, as it does on a shared machine. Ordering promises must hold so."""
+    with burning(2) as hogs:
+        yield hogs
+
+
+@pytest.fixture
+def cpu_burners():
+    """`cpu_burners(n)`: n CPU-bound processes beside the test from then on until it ends (a soak's
+    harsher load than `cpu_load`)."""
+    with contextlib.ExitStack() as stack:
+        yield lambda n: stack.enter_context(burning(n))
 
 
 @pytest.fixture(scope='session', autouse=True)

@@ -26,25 +26,13 @@ import time
 
 import pytest
 
-from .conftest import GIVEN_UP, clean_child_env
+from .conftest import GIVEN_UP
 
 pytestmark = pytest.mark.soak
 
 RUNS = int(os.environ.get('PCV_SIM_SOAK_RUNS', '10'))
 HOGS = 4
 STOP_WITHIN = 15.0                          # s, as the harness's Emulator.stop
-
-
-@pytest.fixture
-def hogs():
-    procs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'], env=clean_child_env()) for _ in range(HOGS)]
-    try:
-        yield procs
-    finally:
-        for p in procs:
-            p.kill()
-        for p in procs:
-            p.wait(5)
 
 
 def _demo(ros, name):
@@ -106,7 +94,8 @@ def _one(ros, variant, k):
 
 
 @pytest.mark.parametrize('variant', ['demo_exits', 'sigint_while_stopped', 'twice', 'demo_killed', 'overlap'])
-def test_an_emulator_stopped_and_resumed_under_load_stops_on_sigint(ros, hogs, variant):
+def test_an_emulator_stopped_and_resumed_under_load_stops_on_sigint(ros, cpu_burners, variant):
+    cpu_burners(HOGS)
     results = [_one(ros, variant, k) for k in range(RUNS)]
     hangs = [out for took, _, out in results if took is None]
     given_up = [out for took, _, out in results if took is not None and GIVEN_UP in out]
