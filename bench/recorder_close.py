@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -70,6 +71,7 @@ def _options() -> argparse.Namespace:
 
 def main() -> None:
     a = _options()
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))     # the burners go with an interrupted run too
     trees = {"before": a.before.resolve(), "this": REPO} if a.before else {"this": REPO}
     print(f"load at start {os.getloadavg()[0]:.2f}; {a.load} burners, {a.rounds} rounds", flush=True)
     results: dict[str, list[dict[str, float | str]]] = {name: [] for name in trees}

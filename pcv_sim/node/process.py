@@ -25,9 +25,10 @@ code that holds the interpreter lock, where no Python thread can run, is ended b
 own thread TEARDOWN_BACKSTOP s later (its stacks, exit 1). Then the process ends itself
 (`os._exit`, output flushed) rather than through the interpreter's exit, which would join
 leftover threads and run the DDS library's static destructors without any bound, with nothing
-left to close. With $PCV_SIM_STACKS set, SIGUSR1
-prints every thread's stack at any moment (a process that seems stuck, while it runs), and a
-given-up step also prints the native stacks (gdb, where installed: the DDS library's threads).
+left to close; so does a run that ended in an exception (its traceback printed, exit 1). With
+$PCV_SIM_STACKS set, SIGUSR1 prints every thread's stack at any moment (a process that seems
+stuck, while it runs), and a given-up step also prints the native stacks (gdb, where installed:
+the DDS library's threads).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import os
 import signal
 import sys
 import threading
+import traceback
 from collections.abc import Callable
 from typing import Any, NoReturn
 
@@ -90,6 +92,13 @@ def main_process(run: Callable[[list[str], Stop], int], args: list[str] | None) 
         previous[sig] = signal.signal(sig, stop)
     try:
         code = run(list(sys.argv if args is None else args), stop)
+    except SystemExit as done:            # argparse: --help (0), a usage error (2, said already)
+        code = done.code if isinstance(done.code, int) else 0 if done.code is None else 1
+        if isinstance(done.code, str):
+            print(done.code, file=sys.stderr)
+    except BaseException:                 # what the interpreter would print, and its exit status
+        traceback.print_exc()
+        code = 1
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
