@@ -60,6 +60,7 @@ __all__ = [
     "duty_fraction",
     "fraction",
     "int_range",
+    "key_cells",
     "key_table",
     "load_params",
     "non_empty",
@@ -135,8 +136,16 @@ def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
     return check
 
 
-def between(lo: float, hi: float, what: str = "a value") -> Check:
-    """lo <= value <= hi (inclusive), in the message's words `what` ("a duration", "a position")."""
+def between(lo: float, hi: float, what: str = "a value", *, above: bool = False) -> Check:
+    """lo <= value <= hi (inclusive), in the message's words `what` ("a duration", "a position");
+    `above`: lo < value <= hi (a factor that 0 would make a different fault)."""
+    if above:
+
+        def above_lo(v: float) -> str | None:
+            return None if lo < v <= hi else f"{what} > {lo:g} and <= {hi:g}"
+
+        above_lo.accepted = f"> {lo:g} and <= {hi:g}"  # type: ignore[attr-defined]  # for the tables of keys
+        return above_lo
 
     def check(v: float) -> str | None:
         return None if lo <= v <= hi else f"{what} in {lo:g} .. {hi:g}"
@@ -205,7 +214,7 @@ _one_of = one_of
 def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "float", default: Any = dataclasses.MISSING,
               source: str = "", name: str | None = None, read_only: bool = False,
               convert: Callable[[str, Any], Any] | None = None, item: Any = None, section: type | None = None,
-              role: str = "", difference: bool = False) -> Any:
+              role: str = "", difference: bool = False, rate: bool = False) -> Any:
     """One parameter, declared once: its unit, one line of doc, its check (a plausible range, a
     choice...), its type (`kind`) and its default (none: required). `source`: where the value
     comes from (the paper's table or section); `name`: the parameter's name if not the field's
@@ -218,13 +227,14 @@ def parameter(unit: str, doc: str, check: Check = any_value, *, kind: str = "flo
     number or a value with a unit ("20 ms"), read by `units.quantity` (`role` words its hint for
     a bare number of the wrong size; `difference`: an amplitude, to which degC's zero does not
     apply); value: the same with the kind the loader names (`of=` of
-    `check_value`: a profile's quantity, an assertion's signal's); list and mapping (each entry
+    `check_value`: a profile's quantity, an assertion's signal's; `rate`: that kind per second, a
+    drift's "0.5 bar/s"); list and mapping (each entry
     checked as `item`, a declaration, when given); section: a mapping of the keys declared by the
     dataclass `section`; any: taken as written (the loader checks it)."""
     return field(default=default, metadata={"unit": unit, "source": source or doc, "description": doc,
                                             "check": check, "kind": kind, "name": name, "read_only": read_only,
                                             "convert": convert, "role": role, "section": section,
-                                            "difference": difference,
+                                            "difference": difference, "rate": rate,
                                             "item": item.metadata if isinstance(item, dataclasses.Field) else item})
 
 
@@ -577,7 +587,7 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check 
     check = check or meta["check"]
     if kind == "value":
         kind = of or "number"
-        unit = KINDS[kind].si
+        unit = KINDS[kind].si + ("/s" if meta.get("rate") else "")
     in_unit = f" in {unit}" if unit not in ("", "-") else ""
     if meta.get("convert") is not None:
         return meta["convert"](path, value)
@@ -587,7 +597,8 @@ def check_value(path: str, meta: Mapping[str, Any], value: Any, *, check: Check 
     if kind == "float":
         out: Any = _number(path, value, f"a number{in_unit}")
     elif kind in KINDS:
-        out = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False))
+        out = quantity(value, kind, path, role=meta.get("role") or "", difference=meta.get("difference", False),
+                       rate=meta.get("rate", False))
     elif kind in ("list", "mapping"):
         return _entries(path, meta, value)
     elif kind == "section":
@@ -745,9 +756,18 @@ def key_table(cls: type) -> str:
     """The keys `cls` declares as a Markdown table (key, unit, accepted, default, meaning): the
     tables of the docs are these, and a test holds them equal."""
     rows = ["| key | unit | accepted | default | meaning |", "|---|---|---|---|---|"]
+    rows += [f"| `{key}` | {unit} | {accepted} | {default} | {doc} |" for key, unit, accepted, default, doc in key_cells(cls)]
+    return "\n".join(rows)
+
+
+def key_cells(cls: type) -> list[tuple[str, str, str, str, str]]:
+    """The cells of `key_table`'s rows, one per declared key: key, unit, accepted, default, meaning."""
+    cells = []
     for key, f in declarations(cls).items():
         meta = f.metadata
-        unit = "the quantity's" if meta["kind"] == "value" else meta["unit"]
+        # a value in the unit of what it belongs to: the declaration's words for that, if it has them
+        unit = ("the quantity's" if meta["unit"] in ("", "-") else meta["unit"]) if meta["kind"] == "value" \
+            else meta["unit"]
         if _required(f):
             default = "required"
         elif f.default_factory is not dataclasses.MISSING or f.default is None:
@@ -756,8 +776,8 @@ def key_table(cls: type) -> str:
             default = f"`{str(f.default).lower() if isinstance(f.default, bool) else f.default or repr(f.default)}`"
         doc = _accepted({**meta, "unit": "-"}).replace("|", "\\|")
         accepted = _range_words(meta["check"]) or _KIND_WORDS.get(meta["kind"], "")
-        rows.append(f"| `{key}` | {unit} | {accepted} | {default} | {doc} |")
-    return "\n".join(rows)
+        cells.append((key, unit, accepted, default, doc))
+    return cells
 
 
 def check_field(path: str, f: dataclasses.Field[Any], value: Any) -> Any:

@@ -188,7 +188,7 @@ def make_emulator_recorder(directory, *, name=None, signals=None, options=(), ev
     outputs = [e.name for e in OPTION_INTERFACE if e.direction == 'out' and e.name in options]
     layout = BagLayout.of_names(('valve',), (*OUTPUT_ROLES, *outputs), (*INPUT_ROLES, *inputs), namespace=namespace,
                                 every=every, record=RECORDABLE if signals is None else signals, frame_id=frame_id,
-                                faults=faults, events=False)
+                                faults=faults, events=False, lone_valve=True)
     return DeviceRecorder(directory, layout, name=name, dt_ns=dt_ns, namespace=namespace, max_queue_s=max_queue_s,
                           writing=writing or WRITER_DEFAULTS)
 

@@ -1,17 +1,30 @@
 """docs/files.md's tables of the keys of scenario and campaign files are their declarations
 (pcv_sim.params.key_table of each declaring dataclass), and every declaring dataclass of those
-files has its table there."""
+files has its table there; its table of faults is the faults' declarations
+(pcv_sim.device.faults.fault_table)."""
 import dataclasses
 import importlib
 import re
 from pathlib import Path
 
+from pcv_sim.device.faults import fault_table
 from pcv_sim.params import key_table
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "files.md"
 MARK = re.compile(r"^<!-- keys: ([\w.]+) -->$")
+FAULTS_MARK = "<!-- faults: pcv_sim.device.faults.fault_table -->"
 #: The modules that declare the keys of scenario and campaign files.
 MODULES = ("pcv_sim.rig.scenario", "pcv_sim.rig.profiles", "pcv_sim.rig.assertions", "pcv_sim.campaign.spec")
+
+
+def table_after(lines: list[str], k: int) -> str:
+    """The Markdown table that starts at line k + 1."""
+    rows = []
+    for row in lines[k + 1:]:
+        if not row.startswith("|"):
+            break
+        rows.append(row)
+    return "\n".join(rows)
 
 
 def tables(text: str) -> dict[str, str]:
@@ -20,13 +33,14 @@ def tables(text: str) -> dict[str, str]:
     for k, line in enumerate(lines):
         m = MARK.match(line.strip())
         if m:
-            rows = []
-            for row in lines[k + 1:]:
-                if not row.startswith("|"):
-                    break
-                rows.append(row)
-            out[m.group(1)] = "\n".join(rows)
+            out[m.group(1)] = table_after(lines, k)
     return out
+
+
+def faults_tables(text: str) -> list[str]:
+    """The tables that follow the faults' marker (one expected)."""
+    lines = text.splitlines()
+    return [table_after(lines, k) for k, line in enumerate(lines) if line.strip() == FAULTS_MARK]
 
 
 def declaring_classes() -> dict[str, type]:
@@ -74,3 +88,13 @@ def test_a_difference_is_found():
     assert any(f.startswith("pcv_sim.rig.scenario.ScenarioKeys: the table differs") for f in found)
     assert "pcv_sim.campaign.spec.GateKeys: declared, no table in docs/files.md" in found
     assert "pcv_sim.campaign.spec.Gate: a table in docs/files.md, no such declaration" in found
+
+
+def test_the_table_of_faults_is_their_declarations():
+    assert faults_tables(DOC.read_text(encoding="utf-8")) == [fault_table()]
+
+
+def test_a_difference_in_the_faults_table_is_found():
+    text = DOC.read_text(encoding="utf-8")
+    edited = text.replace("| `pressure` | Pa | 0 .. 4e+07 |", "| `pressure` | Pa | 0 .. 4e+06 |")
+    assert edited != text and faults_tables(edited) != [fault_table()]

@@ -134,7 +134,7 @@ class FaultsKeys:
                                    kind="list")
     onsets: list[float] = parameter("s", "of onsets within the scenario's duration", non_empty, kind="list",
                                     item=parameter("s", "an onset", kind="time"))
-    values: Mapping[str, Any] | None = parameter("-", "kind -> {key: value}: the values a kind takes (SI)",
+    values: Mapping[str, Any] | None = parameter("-", "kind -> {key: value}: the values a kind takes (SI, or with a unit)",
                                                  kind="mapping", default=None)
     clear_after: float | None = parameter("s", "the fault is cleared this long after its onset",
                                           at_least(0.0, "a time", strict=True), kind="time", default=None)

@@ -56,6 +56,10 @@ class Composition:
 
     #: The device's parameters (its YAML: a valve's, a rig's), set by its configuration.
     params: Any
+    #: The emulator's lone valve (`pcv_sim.device.valve.ValveDevice` sets it): one valve and no
+    #: plant, its inputs, signals and topics named by their roles alone (`duty_cycle`, `pressure`);
+    #: else `<valve>.<role>`. The bag layout, the diagnostics and the names below read it.
+    lone_valve: bool = False
     # What the device's other parts offer (`Device`): the composition calls them.
     _take_command: Callable[[str, float], None]
     _set_load_flow: Callable[[int, float], None]
@@ -148,7 +152,10 @@ class Composition:
             methods = {valve_integrator(v.params, kind) for v in valves}
             sim = Simulator(plant, self.dt, "erk2" if "erk2" in methods else valves[0].params.simulation.method)
         self.sim = sim
-        lone = len(valves) == 1 and plant_spec is None
+        lone = self.lone_valve
+        if lone and (len(valves) != 1 or plant_spec is not None):
+            raise ValueError(f"a lone valve is one valve and no plant; got {len(valves)} valves"
+                             f"{' and a plant' if plant_spec is not None else ''}")
         #: A valve's names: its role alone on a device of one valve and no plant, else `<valve>.<role>`.
         self._prefix = {v.name: "" if lone else f"{v.name}." for v in valves}
         names = self.valve_names

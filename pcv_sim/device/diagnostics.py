@@ -81,7 +81,7 @@ class Shown:
 
 def _prefix(device: Device, valve: str) -> str:
     """How a valve's inputs and signals are named: `<valve>.` (the rig's), or bare (the emulator's)."""
-    return f"{valve}." if f"{valve}.{DUTY_CYCLE}" in device.inputs else ""
+    return "" if device.lone_valve else f"{valve}."
 
 
 def valve_inputs(device: Device, valve: str, new: dict[str, int]) -> tuple[list[str], dict[str, Any]]:

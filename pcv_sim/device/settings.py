@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from pcv_sim.device.recording import RECORDABLE, check_signals
+from pcv_sim.device.bag_layout import RECORDABLE, check_signals
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.params import (
     ValveParams,

@@ -19,7 +19,7 @@ from pcv_sim.simulation.system import System
 
 __all__ = [
     "MODEL_FAILURES", "RECORD_INPUTS", "TEMPERATURE_INPUTS", "DeviceStatus", "InputCounts", "InputHook", "InputKind",
-    "ModelFault", "PlantSpec", "Prepared", "Recorder", "Sample", "ValveSpec",
+    "ModelFault", "PlantSpec", "Prepared", "Recorder", "Sample", "ValveSpec", "signal_kind",
 ]
 
 #: What the model may raise when its state runs away (e.g. no coil current solves Eq. 2): a fault.
@@ -34,6 +34,18 @@ TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped"
 #: What a recorder gets of each valve besides its outputs (`Device.record_values`): the duty in force
 #: (the command, or the watchdog's), the duty after the fall-rate limiter, load flow, supply pressure.
 RECORD_INPUTS = ("duty_command", "duty", "load_flow", "supply_pressure")
+
+
+def signal_kind(signal: str) -> str:
+    """The physical kind (`pcv_sim.units.KINDS`) of a device's signal by its name (`left.pressure`,
+    the emulator's `pressure`), of a duty, the rig's setpoint or a controller flag."""
+    if signal.startswith("controller."):
+        return "number"
+    tail = signal.rsplit(".", 1)[-1]
+    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
+            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length",
+            "coil_temperature": "temperature", "core_position": "length",
+            "oil_temperature": "temperature", "ambient_temperature": "temperature"}.get(tail, "number")
 
 
 #: `Device.on_input(step, name, value)`: an input of the model changed, acting from `step` on.

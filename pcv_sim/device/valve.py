@@ -49,6 +49,7 @@ class ValveDevice(Device):
     """One emulated valve (see the module docstring)."""
 
     params: ValveParams
+    lone_valve = True           # its names are the roles alone: `duty_cycle`, `pressure` (its topics')
 
     def __init__(
         self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,

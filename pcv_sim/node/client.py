@@ -41,115 +41,48 @@ queue (`sample_depth`), which is what a subscriber that must see every sample sh
 The client makes its own node, or works on a node it is given (`node=`: the `steering_controller`
 node, with its parameters and its own inputs added by `add_input`; its services then go through a
 node of their own, made at the first call).
+
+Here: making it (its publishers and subscriptions by the device's names), sending inputs and
+waiting. Its parts are modules beside it: `client_messages.py` (the handlers: what it takes of
+samples and diagnostics), `client_lockstep.py` (`run`, the lockstep controller runner),
+`client_services.py` (`reset`, `set_parameters`).
 """
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from pcv_sim.io import topics
 from pcv_sim.io.bag import FLUID_PRESSURE
-from pcv_sim.node.inputs import drain
-from pcv_sim.node.lockstep_channel import (
-    COMMAND_TOPIC,
-    DUTY_SUFFIX,
-    FLAG_PREFIX,
-    SAMPLE_TOPIC,
-    NamedVector,
-    decode,
-    measurement,
-)
+from pcv_sim.node.client_lockstep import FULL_POLL, Controller, LockstepRunner, PartialPeriod, Period
+from pcv_sim.node.client_messages import ClientMessages, PressureSample, diagnostic_level, sample_qos, stamp_ns
+from pcv_sim.node.client_services import SERVICE_AGAIN, ServiceCalls, call_service
+from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector
 from pcv_sim.node.polling import Waiter
 
-__all__ = ["DeviceClient", "EmulatorClient", "Period", "PressureSample", "RigClient", "diagnostic_level",
-           "sample_qos", "stamp_ns"]
+__all__ = ["FULL_POLL", "SERVICE_AGAIN", "Controller", "DeviceClient", "EmulatorClient", "Period", "PressureSample",
+           "RigClient", "call_service", "diagnostic_level", "sample_qos", "stamp_ns"]
 
-SERVICE_AGAIN = 5.0     # s without an answer before a repeatable request (set_parameters) is sent again
-FULL_POLL = 1e-2        # s between polls of every topic while a lockstep waits for a period's last one
 VALVE = "valve"         # the emulator's one valve (pcv_sim.device.valve.VALVE): its duty's key
 EMULATOR_INPUTS = (topics.DUTY_CYCLE, topics.LOAD_FLOW, topics.SUPPLY_PRESSURE)
-Controller = Callable[[float, Mapping[str, float]], Mapping[str, Any]]
 
 
-def sample_qos(depth: int = 10000) -> QoSProfile:
-    """Best effort (matches the node's sensor-data publishers) with a deep queue."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
-
-
-def stamp_ns(msg: Any) -> int:
-    """A stamped message's header.stamp in ns (the sample's model time)."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
-def diagnostic_level(status: Any) -> int:
-    """A DiagnosticStatus's level as a number (rclpy gives it as bytes of one)."""
-    level = status.level
-    return level[0] if isinstance(level, (bytes, bytearray)) else int(level)
-
-
-def call_service(executor: Any, client: Any, request: Any, timeout: float, *, again: float | None = None) -> Any:
-    """The service's answer, spinning `executor` (the client's node's) while it waits; TimeoutError
-    without one within `timeout` s. `again`: for a request that may be repeated (the same effect
-    twice), sent again after that many seconds without an answer. Under load an answer can be lost
-    though the request came through: the server's response writer may not have matched this
-    client's reader yet when it answers (the middleware waits a short while for the match, then
-    drops the answer), and asking again is answered."""
-    end = time.monotonic() + timeout
-    if not client.wait_for_service(timeout_sec=timeout):
-        raise TimeoutError(f"service {client.srv_name} not available")
-    while True:
-        future = client.call_async(request)
-        wait_end = min(end, time.monotonic() + again) if again is not None else end
-        while not future.done() and time.monotonic() < wait_end:
-            executor.spin_once(timeout_sec=min(0.01, max(0.0, wait_end - time.monotonic())))
-        if future.done():
-            return future.result()
-        client.remove_pending_request(future)
-        if again is None or time.monotonic() >= end:
-            raise TimeoutError(f"no answer from {client.srv_name} within {timeout} s")
-
-
-@dataclass(frozen=True)
-class PressureSample:
-    stamp_ns: int          # header.stamp: the sample's model time (anchored to the ROS clock in real time)
-    pressure: float        # Pa
-    source_ns: int         # DDS source timestamp (when the node published it)
-    received_ns: int       # DDS reception timestamp at this client
-
-
-@dataclass
-class Period:
-    """One answered sample period: the model time (ns), what was measured, what was commanded."""
-
-    stamp_ns: int
-    measured: dict[str, float]
-    duties: dict[str, float]
-    flags: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class _Partial:
-    values: dict[str, float] = field(default_factory=dict)
-
-
-class DeviceClient:
+class DeviceClient(ClientMessages, LockstepRunner, ServiceCalls):
     """Talks to the device node `device_node` in `namespace` (see the module docstring). `valves`:
-    the device's valve names, () for the emulator's one valve under bare names. `inputs`: the inputs
+    the device's valve names; `lone_valve`: the device is the emulator's lone valve (the device's
+    `lone_valve`: its names are the roles alone, its valve `valve`; None: when no `valves` are
+    named). `inputs`: the inputs
     whose publishers are made at once (default: the emulator's three, or each valve's duty and the
     cylinder's force); any other is made at its first `send`. `outputs`: the emulator's signals
     collected in `samples` and `outputs`. `lockstep`: subscribed for `run` (with `channel`, to the
@@ -160,16 +93,19 @@ class DeviceClient:
                  node_name: str = "pcv_client", node: Any = None, device_node: str = "emulator",
                  inputs: tuple[str, ...] | None = None, outputs: tuple[str, ...] = (), sample_depth: int = 10000,
                  on_pressure: Callable[[PressureSample], None] | None = None, lockstep: bool = False,
-                 channel: bool = False, currents: bool = False, history: bool = True) -> None:
+                 channel: bool = False, currents: bool = False, history: bool = True,
+                 lone_valve: bool | None = None) -> None:
         self._own_node = node is None
         self.node = rclpy.create_node(node_name, namespace=namespace, context=context) if node is None else node
         node = self.node
         self.context = node.context
         self.device_name = f"{node.get_namespace().rstrip('/')}/{device_node}"
         self.emulator_name = self.device_name
-        self.bare = not valves
-        self.valves = valves or (VALVE,)
-        self.cylinder = not self.bare            # the rig: its valves on the cylinder
+        self.lone_valve = not valves if lone_valve is None else lone_valve
+        if self.lone_valve and valves not in ((), (VALVE,)):
+            raise ValueError(f"the lone valve is {VALVE!r}; got valves {valves!r}")
+        self.valves = (VALVE,) if self.lone_valve else valves
+        self.cylinder = not self.lone_valve      # the rig: its valves on the cylinder
         self.history = history
         self.channel = channel
         self.lockstep = lockstep or channel
@@ -183,7 +119,7 @@ class DeviceClient:
         # --- inputs, by the device's names ---
         self._pubs: dict[str, tuple[Any, Any, Any]] = {}   # input -> (publisher, message, its field's setter)
         if inputs is None:
-            inputs = EMULATOR_INPUTS if self.bare else (
+            inputs = EMULATOR_INPUTS if self.lone_valve else (
                 *(self.key(v, topics.DUTY_CYCLE) for v in self.valves),
                 f"{topics.CYLINDER}.{topics.EXTERNAL_FORCE}")
         for name in inputs:
@@ -210,7 +146,7 @@ class DeviceClient:
         self.currents: dict[str, list[tuple[int, float]]] = {v: [] for v in self.valves}   # (latest stamp seen, A)
         self.periods: list[Period] = []
         self.answered = 0                    # periods answered (once each), history or not
-        self._partial: dict[int, _Partial] = {}
+        self._partial: dict[int, PartialPeriod] = {}
         self._samples: list[tuple[int, dict[str, float]]] = []      # channel: samples taken, not answered
         self._fresh: dict[str, float] = {}   # <valve>.current received since the last answer
         self._answers: dict[int, dict[str, float]] = {}
@@ -263,7 +199,7 @@ class DeviceClient:
 
     def key(self, valve: str, role: str) -> str:
         """A valve's input or signal as the device names it: `left.pressure`, the emulator's `pressure`."""
-        return role if self.bare else f"{valve}.{role}"
+        return role if self.lone_valve else f"{valve}.{role}"
 
     def topic(self, valve: str, role: str) -> str:
         """A valve's signal's relative topic (`pcv_sim.io.topics.output_topics`)."""
@@ -316,96 +252,6 @@ class DeviceClient:
     def add_input(self, subscription: Any, handler: Callable[..., None]) -> None:
         """Take `subscription`'s messages with `handler(msg, info)` in every poll, after the device's."""
         self._subs.append((subscription, handler))
-
-    # --- taking messages ---------------------------------------------------------------------
-
-    def _put(self, stamp: int, key: str, value: float) -> None:
-        self._partial.setdefault(stamp, _Partial()).values[key] = value
-        self._latest = max(self._latest, stamp)
-
-    def _pressure(self, valve: str) -> Callable[[Any, Any], None]:
-        key = self.key(valve, topics.PRESSURE)
-        lockstep = self.lockstep
-        collect = self.bare and topics.PRESSURE in self._outputs
-
-        def take(msg: FluidPressure, info: Any) -> None:
-            stamp = stamp_ns(msg)
-            if lockstep:
-                self._put(stamp, key, msg.fluid_pressure)
-            if collect:
-                s = PressureSample(stamp, msg.fluid_pressure, info["source_timestamp"], info["received_timestamp"])
-                self.samples.append(s)
-                if self._on_pressure is not None:
-                    self._on_pressure(s)
-        return take
-
-    def _current(self, valve: str) -> Callable[[Any, Any], None]:
-        key = self.key(valve, topics.CURRENT)
-        collect = self.bare and topics.CURRENT in self._outputs
-
-        def take(msg: Float64, info: Any) -> None:
-            if collect:
-                self.outputs[topics.CURRENT].append((info["source_timestamp"], msg.data))
-            if self._currents:
-                self._fresh[key] = msg.data
-                seen = self.currents[valve]
-                if not self.history:
-                    seen.clear()
-                seen.append((self._latest, msg.data))
-        return take
-
-    def _scalar(self, name: str) -> Callable[[Float64, Any], None]:
-        def take(msg: Float64, info: Any) -> None:
-            self.outputs[name].append((info["source_timestamp"], msg.data))
-        return take
-
-    def _joint(self, msg: JointState, _info: Any) -> None:
-        stamp = stamp_ns(msg)
-        for name, arr in (("position", msg.position), ("velocity", msg.velocity), ("effort", msg.effort)):
-            if len(arr):
-                self._put(stamp, f"{topics.CYLINDER}.{name}", float(arr[0]))
-        self._put(stamp, "joint", 1.0)
-
-    def _sample(self, raw: bytes, _info: Any) -> None:
-        stamp, names, values = decode(raw)
-        m = measurement(names, values)
-        self._samples.append((stamp, m))
-        self._latest = max(self._latest, stamp)
-        if self._currents:
-            for v in self.valves:
-                i = m.get(self.key(v, topics.CURRENT))
-                if i is not None:
-                    seen = self.currents[v]
-                    if not self.history:
-                        seen.clear()
-                    seen.append((stamp, i))
-
-    def _diagnostic(self, msg: DiagnosticArray, _info: Any = None) -> None:
-        """The statuses of this client's device node: by name in `statuses`; their values merged (the
-        emulator's keys are unique across concerns), the highest level and the messages joined in
-        `diagnostics`, `diagnostic_levels`, `diagnostic_messages`, per concern in `diagnostic_statuses`."""
-        prefix = self.device_name + ":"
-        ours = [st for st in msg.status if st.name.startswith(prefix)]
-        if not ours:
-            return
-        merged: dict[str, str] = {}
-        by_name: dict[str, tuple[int, str, dict[str, str]]] = {}
-        statuses: dict[str, tuple[int, str]] = {}
-        for st in ours:
-            values = {kv.key: kv.value for kv in st.values}
-            merged.update(values)
-            level = diagnostic_level(st)
-            by_name[st.name] = (level, st.message, values)
-            statuses[st.name[len(prefix):].strip()] = (level, st.message)
-        self.statuses.append(by_name)
-        self.diagnostics.append(merged)
-        self.diagnostic_statuses.append(statuses)
-        self.diagnostic_levels.append(max(level for level, _ in statuses.values()))
-        self.diagnostic_messages.append("; ".join(m for _, m in statuses.values()))
-
-    def poll(self) -> int:
-        """Take every pending message (no executor); returns how many."""
-        return drain(self._subs)
 
     # --- waiting -----------------------------------------------------------------------------
 
@@ -460,146 +306,6 @@ class DeviceClient:
 
         return found[0] if self.spin_until(check, timeout) else None
 
-    # --- lockstep ----------------------------------------------------------------------------
-
-    def _all_there(self, values: dict[str, float]) -> bool:
-        return all(self.key(v, topics.PRESSURE) in values for v in self.valves) and (
-            not self._currents or all(self.key(v, topics.CURRENT) in self._fresh for v in self.valves))
-
-    def _take_complete(self) -> list[tuple[int, dict[str, float]]]:
-        """The periods whose last topic arrived, oldest first, with what was published before it
-        (taken once more when something is missing: it left the node before the last one); on the
-        channel the samples taken."""
-        if self.channel:
-            out, self._samples = self._samples, []
-            return out
-        last = "joint" if self.cylinder else self.key(self.valves[-1], topics.PRESSURE)
-        done = sorted(s for s, p in self._partial.items() if last in p.values)
-        if not done:
-            return []
-        if not all(self._all_there(self._partial[s].values) for s in done):
-            self.poll()
-        out = []
-        for stamp in done:
-            values = self._partial.pop(stamp).values
-            values.pop("joint", None)
-            out.append((stamp, values))
-        for stale in [s for s in self._partial if s < done[-1]]:
-            del self._partial[stale]              # an incomplete period the node will not finish (lost joint)
-        return out
-
-    def run(self, controller: Controller, periods: int | None, *, timeout: float | None = 60.0,
-            before: Callable[[int], None] | None = None, stop: Any = None,
-            on_flags: Callable[[int, Mapping[str, float]], None] | None = None,
-            rewind: Callable[[], Controller] | None = None) -> list[Period]:
-        """Answer `periods` sample periods (None: until `stop.requested`) with
-        `controller(t, measured) -> {valve: duty, "flags": {name: value}}`; `before(k)` runs
-        before the k-th answer (e.g. to inject a fault), `on_flags(stamp_ns, flags)` before the
-        duties are published. The answered periods (kept only with `history`). Needs `lockstep`."""
-        if not self._completing or self._waiter is None:
-            raise ValueError("run: the client was made without lockstep=True (or channel=True)")
-        waiter = self._waiter
-        end = math.inf if timeout is None else time.monotonic() + timeout
-        answered = self.answered
-        first = len(self.periods)
-        goal = math.inf if periods is None else answered + periods
-        next_full = 0.0
-        while self.answered < goal and not (stop is not None and stop.requested):
-            now = time.monotonic()
-            if now > end:
-                raise TimeoutError(f"lockstep: {self.answered - answered} of {periods} periods answered in "
-                                   f"{timeout} s")
-            # Waiting, for the period's last topic only, blocked in an rcl wait set (not polling: two
-            # polling processes kept both cores busy, ~1 ms of CPU a period each, and the DDS threads
-            # that deliver the messages waited for a core); every topic once it came, and every
-            # FULL_POLL s whatever came.
-            if not drain(self._completing) and now < next_full:
-                waiter.wait(next_full - now)
-                continue
-            if now >= next_full or not self.channel:      # on the channel a sample is the whole period
-                next_full = now + FULL_POLL
-                if not self.poll() and not self._partial and not self._samples:
-                    continue
-            for stamp, values in self._take_complete():
-                if self._currents and not self.channel:
-                    values.update(self._fresh)
-                    self._fresh.clear()
-                again = self._answers.get(stamp)
-                if again is not None:                 # published again by the node: same answer
-                    self._send(again, stamp, self._flags_sent)
-                    continue
-                if stamp < self._last_answered:       # the node started again from 0: a new run
-                    self._answers.clear()
-                    if rewind is not None:
-                        controller = rewind()
-                if self.answered >= goal:
-                    continue
-                if before is not None:
-                    before(self.answered)
-                out = controller(stamp * 1e-9, values)
-                flags = {str(k): float(f) for k, f in dict(out.get("flags") or {}).items()}
-                duties = {v: float(d) for v, d in out.items() if v != "flags"}
-                self._answers = {stamp: duties}
-                self._flags_sent = flags
-                self._last_answered = stamp
-                self.answered += 1
-                if self.history:
-                    self.periods.append(Period(stamp, values, duties, flags))
-                if flags and on_flags is not None:
-                    on_flags(stamp, flags)
-                self._send(duties, stamp, flags)
-        return self.periods[first:]
-
-    def _send(self, duties: Mapping[str, float], stamp: int, flags: Mapping[str, float]) -> None:
-        if self.command_pub is not None:
-            names = (*(v + DUTY_SUFFIX for v in duties), *(FLAG_PREFIX + f for f in flags))
-            writer = self._commands.get(names)
-            if writer is None:
-                writer = self._commands[names] = NamedVector(names)
-            self.command_pub.publish(writer.encode(stamp, (*duties.values(), *flags.values())))
-            return
-        msg = self._duty_msg                 # refilled: publish serializes it at once
-        for v, d in duties.items():
-            msg.data = d
-            self.duty_pubs[v].publish(msg)
-
-    # --- services ----------------------------------------------------------------------------
-
-    def _service_node(self) -> tuple[Any, Any]:
-        """The node service clients live on and the executor that spins it while a call waits: the
-        client's own; for a node given, a node of its own made at the first call (spinning the node
-        given would take what its owner polls)."""
-        if self.executor is not None:
-            return self.node, self.executor
-        if self._srv is None:
-            node = rclpy.create_node(f"{self.node.get_name()}_services", namespace=self.node.get_namespace(),
-                                     context=self.node.context)
-            executor = SingleThreadedExecutor(context=node.context)
-            executor.add_node(node)
-            self._srv = (node, executor)
-        return self._srv
-
-    def _service(self, srv_type: Any, name: str) -> Any:
-        client = self._clients.get(name)
-        if client is None:
-            client = self._clients[name] = self._service_node()[0].create_client(srv_type, name)
-        return client
-
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float, *, again: float | None = None) -> Any:
-        """Call the service `name` (of type `srv_type`; see `call_service`)."""
-        return call_service(self._service_node()[1], self._service(srv_type, name), request, timeout, again=again)
-
-    def reset(self, timeout: float = 10.0) -> Any:
-        """Call the device's `reset` service; its response (TimeoutError if none within `timeout` s)."""
-        return self.call(Trigger, topics.RESET, Trigger.Request(), timeout)
-
-    def set_parameters(self, values: dict[str, Any], timeout: float = 10.0) -> list[SetParametersResult]:
-        """Set the node's parameters one by one (as `ros2 param set`); one result per name."""
-        request = SetParameters.Request()
-        request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        return list(self.call(SetParameters, f"{self.device_name}/set_parameters", request, timeout,
-                              again=SERVICE_AGAIN).results)
-
     def close(self) -> None:
         # Detach the node before the executor goes and before its handles are destroyed: a wait
         # set still holding them is what rclpy's teardown segfaults have in common.
@@ -623,7 +329,7 @@ class EmulatorClient(DeviceClient):
                  outputs: tuple[str, ...] = (topics.PRESSURE,),
                  on_pressure: Callable[[PressureSample], None] | None = None, **kw: Any) -> None:
         super().__init__(namespace, context=context, node_name=node_name, device_node=emulator_node,
-                         sample_depth=sample_depth, outputs=outputs, on_pressure=on_pressure, **kw)
+                         sample_depth=sample_depth, outputs=outputs, on_pressure=on_pressure, lone_valve=True, **kw)
 
 
 class RigClient(DeviceClient):
@@ -633,5 +339,5 @@ class RigClient(DeviceClient):
                  node_name: str = "rig_controller", currents: bool = False, node: Any = None,
                  history: bool = True, channel: bool = False, **kw: Any) -> None:
         super().__init__(namespace, valves, context=context, node_name=node_name, node=node, device_node="rig",
-                         lockstep=True, currents=currents, history=history, channel=channel,
+                         lockstep=True, currents=currents, history=history, channel=channel, lone_valve=False,
                          sample_depth=kw.pop("sample_depth", 1000), **kw)

@@ -29,6 +29,7 @@ from typing import Any
 from pcv_sim.device.device import TEMPERATURE_INPUTS, Device, InputHook, ModelFault, PlantSpec, ValveSpec
 from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import WatchdogState
+from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import CommandError
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
@@ -68,17 +69,6 @@ def rig_signals(params: RigParams) -> tuple[str, ...]:
     kind = params.valves[0].params.simulation.model
     return signal_names([v.name for v in params.valves],
                         {v.name: kernel.layout(v.params, kind).outputs[len(kernel.OUTPUTS):] for v in params.valves})
-
-
-def signal_kind(signal: str) -> str:
-    """The physical kind of a rig signal, a duty, the setpoint or a controller flag (`pcv_sim.units.KINDS`)."""
-    if signal.startswith("controller."):
-        return "number"
-    tail = signal.rsplit(".", 1)[-1]
-    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
-            "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length",
-            "coil_temperature": "temperature", "core_position": "length",
-            "oil_temperature": "temperature", "ambient_temperature": "temperature"}.get(tail, "number")
 
 
 #: N; beyond this an external force is a unit slip (kN for N), not a steering load.

@@ -87,9 +87,9 @@ from typing import Any
 
 import numpy as np
 
-from pcv_sim.device.faults import CYLINDER_FAULTS, SENSOR_FAULTS, VALVE_FAULTS, Fault, FaultError, parse_fault
+from pcv_sim.device.faults import Fault, FaultError, fault_kind, fault_value_kind, parse_fault
 from pcv_sim.errors import CommandError, ParameterError, PcvSimError
-from pcv_sim.keys import check_keys, closest, exactly_one
+from pcv_sim.keys import check_keys, exactly_one
 from pcv_sim.model import kernel
 from pcv_sim.params import (
     Check,
@@ -105,13 +105,13 @@ from pcv_sim.params import (
     read_yaml,
     refused_as,
 )
-from pcv_sim.rig.assertions import ASSERTION_TYPES, Outcome, check_assertions, normalize, signal_kind
+from pcv_sim.rig.assertions import ASSERTION_TYPES, Outcome, check_assertions, normalize
 from pcv_sim.rig.lockstep import Controller, RigRun, run_lockstep
 from pcv_sim.rig.params import RigParams, ValveChanges, load_rig
 from pcv_sim.rig.profiles import SHAPES, Profile, Segment, parse_segment
 from pcv_sim.rig.rig import EXTERNAL_FORCE, MAX_EXTERNAL_FORCE, TEMPERATURE_INPUTS, Rig, RigError, rig_signals
 from pcv_sim.simulation.valve import MAX_TEMPERATURE, MIN_TEMPERATURE
-from pcv_sim.units import fmt, quantity
+from pcv_sim.units import MM_PER_M, PA_PER_BAR, fmt
 
 __all__ = [
     "ASSERTION_TYPES",
@@ -136,9 +136,6 @@ _MAX_DURATION = 3600.0
 #: The sections of a valve YAML (the `valves:` overlay's keys for every valve).
 VALVE_SECTIONS = tuple(f.name for f in dataclasses.fields(ValveParams))
 _NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)*$")
-#: The unit words of `pcv_sim.device.faults`' tables -> the kind of `pcv_sim.units`.
-_FAULT_UNITS = {"Pa": "pressure", "N": "force", "-": "fraction", "s": "time", "m^3/(s Pa)": "conductance"}
-_FAULT_KINDS = (*VALVE_FAULTS, *CYLINDER_FAULTS, *SENSOR_FAULTS)
 
 
 class ScenarioError(PcvSimError, ValueError):
@@ -324,23 +321,24 @@ class Scenario:
             if "duty" in e:
                 out += [(t, f"duty {v}: {seg.describe()}") for v, seg in e["duty"].items()]
             elif "supply" in e:
-                out += [(t, f"supply {v}: {seg.describe('bar', 1e-5)}") for v, seg in e["supply"].items()]
+                out += [(t, f"supply {v}: {seg.describe('bar', 1 / PA_PER_BAR)}") for v, seg in e["supply"].items()]
             elif "force" in e:
                 out.append((t, f"external force: {e['force'].describe('N')}"))
             elif any(n in e for n in TEMPERATURE_INPUTS):
                 name = next(n for n in TEMPERATURE_INPUTS if n in e)
                 out += [(t, f"{name.replace('_', ' ')} {v}: {seg.describe('K')}") for v, seg in e[name].items()]
             elif "fault" in e:
-                kind = signal_kind(str(e["target"])) if e["fault"] in SENSOR_FAULTS else ""
-                vals = [f"{k} {fmt(v, kind or _FAULT_UNITS.get(_fault_unit(e['fault'], k), 'number'))}"
-                        + ("/s" if k == "rate" else "") if k != "delay" else f"{k} {fmt(v, 'time')}"
-                        for k, v in e.items() if k not in ("t", "fault", "target")]
+                vals = []
+                for key, v in e.items():
+                    if key not in ("t", "fault", "target"):
+                        kind, rate = fault_value_kind(e["fault"], key, str(e["target"]))
+                        vals.append(f"{key} {fmt(v, kind)}{'/s' if rate else ''}")
                 out.append((t, f"fault {e['fault']} on {e['target']}" + (f": {', '.join(vals)}" if vals else "")))
             else:
                 out.append((t, f"clear {e['clear']} on {e['target']}"))
         for k, seg in enumerate(self.setpoint):
             if (k or seg.t > 0.0) and seg.t <= self.duration:
-                out.append((seg.t, f"setpoint: {seg.describe('mm', 1e3)}"))
+                out.append((seg.t, f"setpoint: {seg.describe('mm', MM_PER_M)}"))
         return sorted(out, key=lambda x: x[0])
 
 
@@ -412,33 +410,6 @@ def _check_setpoint(raw: list[Any] | None, base: Path | None) -> tuple[Segment, 
     return tuple(out)
 
 
-def _fault_unit(kind: str, key: str) -> str:
-    spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
-    return spec[key][2] if key in spec else ""
-
-
-def _fault_values(where: str, e: Mapping[str, Any], kind: Any, target: Any) -> dict[str, Any]:
-    """The fault's values in SI (their unit from the fault's table, a sensor fault's from its signal)."""
-    spec = VALVE_FAULTS.get(kind) or CYLINDER_FAULTS.get(kind) or SENSOR_FAULTS.get(kind) or {}
-    out: dict[str, Any] = {}
-    for key, v in e.items():
-        if key in ("t", "fault", "clear", "target"):
-            continue
-        if key not in spec:
-            out[str(key)] = v                 # parse_fault names it with what is accepted
-            continue
-        unit = spec[key][2]
-        rate = False
-        if kind in SENSOR_FAULTS and key != "delay":
-            k = signal_kind(str(target))
-            rate = key == "rate"
-        else:
-            k = _FAULT_UNITS.get(unit, "number")
-        role = "supply pressure" if kind == "supply_drop" else ""
-        out[str(key)] = quantity(v, k, f"{where}.{key}", rate=rate, role=role)
-    return out
-
-
 def _check_timeline(raw: list[Any] | None, rig: RigParams, duration: float, base: Path | None
                     ) -> tuple[tuple[Mapping[str, Any], ...], list[str]]:
     """The timeline normalized (SI, profiles as segments) and notes on events dropped (after the
@@ -471,16 +442,15 @@ def _check_timeline(raw: list[Any] | None, rig: RigParams, duration: float, base
             check_keys(where, e, ("t", "force"))
             entry["force"] = _segment(f"{where}.force", t, e["force"], keys["force"].metadata, base)
         else:
-            values = _fault_values(where, e, e[a], e.get("target"))
+            values = {str(k): v for k, v in e.items() if k not in ("t", a, "target")}
             try:
-                # a clear names the fault by kind and target: its values are the fault's own
-                check = values if a == "fault" else {
-                    k: (lo + 1.0 if math.isfinite(lo) else 0.0) if hi > lo + 1.0 else (lo + hi) / 2.0
-                    for k, (lo, hi, _u, _o) in (VALVE_FAULTS | CYLINDER_FAULTS | SENSOR_FAULTS).get(e[a], {}).items()}
-                parse_fault(e[a], e.get("target"), check, valves=valves, signals=signals, where=f"{where}.{a}")
+                if a == "fault":
+                    values = dict(parse_fault(e[a], e.get("target"), values, valves=valves, signals=signals,
+                                              where=f"{where}.{a}", path=where).values)
+                else:          # a clear names the fault by kind and target: its values are the fault's own
+                    fault_kind(e[a], e.get("target"), valves=valves, signals=signals, where=f"{where}.{a}")
             except FaultError as err:
-                near = closest(e[a], _FAULT_KINDS) if e[a] not in _FAULT_KINDS else None
-                raise ScenarioError(f"{err}{f' (did you mean {near!r}?)' if near else ''}") from None
+                raise ScenarioError(str(err)) from None
             if a == "clear" and values:
                 raise ScenarioError(f"{where}: clear takes t, clear, target; unknown: {', '.join(values)}")
             entry.update({a: e[a], "target": e.get("target"), **values})
@@ -679,7 +649,6 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
     values at each control instant (zero-order hold over the control period); the external
     force is fed (`Rig.feed`: its values go into the model inside the compiled calls, at the
     steps `Rig.schedule` would give them)."""
-    signals = rig.signals
     T = rig.params.timing.control_period
     end = scenario.duration + T
     channels: dict[tuple[str, str], list[Segment]] = {}
@@ -696,8 +665,8 @@ def schedule_timeline(rig: Rig, scenario: Scenario) -> None:
             for valve, seg in e[name].items():
                 channels.setdefault((name, valve), []).append(seg)
         elif "fault" in e:
-            values = {str(k): v for k, v in e.items() if k not in ("t", "fault", "target")}
-            f = parse_fault(e["fault"], e["target"], values, valves=rig.valve_names, signals=signals)
+            # checked (and its values made SI) when the timeline was read
+            f = Fault(e["fault"], e["target"], {str(k): v for k, v in e.items() if k not in ("t", "fault", "target")})
             rig.schedule(t, functools.partial(rig.inject, f))
         else:
             rig.schedule(t, functools.partial(rig.clear, e["target"], e["clear"]))

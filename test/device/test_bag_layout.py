@@ -137,3 +137,26 @@ def test_the_layout_follows_the_devices_names() -> None:
         lay.topic("nothing")
     with pytest.raises(BagError, match=r"every 0: accepted is an integer >= 1"):
         BagLayout.of(dev, every=0)
+
+
+def test_the_lone_valve_is_the_devices_flag_not_a_guess_from_its_names() -> None:
+    """The emulator's device says it is the lone valve (its names bare); the rig says it is not,
+    and a device of one valve on a plant, or of two, cannot be one."""
+    from pcv_sim.device.device import Device, ValveSpec
+
+    dev = emulator()
+    assert dev.lone_valve and dev.input_names[0] == "duty_cycle" and dev.signals[0] == "pressure"
+    rig = Rig(load_rig())
+    assert not rig.lone_valve
+    # the same names offline: the flag decides the layout, not the absence of a dot
+    lone = BagLayout.of_names(("valve",), dev.signals, dev.input_names, lone_valve=True)
+    assert lone.topic("duty_cycle") == "/duty_cycle" and lone.prefix == "emulator"
+    one = BagLayout.of_names(("left",), ("left.pressure",), ("left.duty_cycle",), lone_valve=False)
+    assert one.topic("left.pressure", "column") == "/left/pressure" and one.prefix == "rig"
+
+    class TwoLoneValves(Device):
+        lone_valve = True
+
+    params = load_params()
+    with pytest.raises(ValueError, match=r"a lone valve is one valve and no plant; got 2 valves"):
+        TwoLoneValves(params.simulation.time_step, [ValveSpec("a", params), ValveSpec("b", params)])

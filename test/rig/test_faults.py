@@ -134,12 +134,15 @@ def test_a_cleared_fault_returns_to_normal(rig):
 @pytest.mark.parametrize(("kind", "target", "values", "match"), [
     ("coil_melt", "left", {}, r"kind 'coil_melt'; accepted are supply_drop"),
     ("coil_open", "middle", {}, r"target 'middle' for coil_open; accepted are left, right"),
-    ("coil_short", "left", {}, r"coil_short needs resistance_factor"),
-    ("coil_short", "left", {"resistance_factor": 1.5}, r"resistance_factor = 1\.5; accepted is a finite number > 0 and <= 1"),
-    ("bias", "left.pressure", {"value": 1e5, "offset": 1}, r"bias takes no offset"),
+    ("coil_short", "left", {}, r"coil_short\.resistance_factor: missing; accepted is the factor on the coil resistance"),
+    ("coil_short", "left", {"resistance_factor": 0.0}, r"coil_short\.resistance_factor: got 0\.0; accepted is a factor > 0 and <= 1"),
+    ("coil_short", "left", {"resistance_factor": "150 %"}, r"got '150 %'; accepted is a factor > 0 and <= 1"),
+    ("coil_short", "left", {"resistance_factor": 1.5}, r"1\.5 is 1\.5 \(a fraction\), above any resistance factor; did you mean 1\.5 %\?"),
+    ("supply_drop", "left", {"pressure": "80 mm"}, r"supply_drop\.pressure: unit 'mm' in '80 mm' \(mm is a unit of length\); accepted for a pressure are Pa"),
+    ("bias", "left.pressure", {"value": 1e5, "offset": 1}, r"bias: unknown key 'offset'; accepted: value"),
     ("bias", "left", {"value": 1.0}, r"target 'left' for bias; accepted are left\.pressure"),
     ("cylinder_jam", "left", {}, r"target 'left' for cylinder_jam; accepted are cylinder"),
-    ("cylinder_friction", "cylinder", {"friction": -5.0}, r"cylinder_friction\.friction = -5\.0; accepted is a finite number >= 0"),
+    ("cylinder_friction", "cylinder", {"friction": -5.0}, r"cylinder_friction\.friction: got -5\.0; accepted is a friction force in 0 \.\. 100000 \(N\)"),
 ])
 def test_bad_faults_are_refused_naming_what_is_accepted(rig, kind, target, values, match):
     with pytest.raises(FaultError, match=match):
