@@ -14,7 +14,8 @@ Prints the Markdown table for BENCHMARKS.md, or with --json every figure as JSON
 - two simplified valves + the mass-spring piston composed (rk2)
 - replay of bags/pcv_step_levels with the emulator's integrator (model run + comparison; the
   bag is read once outside the timing), simplified and full: real-time factor
-- first start: compiling the kernels into an empty cache, and loading them from the cache
+- first start: the emulator's device (`ValveDevice`, which loads every compiled call it steps with)
+  to its first steps, compiling the kernels into an empty cache, and loading them from the cache
 - `--options`: the valve with its three options beyond the paper's bench on (coil heating, oil
   at 41 degC, core-spool separation; docs/model.md R33-R35) against the paper's, per step, both
   models, alternating in one run; the ratio is the figure (goal: <= 1.5). Also coil heating with
@@ -60,17 +61,24 @@ def _with_options(kind: str, variant: str = "all") -> object:
 
 
 def _valve(kind: str, steps: int, options: bool | str = False) -> float:
+    """The core's cost per step of one valve (its `Simulator`: what every device steps), in us."""
     from pcv_sim.params import load_params
-    from pcv_sim.simulation.stepper import RealTimeStepper
+    from pcv_sim.simulation.rest import rest_state
+    from pcv_sim.simulation.simulator import Simulator
+    from pcv_sim.simulation.valve import valve_inputs, valve_integrator, valve_system
 
     params = _with_options(kind, "all" if options is True else str(options)) if options else load_params()
-    st = RealTimeStepper(params, duty=0.5, kind=kind)  # type: ignore[arg-type]
-    st.advance(10)                                           # compiled or loaded before timing
+    sim = Simulator(valve_system(params, kind), params.simulation.time_step, valve_integrator(params, kind))
+    rest = rest_state(params, kind, 0.5, integrator=sim.integrator)
+    sim.x[:], sim.W[0] = rest.state, rest.current
+    sim.u[:] = valve_inputs(params, 0.5, 0.0, params.circuit.supply_pressure)
+    duty = sim.plant.index("input", "valve.duty_cycle")
+    sim.advance(10)                                          # compiled or loaded before timing
     chunk = max(1, steps // 4)
     t0 = CLOCK()
-    for duty in (0.9, 0.4, 0.7, 0.5):
-        st.set_duty(duty)
-        st.advance(chunk)
+    for d in (0.9, 0.4, 0.7, 0.5):
+        sim.u[duty] = d
+        sim.advance(chunk)
     return (CLOCK() - t0) / (4 * chunk) * 1e6
 
 
@@ -137,8 +145,8 @@ def _first_start() -> dict[str, float]:
     """Seconds to the first step of a valve in a fresh process: into an empty cache (compiles) and
     again from the filled cache (loads)."""
     code = ("import time; t0 = time.perf_counter(); from pcv_sim.params import load_params; "
-            "from pcv_sim.simulation.stepper import RealTimeStepper; "
-            "st = RealTimeStepper(load_params(), duty=0.5); st.advance(10); print(time.perf_counter() - t0)")
+            "from pcv_sim.device.valve import ValveDevice; "
+            "d = ValveDevice(load_params(), safe_duty=0.5); d.advance_to(10); print(time.perf_counter() - t0)")
     out = {}
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "PCV_SIM_CACHE": cache}

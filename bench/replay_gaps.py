@@ -2,7 +2,7 @@
 
     .venv-kilted/bin/python bench/replay_gaps.py [--skip-ms 55]
 
-The emulator's stepper (0.1 ms Heun) runs duty steps 0.5 -> 0.7 (at 100 ms) -> 0.4 (at 600 ms);
+The emulator's device (0.1 ms Heun) runs duty steps 0.5 -> 0.7 (at 100 ms) -> 0.4 (at 600 ms);
 once continuously, once with the state standing still for ``--skip-ms`` (time jumps, as when the
 emulator skips steps) starting at several points of the transients. Prints, per skip, the
 largest pressure difference in the 1 ms starting 0, 20, 50, 100, 200, 300 ms after the skip ends:
@@ -15,8 +15,8 @@ import argparse
 
 import numpy as np
 
+from pcv_sim.device.valve import VALVE, ValveDevice
 from pcv_sim.params import load_params
-from pcv_sim.simulation.stepper import RealTimeStepper
 
 PLAN = {0: 0.5, 1000: 0.7, 6000: 0.4}          # step (0.1 ms) -> duty
 STARTS = (1050, 1100, 1300, 1800, 6050, 6200, 6500)
@@ -25,21 +25,20 @@ N = 12000
 
 
 def run(skip_at: int, skip: int) -> np.ndarray:
-    params = load_params()
-    st = RealTimeStepper(params, duty=0.5)
-    st.reset(0.5, 0.0, params.circuit.supply_pressure)
+    dev = ValveDevice(load_params(), safe_duty=0.5, watchdog_timeout=0.0)
     out = np.full(N, np.nan)
     k = 0
     while k < N:
         if k == skip_at:
             for s in (s for s in PLAN if k <= s < k + skip):
-                st.set_duty(PLAN[s])
+                dev.set_duty(VALVE, PLAN[s])
+            dev.skip(skip)
             k += skip
             continue
         if k in PLAN:
-            st.set_duty(PLAN[k])
-        out[k] = st.state[3]
-        st.advance(1)
+            dev.set_duty(VALVE, PLAN[k])
+        out[k] = dev.sim.x[3]
+        dev.advance_to(k + 1)
         k += 1
     return out
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pcv_sim.device.valve import VALVE, ValveDevice
 from pcv_sim.params import default_params, replace_param
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.units import PA_PER_BAR, kelvin
 
 REPO = Path(__file__).resolve().parents[1]
@@ -39,50 +39,60 @@ def _params(**changes):
     return p
 
 
+def _device(params, duty: float) -> ValveDevice:
+    """The emulator's device at rest at `duty`, its watchdog off."""
+    return ValveDevice(params, safe_duty=duty, watchdog_timeout=0.0)
+
+
+def _signal(dev: ValveDevice, name: str) -> float:
+    """A signal of the device by its name at the present step (SI)."""
+    return float(dev.sample()[dev.signals.index(name)])
+
+
 def cold_start() -> dict[str, np.ndarray]:
-    st = RealTimeStepper(_params(fluid__temperature="input", fluid__oil_temperature_c=-20.0), duty=0.5)
+    dev = _device(_params(fluid__temperature="input", fluid__oil_temperature_c=-20.0), 0.5)
     t, p, oil = [], [], []
     for k in range(60_000):                         # 60 s in 1 ms samples
         if k % 5000 == 0:
-            st.set_duty(0.7 if (k // 5000) % 2 else 0.5)
-        st.set_input("oil_temperature", kelvin(-20.0 + 60.0 * min(1.0, k / 60_000)))
-        st.advance(10)
-        t.append(st.time)
-        p.append(st.pressure / PA_PER_BAR)
-        oil.append(st.sim.u[4] - kelvin(0.0))
+            dev.set_duty(VALVE, 0.7 if (k // 5000) % 2 else 0.5)
+        dev.set_temperature(VALVE, "oil_temperature", kelvin(-20.0 + 60.0 * min(1.0, k / 60_000)))
+        dev.advance_to(dev.steps + 10)
+        t.append(dev.time)
+        p.append(_signal(dev, "pressure") / PA_PER_BAR)
+        oil.append(dev.temperature(VALVE, "oil_temperature") - kelvin(0.0))
     return {"t": np.array(t), "p": np.array(p), "oil": np.array(oil)}
 
 
 def coil_heating(closed_loop: bool) -> dict[str, np.ndarray]:
-    st = RealTimeStepper(_params(solenoid__coil_temperature="lumped", solenoid__coil_reference_temperature_c=40.0),
-                         duty=0.9)
-    target, integral = st.pressure, 0.0
+    dev = _device(_params(solenoid__coil_temperature="lumped", solenoid__coil_reference_temperature_c=40.0), 0.9)
+    target, integral = _signal(dev, "pressure"), 0.0
     t, p, i, temp, duty = [], [], [], [], []
     for _ in range(1200 * 10):                      # 20 min, the controller at 10 Hz
         if closed_loop:
-            err = (target - st.pressure) / PA_PER_BAR
+            err = (target - _signal(dev, "pressure")) / PA_PER_BAR
             integral += 0.1 * err
-            st.set_duty(min(1.0, max(0.0, 0.9 + 0.002 * err + 0.002 * integral)))
-        st.advance(1000)
-        t.append(st.time)
-        p.append(st.pressure / PA_PER_BAR)
-        i.append(st.current)
-        temp.append(st.output("coil_temperature") - kelvin(0.0))
-        duty.append(st.duty)
+            dev.set_duty(VALVE, min(1.0, max(0.0, 0.9 + 0.002 * err + 0.002 * integral)))
+        dev.advance_to(dev.steps + 1000)
+        s = dev.valve_sample()
+        t.append(dev.time)
+        p.append(s.pressure / PA_PER_BAR)
+        i.append(s.current)
+        temp.append(_signal(dev, "coil_temperature") - kelvin(0.0))
+        duty.append(s.duty)
     return {"t": np.array(t), "p": np.array(p), "i": np.array(i), "T": np.array(temp), "duty": np.array(duty)}
 
 
 def release(limit: float | None) -> dict[str, np.ndarray]:
-    st = RealTimeStepper(_params(spool__core="separate", command__duty_fall_rate_limit=limit), duty=1.0)
-    st.set_duty(0.0)
+    dev = _device(_params(spool__core="separate", command__duty_fall_rate_limit=limit), 1.0)
+    dev.set_duty(VALVE, 0.0)
     t, p, gap = [], [], []
     for k in range(8000):                           # 0.8 s in 0.1 ms steps
         if k == 1000:
-            st.set_duty(0.6)
-        st.advance(1)
-        t.append(st.time)
-        p.append(st.pressure / PA_PER_BAR)
-        gap.append((st.spool_position - st.output("core_position")) * 1e3)
+            dev.set_duty(VALVE, 0.6)
+        dev.advance_to(dev.steps + 1)
+        t.append(dev.time)
+        p.append(_signal(dev, "pressure") / PA_PER_BAR)
+        gap.append((_signal(dev, "spool_position") - _signal(dev, "core_position")) * 1e3)
     return {"t": np.array(t), "p": np.array(p), "gap": np.array(gap)}
 
 

@@ -161,14 +161,15 @@ def value_kind(raw: Any) -> str | None:
     return None
 
 
-def fmt(value: float | None, kind: str, *, digits: int = 4) -> str:
-    """`value` (SI) in the kind's engineering unit: '125.3 bar', '0.48 mm', '35 ms', '12 %'."""
+def fmt(value: float | None, kind: str, *, digits: int = 4, difference: bool = False) -> str:
+    """`value` (SI) in the kind's engineering unit: '125.3 bar', '0.48 mm', '35 ms', '12 %'.
+    `difference`: a difference of the kind (a bias, a rate), to which a unit's zero does not apply."""
     if value is None or math.isnan(value):
         return "n/a"
     if math.isinf(value):
         return ("+" if value > 0 else "-") + "inf"
     unit, f = display(kind)
-    v = value * f - KINDS[kind].zero(unit)
+    v = value * f - (0.0 if difference else KINDS[kind].zero(unit))
     return f"{v:.{digits}g} {unit}" if unit != "-" else f"{v:.{digits}g}"
 
 

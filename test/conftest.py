@@ -95,15 +95,12 @@ def compiled_kernels():
     process: the processes then load them from the disk cache (~1 s) instead of each compiling
     them (several seconds, minutes on a busy machine after a model change), which would eat into
     their start timeouts."""
-    from pcv_sim.params import default_params
+    from pcv_sim.device.valve import ValveDevice
+    from pcv_sim.params import default_params, replace_param
     from pcv_sim.rig import Rig, load_rig
-    from pcv_sim.simulation.stepper import RealTimeStepper
 
     for kind in ('simplified', 'full'):
-        st = RealTimeStepper(default_params(), duty=0.5, kind=kind)
-        st.set_duty(0.6)
-        st.advance(2)
-        st.current
+        ValveDevice(replace_param(default_params(), 'simulation.model', kind))   # loads what it steps with
     Rig(load_rig())          # compiles (or loads) what the rig node and the lockstep call
 
 

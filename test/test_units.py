@@ -76,3 +76,10 @@ def test_the_rig_yaml_takes_values_with_units(tmp_path):
     path.write_text(text.replace("coulomb_friction: 150.0 ", "coulomb_friction: 150 bar "))
     with pytest.raises(PcvSimError, match=r"coulomb_friction: unit 'bar' in '150 bar' \(bar is a unit of pressure\)"):
         load_rig(path)
+
+
+def test_a_difference_is_shown_without_the_units_zero():
+    from pcv_sim.units import fmt
+
+    assert fmt(275.15, "temperature") == "2 degC"
+    assert fmt(2.0, "temperature", difference=True) == "2 degC"      # a bias of 2 K

@@ -17,8 +17,8 @@ not outweigh the others), so every signal counts by what it can tell. The valve 
 ``scipy.optimize.least_squares`` (trust region reflective, bounds, the ``soft_l1`` robust loss
 with f_scale = 3 sigma, so broken samples and spikes do not pull the fit).
 
-Jacobian: forward differences of the model for theta (one simulation per parameter; the fixed-step
-stepper makes the outputs smooth in theta), analytic for the nuisance parameters
+Jacobian: forward differences of the model for theta (one simulation per parameter; the fixed
+step makes the outputs smooth in theta), analytic for the nuisance parameters
 (d/dtau = -dy/dt, d/dc = 1; d/dT by a forward difference of the filter, which needs no run).
 
 Intervals: cov = s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) of the weighted residuals, inflated

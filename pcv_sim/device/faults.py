@@ -29,7 +29,7 @@ import yaml
 
 from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import ParameterError, PcvSimError
-from pcv_sim.keys import closest
+from pcv_sim.keys import closest, unknown_message
 from pcv_sim.model import kernel
 from pcv_sim.params import any_value, at_least, between, declarations, key_cells, parameter, read
 
@@ -203,25 +203,25 @@ def parse_fault(kind: Any, target: Any, values: Mapping[str, Any] | None, *, val
             raise FaultError(f"{prefix}: takes no values (got {', '.join(map(str, given))})")
         return Fault(kind, str(target), {})
     of = signal_kind(str(target)) if spec.on == SIGNAL else None
+    unknown = unknown_message(prefix, given, declarations(spec.values))
+    if unknown:
+        raise FaultError(unknown)
     try:
-        unknown = sorted(set(given) - set(declarations(spec.values)), key=str)
-        if unknown:
-            near = [closest(k, declarations(spec.values)) for k in unknown]
-            raise FaultError(f"{prefix}: unknown key{'s' if len(unknown) > 1 else ''} "
-                             + ", ".join(f"{k!r}" + (f" (did you mean {n!r}?)" if n else "") for k, n in zip(unknown, near))
-                             + f"; accepted: {', '.join(declarations(spec.values))}")
         out = {name: float(read(spec.values, given, name, prefix, of=of)) for name in declarations(spec.values)}
     except ParameterError as err:
         raise FaultError(str(err)) from None
     return Fault(kind, str(target), out)
 
 
-def fault_value_kind(kind: str, name: str, target: str) -> tuple[str, bool]:
+def fault_value_kind(kind: str, name: str, target: str) -> tuple[str, bool, bool]:
     """The units kind (`pcv_sim.units.KINDS`) of the value `name` of a fault `kind` on `target` (a
-    sensor fault's: its signal's), and whether it is that kind per second (a drift's rate)."""
+    sensor fault's: its signal's), whether it is that kind per second (a drift's rate) and whether
+    it is a difference of it (a bias: no unit's zero applies)."""
     cls = FAULT_KINDS[kind].values
     meta = declarations(cls)[name].metadata if cls is not None else {"kind": "number"}
-    return (signal_kind(target) if meta["kind"] == "value" else meta["kind"]), bool(meta.get("rate"))
+    rate = bool(meta.get("rate"))
+    return (signal_kind(target) if meta["kind"] == "value" else meta["kind"]), rate, \
+        rate or bool(meta.get("difference"))
 
 
 def fault_table() -> str:

@@ -120,6 +120,29 @@ class ValveDevice(Device):
     def physical_limits(self) -> PhysicalLimits:
         return self.limits[VALVE]
 
+    # --- an offline run's start -------------------------------------------------------------
+
+    def start_at_rest(self, duty: float, load_flow: float = 0.0, supply_pressure: float | None = None) -> None:
+        """A fresh start (`reset`: model time 0) with the valve at rest at these inputs, each in
+        force from step 0, the duty as a first command: where an offline run of a recorded timeline
+        starts (replay: at the recording's first inputs; the supply: the YAML's when None).
+        CommandError for a value `submit` refuses, `pcv_sim.model.statics.EquilibriumError` when
+        the valve has no rest there; the device is unchanged then."""
+        checked = [self.inputs[name].check(value) for name, value in (
+            ("duty_cycle", duty), ("load_flow", load_flow),
+            ("supply_pressure", self._supply0[0] if supply_pressure is None else supply_pressure))]
+        duty, load_flow, supply = checked
+        state, current = self._rest_state(0, self.params, duty, load_flow, supply, self.sim.integrator)
+        self.reset()
+        sim = self.sim
+        sim.x[:] = state
+        sim.W[0] = current
+        self._limiters[0].value = duty              # at rest there: nothing ramps toward it
+        self._take_command(VALVE, duty)
+        self._set_load_flow(0, load_flow)
+        self._set_supply(0, supply)
+        self.last_sample = DeviceSample(0, self.sample())
+
     # --- samples in the valve's words ---------------------------------------------------------
 
     def run(self, n: int) -> list[Sample]:

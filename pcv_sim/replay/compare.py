@@ -14,7 +14,7 @@ a bag holds only pressure, current and position, not the flux linkage, the spool
 the solenoid's hysteresis state, so a restarted model would start wrong too. Across a gap the
 device stood still while the model went on (or the samples were lost while both went on); with
 the same inputs afterwards both settle to the same trajectory, as fast as the valve forgets its
-state. Measured with the emulator's stepper (``bench/replay_gaps.py``, BENCHMARKS.md): after a
+state. Measured with the emulator's device (``bench/replay_gaps.py``, BENCHMARKS.md): after a
 55 ms skip anywhere in the transients of 0.5 -> 0.7 -> 0.4 duty steps, the difference is below
 0.05 bar 300 ms after the gap (up to 78 bar at its end, 0.14-6.9 bar 50 ms later).
 """

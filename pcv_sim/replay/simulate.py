@@ -4,14 +4,18 @@ Each recorded command takes effect at its timestamp and holds until the next one
 hold, as the emulator applies commands). Times are integer ns relative to the first duty
 command; the model starts there at rest (`pcv_sim.simulation.rest.rest_state`, as the emulator).
 
-Solvers (no integrator lives here: both come from `pcv_sim.simulation`):
+Solvers (no integrator lives here):
 
-- ``stepper`` (the default, also ``auto``): the emulator's own engine,
-  :class:`~pcv_sim.simulation.stepper.RealTimeStepper` (the compiled core at the fixed 0.1 ms
-  step: Heun for the simplified model, exponential Heun for the full one), stepped to each
-  command; a command between two steps takes effect at the next step, as in the emulator.
-  ``fast`` is accepted as a name for it (the compiled stepper is faster than the former
-  long-step solver was).
+- ``stepper`` (the default, also ``auto``): the emulator itself, its device
+  (:class:`~pcv_sim.device.valve.ValveDevice`: the compiled core at the fixed 0.1 ms step, Heun
+  for the simplified model, exponential Heun for the full one; the fall-rate limiter; the
+  physical limits), started at rest at the recording's first inputs
+  (`ValveDevice.start_at_rest`), its watchdog off. The duty and the load flow are fed
+  (`feed`: into the model inside the compiled calls, the whole recording in one call), a duty
+  through a configured fall-rate limiter and the supply pressure are submitted at their steps,
+  and the outputs are taken at the steps the samples need (`sample_at`); a command between two
+  steps takes effect at the next step, as in the emulator. ``fast`` is accepted as a name for
+  it (the compiled device is faster than the former long-step solver was).
 - ``radau``: the stiff variable-step reference (:func:`pcv_sim.simulation.reference.integrate_reference`:
   rtol 1e-8, per-state atol, inelastic end stops as events), integrated piecewise between
   input changes.
@@ -19,9 +23,9 @@ Solvers (no integrator lives here: both come from `pcv_sim.simulation`):
 Outputs at a command instant are right-continuous: the coil current there already sees the new
 coil voltage (it jumps with it, reading R27), as the emulator's samples do.
 """
-
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -30,17 +34,17 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from pcv_sim.errors import CommandError
+from pcv_sim.device.spec import ModelFault
+from pcv_sim.device.valve import ValveDevice
+from pcv_sim.errors import CommandError, ParameterError
 from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE
 from pcv_sim.jit import backend
-from pcv_sim.model import kernel
 from pcv_sim.model.statics import EquilibriumError
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Series
 from pcv_sim.simulation.reference import VALVE_ATOL, ReferenceError, integrate_reference
 from pcv_sim.simulation.rest import rest_state
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.simulation.valve import check_load_flow, check_supply_pressure, valve_system
 
 __all__ = ["InputTimeline", "ModelRun", "Solver", "input_timeline", "run_model"]
@@ -146,9 +150,10 @@ def run_model(
 ) -> ModelRun:
     """The model's pressure, current and spool position at ``sample_ns`` (sorted, >= 0).
 
-    ``solver``: ``auto``/``stepper``/``fast`` = the emulator's fixed-step engine for ``kind``;
+    ``solver``: ``auto``/``stepper``/``fast`` = the emulator's device running the model ``kind``;
     ``radau`` = the stiff reference. The config's ``command.duty_fall_rate_limit`` applies as in
-    the emulator (stepper only; radau refuses a configured limiter rather than ignore it).
+    the emulator (stepper only; radau refuses a configured limiter rather than ignore it). A
+    model that runs away (a sample no valve can show) is a ReplayError.
     ``fast_step`` is accepted for compatibility and not used.
     """
     if kind not in ("full", "simplified"):
@@ -204,74 +209,75 @@ def _run_radau(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt
     return ModelRun(sample_ns, outputs, kind, "radau", len(tl))
 
 
-# --- the emulator's stepper ------------------------------------------------------------------
+# --- the emulator's device ---------------------------------------------------------------------
 
 
 def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt.NDArray[np.int64]) -> ModelRun:
-    try:
-        st = RealTimeStepper(params, duty=float(tl.duty[0]), kind=kind, load_flow=float(tl.load_flow[0]),
-                             supply_pressure=float(tl.supply_pressure[0]))
-    except EquilibriumError as exc:
-        msg = f"no rest point for the first inputs (duty {tl.duty[0]:g}, load flow {tl.load_flow[0]:g} m^3/s): {exc}"
-        raise ReplayError(msg) from exc
     dt_ns = round(params.simulation.time_step * _NS)
     if abs(dt_ns / _NS - params.simulation.time_step) > 1e-15:
         msg = f"simulation.time_step {params.simulation.time_step!r} s is not a whole number of ns"
         raise ReplayError(msg)
+    try:
+        # The emulator's device of this model kind (its integrator as the config gives it for the
+        # config's own model, auto's for the other), its watchdog off: the recording's commands are
+        # all it gets. Its safe duty is the first command's: its start state is the rest there.
+        device = ValveDevice(_of_kind(params, kind), safe_duty=float(tl.duty[0]), watchdog_timeout=0.0)
+        device.start_at_rest(float(tl.duty[0]), float(tl.load_flow[0]), float(tl.supply_pressure[0]))
+    except EquilibriumError as exc:
+        msg = f"no rest point for the first inputs (duty {tl.duty[0]:g}, load flow {tl.load_flow[0]:g} m^3/s): {exc}"
+        raise ReplayError(msg) from exc
+    except (CommandError, ParameterError) as exc:
+        msg = f"the emulator's device does not run this config: {exc}"
+        raise ReplayError(msg) from exc
     # Commands take effect at the first step boundary at or after their time.
     cmd_step = -(-tl.t_ns // dt_ns)
     off_grid = int(np.count_nonzero(tl.t_ns % dt_ns))
+    # The recording's inputs at their steps: the duty and the load flow fed (into the model inside
+    # the compiled calls), a duty through a fall-rate limiter and the supply as queued inputs.
+    if params.command.duty_fall_rate_limit is None:
+        device.feed("duty_cycle", cmd_step, tl.duty)
+    else:
+        for k, d in zip(cmd_step.tolist(), tl.duty.tolist()):
+            device.submit("duty_cycle", d, k)
+    device.feed("load_flow", cmd_step, tl.load_flow)
+    supply = np.flatnonzero(np.diff(tl.supply_pressure)) + 1
+    for k, p in zip(cmd_step[supply].tolist(), tl.supply_pressure[supply].tolist()):
+        device.submit("supply_pressure", p, k)
     # Each sample needs the state at the step at or before it and, between steps, the next one.
     below = sample_ns // dt_ns
     frac = (sample_ns - below * dt_ns) / dt_ns
     needed = np.unique(np.concatenate([below, below[frac > 0] + 1]))
-    values: dict[int, tuple[float, float, float]] = {}
-    if params.command.duty_fall_rate_limit is None:
-        # The whole run in compiled code: the emulator's steps, its inputs at their steps.
-        # The recording's inputs, the load volume and the valve options' temperatures (held at
-        # their configured values: a recording carries none), in the model's input order.
-        held = [np.full(len(tl.duty), v) for v in (params.circuit.load_volume, *kernel.option_inputs(params))]
-        rows = st.sim.run(cmd_step, np.stack([tl.duty, tl.load_flow, tl.supply_pressure, *held], axis=1), needed)
-        for step, (p, i, x) in zip(needed.tolist(), rows[:, :3].tolist()):
-            values[step] = (p, i, x)
-    else:   # the limiter ramps the duty step by step (RealTimeStepper.advance)
-        k_cmd, n_cmd = 0, len(tl)
-        for step in needed.tolist():
-            while k_cmd < n_cmd and cmd_step[k_cmd] <= step:
-                target = int(cmd_step[k_cmd])
-                if target > st.steps:
-                    st.advance(target - st.steps)
-                st.set_duty(float(tl.duty[k_cmd]))
-                st.set_load_flow(float(tl.load_flow[k_cmd]))
-                st.set_supply_pressure(float(tl.supply_pressure[k_cmd]))
-                k_cmd += 1
-            if step > st.steps:
-                st.advance(step - st.steps)
-            # The duty in force from this step on (after the limiter): outputs are right-continuous.
-            values[step] = (st.pressure, st.current, st.spool_position)
-    p_out = np.empty(len(sample_ns))
-    i_out = np.empty(len(sample_ns))
-    x_out = np.empty(len(sample_ns))
-    for j, (b, f) in enumerate(zip(below.tolist(), frac.tolist())):
-        v0 = values[b]
-        if f == 0.0:
-            p_out[j], i_out[j], x_out[j] = v0
-        else:
-            v1 = values[b + 1]
-            p_out[j] = v0[0] + f * (v1[0] - v0[0])
-            i_out[j] = v0[1] + f * (v1[1] - v0[1])
-            x_out[j] = v0[2] + f * (v1[2] - v0[2])
+    try:
+        rows = device.sample_at(needed)
+    except ModelFault as exc:
+        msg = f"the model ran away: {exc}"
+        raise ReplayError(msg) from exc
+    signals = [device.signals.index(role) for role in (PRESSURE, CURRENT, SPOOL_POSITION)]
+    at = np.searchsorted(needed, below)
+    v0 = rows[at][:, signals]
+    between = frac > 0
+    out = v0.copy()
+    if np.any(between):
+        v1 = rows[at[between] + 1][:, signals]
+        out[between] = v0[between] + frac[between, None] * (v1 - v0[between])
     notes = []
     if off_grid:
         notes.append(
             f"{off_grid} input change(s) fell between the stepper's {dt_ns / 1e6:g} ms steps and "
             f"took effect at the next step (as in the emulator)"
         )
-    if np.any(frac > 0):
+    if np.any(between):
         notes.append(
-            f"{int(np.count_nonzero(frac > 0))} sample time(s) between steps: model outputs "
+            f"{int(np.count_nonzero(between))} sample time(s) between steps: model outputs "
             f"interpolated linearly between the neighbouring steps"
         )
-    return ModelRun(sample_ns, {PRESSURE: p_out, CURRENT: i_out, SPOOL_POSITION: x_out},
-                    kind, "stepper", len(tl),
-                    (f"stepper: the emulator's {st.integrator} at {st.dt * 1e3:g} ms ({backend()})", *notes))
+    engine = f"stepper: the emulator's {device.sim.integrator} at {device.dt * 1e3:g} ms ({backend()})"
+    return ModelRun(sample_ns, {PRESSURE: out[:, 0].copy(), CURRENT: out[:, 1].copy(), SPOOL_POSITION: out[:, 2].copy()},
+                    kind, "stepper", len(tl), (engine, *notes))
+
+
+def _of_kind(params: ValveParams, kind: str) -> ValveParams:
+    """`params` running the model `kind`: the config's integrator for its own model, auto's for the other."""
+    if kind == params.simulation.model:
+        return params
+    return dataclasses.replace(params, simulation=dataclasses.replace(params.simulation, model=kind, integrator="auto"))

@@ -331,8 +331,8 @@ class Scenario:
                 vals = []
                 for key, v in e.items():
                     if key not in ("t", "fault", "target"):
-                        kind, rate = fault_value_kind(e["fault"], key, str(e["target"]))
-                        vals.append(f"{key} {fmt(v, kind)}{'/s' if rate else ''}")
+                        kind, rate, difference = fault_value_kind(e["fault"], key, str(e["target"]))
+                        vals.append(f"{key} {fmt(v, kind, difference=difference)}{'/s' if rate else ''}")
                 out.append((t, f"fault {e['fault']} on {e['target']}" + (f": {', '.join(vals)}" if vals else "")))
             else:
                 out.append((t, f"clear {e['clear']} on {e['target']}"))

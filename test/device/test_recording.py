@@ -200,10 +200,9 @@ def test_write_failure_is_reported_and_later_messages_counted(tmp_path: Path, wr
 
 def test_device_recording_replays_exactly_with_a_fall_rate_limiter(tmp_path: Path, emulator_recorder) -> None:
     """The duty in the bag is what the model used (after the limiter), stamped with the step it acted
-    on; the emulator's own stepper replaying it with the limiter off gives the recorded pressure.
+    on; replaying it (on the emulator's device) with the limiter off gives the recorded pressure.
 
-    Tolerance 1e-3 Pa on ~50-120 bar: the same arithmetic in the same order; the replay's stepper
-    starts from RealTimeStepper's own rest state, as the device does for duty >= 0.3."""
+    Tolerance 1e-3 Pa on ~50-120 bar: the same arithmetic in the same order, from the same rest state."""
     limited = replace_param(PARAMS, "command.duty_fall_rate_limit", 2.0)
     rec = emulator_recorder(tmp_path, name="b", every=10, frame_id="load_port")
     dev = ValveDevice(limited, safe_duty=0.5, watchdog_timeout=0.0, recorder=rec)

@@ -4,6 +4,7 @@ import re
 
 import numpy as np
 import pytest
+from offline_valve import advance, at_rest, now, put
 
 from pcv_sim.device.settings import (
     NodeSettings,
@@ -15,7 +16,6 @@ from pcv_sim.device.settings import (
 from pcv_sim.device.valve import ValveDevice, WatchdogState
 from pcv_sim.errors import ParameterError
 from pcv_sim.params import load_params, params_to_mapping
-from pcv_sim.simulation.stepper import RealTimeStepper
 
 PARAMS = load_params()
 
@@ -27,19 +27,19 @@ def device(**kw):
 
 # --- inputs ----------------------------------------------------------------------------------
 
-def test_duty_takes_effect_at_the_given_step_like_the_offline_stepper():
+def test_duty_takes_effect_at_the_given_step_like_a_duty_set_at_that_step():
     dev = device(watchdog_timeout=0.0)
     assert dev.submit('duty_cycle', 0.7, at_step=37) is None
     samples = dev.run(200)
-    ref = RealTimeStepper(PARAMS, duty=0.3)
-    ref.current                     # the device reads the current at step 0 (as a published sample)
+    ref = at_rest(PARAMS, 0.3)
+    now(ref)                     # the device reads the current at step 0 (as a published sample)
     expected = []
     for k in range(1, 201):
         if k - 1 == 37:
-            ref.set_duty(0.7)
-        ref.advance(1)
+            put(ref, "duty_cycle", 0.7)
+        advance(ref, 1)
         if k % 10 == 0:
-            expected.append((k, ref.pressure, ref.current, ref.spool_position))
+            expected.append((k, float(ref.sim.x[3]), now(ref).current, float(ref.sim.x[1])))
     got = [(s.step, s.pressure, s.current, s.spool_position) for s in samples]
     assert [g[0] for g in got] == [e[0] for e in expected]
     for g, e in zip(got, expected):
@@ -64,12 +64,12 @@ def test_a_sample_shows_the_inputs_in_force_at_its_step():
     dev.submit('duty_cycle', 0.7, at_step=40)
     samples = {s.step: s for s in dev.run(50)}
     assert samples[30].duty == 0.3 and samples[40].duty == 0.7
-    ref = RealTimeStepper(PARAMS, duty=0.3)
-    ref.advance(40)
-    before = ref.current
-    ref.set_duty(0.7)
+    ref = at_rest(PARAMS, 0.3)
+    advance(ref, 40)
+    before = now(ref).current
+    put(ref, "duty_cycle", 0.7)
     # The coil current is algebraic in the coil voltage (Eqs. 1-2): it jumps at the step itself.
-    assert samples[40].current == pytest.approx(ref.current, rel=1e-12)
+    assert samples[40].current == pytest.approx(now(ref).current, rel=1e-12)
     assert samples[40].current - before > 0.05
 
 
@@ -246,7 +246,7 @@ def test_recorder_gets_every_nth_step_with_its_stamp():
 # --- rest state ------------------------------------------------------------------------------
 
 def test_rest_below_the_equilibrium_range_is_reached_by_settling():
-    """Below ~0.3 duty RealTimeStepper.reset finds no equilibrium (spool on its end stop)."""
+    """Below ~0.3 duty there is no static equilibrium (the spool on its end stop): the rest is settled."""
     dev = device(safe_duty=0.0, watchdog_timeout=0.0)
     p, x = dev.valve_sample().pressure, dev.valve_sample().spool_position
     s = dev.run(1000)[-1]
@@ -262,8 +262,8 @@ def test_parameter_change_restarts_at_the_present_operating_point():
     heavier = params_with(PARAMS, {'model.spool.mass': 0.05})
     dev.install(dev.prepare(heavier))
     assert dev.steps == steps and dev.params.spool.mass == 0.05
-    ref = RealTimeStepper(heavier, duty=0.6)
-    assert dev.valve_sample().pressure == pytest.approx(ref.pressure)
+    ref = at_rest(heavier, 0.6)
+    assert dev.valve_sample().pressure == pytest.approx(float(ref.sim.x[3]))
 
 
 # --- settings --------------------------------------------------------------------------------

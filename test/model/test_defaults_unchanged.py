@@ -25,7 +25,6 @@ from pcv_sim.plant.mass_spring import mass_spring
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.simulation.system import compose
 from pcv_sim.simulation.valve import valve_system
 
@@ -34,10 +33,12 @@ STEPS = DutyProfile((0.0, 0.02, 0.06, 0.10), (0.5, 0.9, 0.3, 0.7))
 
 
 def _stepper(kind: str, limit: float | None = None) -> list[list[float]]:
+    from offline_valve import at_rest, run_profile  # the emulator's device (test/offline_valve.py)
+
     params = default_params()
     if limit is not None:
         params = replace_param(params, "command.duty_fall_rate_limit", limit)
-    tr = RealTimeStepper(params, duty=0.5, kind=kind).run(STEPS, 0.14, sample_every=10)
+    tr = run_profile(at_rest(params, 0.5, kind=kind), STEPS, 0.14, sample_every=10)
     return [tr.t.tolist(), tr.duty.tolist(), tr.current.tolist(), tr.pressure.tolist(),
             tr.spool_position.tolist()]
 
@@ -95,6 +96,7 @@ def test_default_outputs_bit_for_bit():
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))      # test/, as pytest has it
     if "--write" in sys.argv:
         GOLDEN.write_text(json.dumps(_hex(_runs()), indent=0) + "\n")
         print(f"wrote {GOLDEN}")

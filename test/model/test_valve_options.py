@@ -16,12 +16,13 @@ import math
 
 import numpy as np
 import pytest
+from offline_valve import advance, at_rest, now, output, put
 
+from pcv_sim.device.valve import VALVE
 from pcv_sim.errors import CommandError, ParameterError
 from pcv_sim.model import kernel
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import default_params, replace_param
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.units import kelvin
 
 ALPHA_COPPER = 3.93e-3      # 1/K, annealed copper at 20 degC (IEC 60028)
@@ -42,15 +43,15 @@ def options(**changes):
 
 
 def test_resistance_follows_copper_at_two_temperatures():
-    st = RealTimeStepper(options(solenoid__coil_reference_temperature_c=20.0), duty=0.7)
+    st = at_rest(options(solenoid__coil_reference_temperature_c=20.0), 0.7)
     ix = st.sim.plant.index("state", "valve.coil_temperature")
     for t_c in (20.0, 80.0):
         st.sim.x[ix] = kelvin(t_c)
-        assert st.output("coil_temperature") == kelvin(t_c)
-        assert st.output("coil_resistance") == pytest.approx(5.6 * (1.0 + ALPHA_COPPER * (t_c - 20.0)), rel=1e-12)
+        assert output(st, "coil_temperature") == kelvin(t_c)
+        assert output(st, "coil_resistance") == pytest.approx(5.6 * (1.0 + ALPHA_COPPER * (t_c - 20.0)), rel=1e-12)
     # The hot coil (6.92 ohm) draws less current at the same duty: 0.7 * 12 V / R once the flux settles.
-    st.advance(5000)
-    assert st.current == pytest.approx(0.7 * 12.0 / (5.6 * (1.0 + ALPHA_COPPER * 60.0)), rel=2e-3)
+    advance(st, 5000)
+    assert now(st).current == pytest.approx(0.7 * 12.0 / (5.6 * (1.0 + ALPHA_COPPER * 60.0)), rel=2e-3)
 
 
 def test_thermal_step_response_is_first_order():
@@ -59,14 +60,14 @@ def test_thermal_step_response_is_first_order():
     r_th, c_th, duty = 2.5, 2.0, 0.7
     params = options(solenoid__coil_temperature_coefficient=0.0, solenoid__coil_heat_capacity=c_th,
                      solenoid__coil_thermal_resistance=r_th)
-    st = RealTimeStepper(params, duty=0.0)
-    st.set_duty(duty)
+    st = at_rest(params, 0.0)
+    put(st, "duty_cycle", duty)
     t_a, power, tau = kelvin(40.0), (duty * 12.0) ** 2 / 5.6, r_th * c_th
     times, temps = [], []
     for _ in range(20):
-        st.advance(5000)                            # 0.5 s
+        advance(st, 5000)                            # 0.5 s
         times.append(st.time)
-        temps.append(st.output("coil_temperature"))
+        temps.append(output(st, "coil_temperature"))
     # Once the coil's electrical transient (tens of ms) is over the heat input is constant: from the
     # first sample on, T(t) = T_inf + (T(t1) - T_inf) exp(-(t - t1) / tau) exactly.
     t, temps_a = np.array(times), np.array(temps)
@@ -81,25 +82,25 @@ def test_thermal_steady_state_with_copper():
     """With alpha the heat falls as the coil warms (P = (D V)^2 / R(T)): the steady state solves
     (T - T_a) / R_th = (D V)^2 / (R_ref (1 + alpha (T - T_ref))), a quadratic."""
     r_th, c_th, duty = 2.5, 2.0, 1.0
-    st = RealTimeStepper(options(solenoid__coil_heat_capacity=c_th), duty=duty)
-    st.advance(400_000)                             # 40 s = 8 tau
+    st = at_rest(options(solenoid__coil_heat_capacity=c_th), duty)
+    advance(st, 400_000)                             # 40 s = 8 tau
     v2, r_ref, a = (duty * 12.0) ** 2, 5.6, ALPHA_COPPER
     # d = T - T_a (T_ref = T_a): d (1 + a d) = v2 R_th / R_ref
     rise = (-1.0 + math.sqrt(1.0 + 4.0 * a * v2 * r_th / r_ref)) / (2.0 * a)
-    assert st.output("coil_temperature") - kelvin(40.0) == pytest.approx(rise, abs=0.01)   # 46.6 K
-    assert st.current == pytest.approx(12.0 / (r_ref * (1 + a * rise)), rel=1e-4)
+    assert output(st, "coil_temperature") - kelvin(40.0) == pytest.approx(rise, abs=0.01)   # 46.6 K
+    assert now(st).current == pytest.approx(12.0 / (r_ref * (1 + a * rise)), rel=1e-4)
 
 
 def test_ambient_temperature_input_is_checked():
-    st = RealTimeStepper(options(), duty=0.0)
-    st.set_input("ambient_temperature", kelvin(-20.0))
+    st = at_rest(options(), 0.0)
+    st.set_temperature(VALVE, "ambient_temperature", kelvin(-20.0))
     assert st.sim.u[st.sim.plant.index("input", "valve.ambient_temperature")] == kelvin(-20.0)
     with pytest.raises(CommandError, match="not degC"):
-        st.set_input("ambient_temperature", -20.0)
+        st.set_temperature(VALVE, "ambient_temperature", -20.0)
     with pytest.raises(CommandError, match="accepted are ambient_temperature, oil_temperature"):
-        st.set_input("coil_temperature", 300.0)
-    with pytest.raises(CommandError, match="accepted are none"):
-        RealTimeStepper(default_params(), duty=0.0).set_input("ambient_temperature", 300.0)
+        st.set_temperature(VALVE, "coil_temperature", 300.0)
+    with pytest.raises(CommandError, match=r"no ambient temperature input; the valve YAML's solenoid\.coil_temperature: lumped brings it"):
+        at_rest(default_params(), 0.0).set_temperature(VALVE, "ambient_temperature", 300.0)
 
 
 # --- oil temperature (R34) ---------------------------------------------------------------------
@@ -140,35 +141,34 @@ def test_at_the_papers_temperature_the_model_is_the_papers():
 def test_cold_oil_slows_the_full_model():
     """A duty step with oil at 0 degC (13x the viscosity): the laminar damping 13x (B and the
     chamber's restrictor), the spool's pole 13x: at a 10 us step the pressure follows later."""
-    warm, cold = (RealTimeStepper(options(fluid__oil_temperature_c=t, simulation__time_step=1e-5, spool__core="attached"),
-                                  duty=0.5, kind="full") for t in (40.0, 0.0))
-    start = warm.pressure
-    assert cold.pressure == pytest.approx(start, abs=0.5e5)       # the same rest, to the leakage
+    warm, cold = (at_rest(options(fluid__oil_temperature_c=t, simulation__time_step=1e-5, spool__core="attached"), 0.5, kind="full") for t in (40.0, 0.0))
+    start = now(warm).pressure
+    assert now(cold).pressure == pytest.approx(start, abs=0.5e5)       # the same rest, to the leakage
     for st in (warm, cold):
-        st.set_duty(0.7)
-        st.advance(1000)                            # 10 ms
-    assert cold.pressure - start < 0.5 * (warm.pressure - start)
+        put(st, "duty_cycle", 0.7)
+        advance(st, 1000)                            # 10 ms
+    assert now(cold).pressure - start < 0.5 * (now(warm).pressure - start)
 
 
 def test_too_cold_oil_for_an_explicit_step_is_refused():
     """Heun (rk2) integrates the spool's damping pole explicitly: beyond h lambda = 2 the cold oil
     is refused, naming a step that runs it and the integrator that takes the pole exactly."""
     cold = options(fluid__oil_temperature_c=0.0, spool__core="attached", simulation__integrator="rk2")
-    with pytest.raises(CommandError, match=r"oil temperature 0.0 degC: .* simulation.time_step <= \S+ s .*erk2") as err:
-        RealTimeStepper(cold, duty=0.5)
+    with pytest.raises(ParameterError, match=r"oil_temperature_c: oil temperature 0.0 degC: .* simulation.time_step <= \S+ s .*erk2") as err:
+        at_rest(cold, 0.5)
     step = float(str(err.value).rsplit("<= ", 1)[1].split(" ")[0])
     assert 1e-5 < step < 1e-4                       # 13x the viscosity: about a tenth of the step
-    RealTimeStepper(replace_param(cold, "simulation.time_step", step), duty=0.5)
+    at_rest(replace_param(cold, "simulation.time_step", step), 0.5)
     # Core separate: spool and core each have their own pole, integrated explicitly.
-    st = RealTimeStepper(options(), duty=0.5)
+    st = at_rest(options(), 0.5)
     with pytest.raises(CommandError, match=r"beyond what the 0\.0001 s step integrates.*each have their own pole"):
-        st.set_input("oil_temperature", kelvin(-20.0))
+        st.set_temperature(VALVE, "oil_temperature", kelvin(-20.0))
     assert st.sim.u[st.sim.plant.index("input", "valve.oil_temperature")] == kelvin(40.0)   # the last valid stays
 
 
 def _cold(t_c, kind, dt=1e-4, **changes):
-    return RealTimeStepper(options(fluid__oil_temperature_c=t_c, spool__core="attached", simulation__time_step=dt,
-                                   **changes), duty=0.5, kind=kind)
+    return at_rest(options(fluid__oil_temperature_c=t_c, spool__core="attached", simulation__time_step=dt,
+                                   **changes), 0.5, kind=kind)
 
 
 @pytest.mark.parametrize("kind", ["simplified", "full"])
@@ -185,14 +185,14 @@ def test_cold_start_at_the_nodes_step_against_the_stiff_reference(kind):
     errors = []
     for dt in (1e-4, 5e-5, 2.5e-5):
         st = _cold(-20.0, kind, dt)
-        assert st.integrator == "erk2"
+        assert st.sim.integrator == "erk2"
         x0, w0 = st.sim.x.copy(), st.sim.W.copy()
-        st.set_duty(0.7)
+        put(st, "duty_cycle", 0.7)
         n = round(0.05 / dt)
-        pressures = [st.pressure]
+        pressures = [now(st).pressure]
         for _ in range(n):
-            st.advance(1)
-            pressures.append(st.pressure)
+            advance(st, 1)
+            pressures.append(now(st).pressure)
         if dt == 1e-4:
             held = st.sim.u.copy()                  # the inputs from the step on (held)
             xs, _ = integrate_reference(st.sim.plant, x0, lambda t, u=held: u, [], np.arange(n + 1) * dt,
@@ -213,11 +213,11 @@ def test_cold_spool_moves_slower_by_the_viscosity_ratio():
     mu = {}
     for t_c in (-20.0, 0.0):
         st = _cold(t_c, "simplified")
-        x0 = st.spool_position
+        x0 = now(st).spool_position
         mu[t_c] = float(kernel.oil_properties(kelvin(t_c), st.sim.P[: kernel.N_PARAMS])[3])
-        st.set_duty(0.7)
-        st.advance(10)                              # 1 ms
-        moves[t_c] = st.spool_position - x0
+        put(st, "duty_cycle", 0.7)
+        advance(st, 10)                              # 1 ms
+        moves[t_c] = now(st).spool_position - x0
     assert moves[0.0] > 0 and moves[-20.0] > 0
     assert moves[0.0] / moves[-20.0] == pytest.approx(mu[-20.0] / mu[0.0], rel=0.1)
 
@@ -226,10 +226,10 @@ def test_oil_warming_at_run_time_keeps_the_step_exact():
     """The oil temperature set at run time moves the spool's pole the integrator takes exactly:
     a valve started warm and cooled to -20 degC follows the one started at -20 degC."""
     warm, cold = _cold(40.0, "full"), _cold(-20.0, "full")
-    warm.set_input("oil_temperature", kelvin(-20.0))
+    warm.set_temperature(VALVE, "oil_temperature", kelvin(-20.0))
     for st in (warm, cold):
-        st.set_duty(0.7)
-        st.advance(200)
+        put(st, "duty_cycle", 0.7)
+        advance(st, 200)
     assert warm.sim.P[kernel.V_RATE] == cold.sim.P[kernel.V_RATE]
     assert np.array_equal(warm.sim.x, cold.sim.x)   # the same rest, the same pole: the same steps
 
@@ -265,18 +265,18 @@ def test_release_to_zero_separates_and_contact_is_regained(kind):
     solenoid no longer holds it against the spool); when the duty returns the core meets the spool
     again (an inelastic impact) and they move as one."""
     params = options()
-    st = RealTimeStepper(params, duty=1.0, kind=kind)
-    st.set_duty(0.0)
+    st = at_rest(params, 1.0, kind=kind)
+    put(st, "duty_cycle", 0.0)
     gaps = []
     for _ in range(1000):                           # 100 ms
-        st.advance(1)
-        gaps.append(st.spool_position - st.output("core_position"))
-    assert st.spool_position == params.spool.stroke_min_mm * 1e-3
+        advance(st, 1)
+        gaps.append(now(st).spool_position - output(st, "core_position"))
+    assert now(st).spool_position == params.spool.stroke_min_mm * 1e-3
     assert max(gaps) > 1e-6                         # > 1 um apart
-    st.set_duty(0.6)
+    put(st, "duty_cycle", 0.6)
     for _ in range(3000):
-        st.advance(1)
-    assert st.output("core_position") == st.spool_position      # contact regained, one body again
+        advance(st, 1)
+    assert output(st, "core_position") == now(st).spool_position      # contact regained, one body again
     ic = st.sim.plant.index("state", "valve.core_velocity")
     assert st.sim.x[ic] == st.sim.x[2]
 
@@ -285,11 +285,11 @@ def test_release_to_zero_separates_and_contact_is_regained(kind):
 def test_no_separation_at_the_papers_rate_limit(kind):
     """Sec. 3.2: the rig's fall-rate limit (2 /s) keeps core and spool together over the duties the
     rig drove (30 .. 100 %)."""
-    st = RealTimeStepper(options(command__duty_fall_rate_limit=2.0), duty=1.0, kind=kind)
-    st.set_duty(0.3)
+    st = at_rest(options(command__duty_fall_rate_limit=2.0), 1.0, kind=kind)
+    put(st, "duty_cycle", 0.3)
     for _ in range(60):                             # 0.6 s: the ramp to 0 and beyond
-        st.advance(100)
-        assert st.output("core_position") == st.spool_position
+        advance(st, 100)
+        assert output(st, "core_position") == now(st).spool_position
 
 
 @pytest.mark.parametrize(("start", "damping"), [(1.0, "equivalent"), (0.7, "equivalent"), (1.0, 20.0)])
@@ -300,16 +300,16 @@ def test_fast_release_inside_the_stroke_keeps_the_contact(start, damping):
     separate core's valve gives the attached one's pressure (Sec. 3.2's undershoot not reproduced)."""
     runs = {}
     for core in ("attached", "separate"):
-        st = RealTimeStepper(options(spool__core=core, spool__viscous_friction_simplified=damping,
-                                     fluid__temperature="fixed"), duty=start)
-        st.set_duty(0.3)
+        st = at_rest(options(spool__core=core, spool__viscous_friction_simplified=damping,
+                                     fluid__temperature="fixed"), start)
+        put(st, "duty_cycle", 0.3)
         pressures, positions = [], []
         for _ in range(800):                        # 80 ms: the pressure falls to its new level
-            st.advance(1)
-            pressures.append(st.pressure)
-            positions.append(st.spool_position)
+            advance(st, 1)
+            pressures.append(now(st).pressure)
+            positions.append(now(st).spool_position)
             if core == "separate":
-                assert st.output("core_position") == st.spool_position
+                assert output(st, "core_position") == now(st).spool_position
         runs[core] = np.array(pressures), np.array(positions)
     (p_att, x_att), (p_sep, _) = runs["attached"], runs["separate"]
     assert p_att[0] - p_att[-1] > 80e5              # a release of > 80 bar
@@ -332,16 +332,16 @@ def test_core_mass_that_would_part_the_bodies(hold, damping, least):
     p = options(spool__core="attached", spool__viscous_friction_simplified=damping, fluid__temperature="fixed",
                 solenoid__coil_temperature="fixed")
     model = ValveModel(p)
-    st = RealTimeStepper(p, duty=1.0)
+    st = at_rest(p, 1.0)
     iv = st.sim.plant.index("state", "valve.spool_velocity")
-    st.set_duty(0.0 if hold else 0.3)
+    put(st, "duty_cycle", 0.0 if hold else 0.3)
     v, f_s = [], []
     for k in range(1000):                           # 100 ms: the release and the pressure's fall
         if hold and k == hold * 10:
-            st.set_duty(0.3)
-        st.advance(1)
+            put(st, "duty_cycle", 0.3)
+        advance(st, 1)
         v.append(st.sim.x[iv])
-        f_s.append(model.solenoid_force(st.current, st.spool_position))
+        f_s.append(model.solenoid_force(now(st).current, now(st).spool_position))
     vel, force = np.array(v), np.array(f_s)
     acc = np.gradient(vel, st.dt)
     slowing = acc > 1.0                             # m/s^2: the -x motion being braked, or +x driven

@@ -3,8 +3,10 @@ import itertools
 import math
 import signal
 
+from offline_valve import advance, at_rest, now, put
+
 from pcv_sim.params import load_params
-from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.simulation.rest import rest_state
 
 PARAMS = load_params()
 DT_NS = 100_000
@@ -13,7 +15,7 @@ START = 30.0                      # s: node start-up and discovery on a busy 2-c
 
 
 def rest_pressure(duty):
-    return RealTimeStepper(PARAMS, duty=duty).pressure
+    return rest_state(PARAMS, PARAMS.simulation.model, duty).state[3]
 
 
 def latest(client, key):
@@ -23,8 +25,8 @@ def latest(client, key):
 # --- real time: step response ----------------------------------------------------------------
 
 def test_duty_step_follows_the_offline_model_from_the_reception_step(ros):
-    """The published pressure is the model's: the node's samples equal an offline RealTimeStepper
-    run that applies the duty at the step the node reports (`duty_applied_stamp_ns`).
+    """The published pressure is the model's: the node's samples equal an offline run of
+    the emulator's device that applies the duty at the step the node reports (`duty_applied_stamp_ns`).
 
     Tolerance 1 Pa (1e-5 bar, against a 46 bar step): the two runs do the same arithmetic; they
     may differ only through the warm start of the coil-current Newton solve (reads of `current`)."""
@@ -48,26 +50,26 @@ def test_duty_step_follows_the_offline_model_from_the_reception_step(ros):
 
     samples = {s.stamp_ns: s.pressure for s in c.samples}
     last = (c.samples[-1].stamp_ns - origin) // DT_NS
-    ref = RealTimeStepper(PARAMS, duty=0.3)
-    ref.current
-    ref.current                                   # the node reads i at step 0 twice (state, first sample)
+    ref = at_rest(PARAMS, 0.3)
+    now(ref)
+    now(ref)                                    # the node reads i at step 0 twice (state, first sample)
     compared, worst = 0, 0.0
     for k in range(0, last + 1, SAMPLE_EVERY):
         if k > 0:
             if k - SAMPLE_EVERY < k_applied <= k:
-                ref.advance(k_applied - (k - SAMPLE_EVERY))
-                ref.set_duty(0.7)
-                ref.advance(k - k_applied)
+                advance(ref, k_applied - (k - SAMPLE_EVERY))
+                put(ref, "duty_cycle", 0.7)
+                advance(ref, k - k_applied)
             else:
-                ref.advance(SAMPLE_EVERY)
-            ref.current
+                advance(ref, SAMPLE_EVERY)
+            now(ref)
         stamp = origin + k * DT_NS
         if stamp in samples and k >= k_applied - 200:
-            worst = max(worst, abs(samples[stamp] - ref.pressure))
+            worst = max(worst, abs(samples[stamp] - float(ref.sim.x[3])))
             compared += 1
     assert compared >= 100, f'only {compared} samples around the step arrived'
     assert worst <= 1.0, f'published pressure deviates from the offline model by {worst} Pa'
-    assert ref.pressure > rest_pressure(0.3) + 40e5       # it was a real step (~46 bar)
+    assert float(ref.sim.x[3]) > rest_pressure(0.3) + 40e5       # it was a real step (~46 bar)
 
 
 # --- bad input --------------------------------------------------------------------------------
@@ -184,16 +186,16 @@ def test_simulated_time_is_deterministic_and_follows_the_lockstep_semantics(ros)
     assert [t for t, _ in first] == [k * 1_000_000 for k in range(len(first))]   # model time from 0
     # Semantics: the command answering the sample at T acts from the next step, T + 0.1 ms (the
     # sample at T showed the inputs in force at T).
-    ref = RealTimeStepper(PARAMS, duty=0.3)
-    ref.current
-    ref.current
-    expected = [(0, ref.pressure)]
+    ref = at_rest(PARAMS, 0.3)
+    now(ref)
+    now(ref)
+    expected = [(0, float(ref.sim.x[3]))]
     for k in range(1, len(first)):
-        ref.advance(1)
-        ref.set_duty(_duty_at((k - 1) * 1_000_000))
-        ref.advance(SAMPLE_EVERY - 1)
-        ref.current
-        expected.append((k * 1_000_000, ref.pressure))
+        advance(ref, 1)
+        put(ref, "duty_cycle", _duty_at((k - 1) * 1_000_000))
+        advance(ref, SAMPLE_EVERY - 1)
+        now(ref)
+        expected.append((k * 1_000_000, float(ref.sim.x[3])))
     assert max(abs(a[1] - b[1]) for a, b in zip(first, expected)) <= 1.0
 
 

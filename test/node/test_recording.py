@@ -18,7 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 from pcv_sim.io import read_bag
 from pcv_sim.io.topics import ROLE_TYPES
 from pcv_sim.params import load_params
-from pcv_sim.simulation.stepper import RealTimeStepper
+from pcv_sim.simulation.rest import rest_state
 
 from .conftest import wait_until
 
@@ -77,7 +77,7 @@ def test_recorded_bag_reads_back_with_rosbags_mcap_and_pcv_sim(ros):
     assert p.min() > 5e5 and p.max() < 200e5                           # Pa, between tank and supply
     assert i.min() > 0.0 and i.max() < 2.5                             # A
     assert x.min() >= -0.55e-3 - 1e-12 and x.max() <= 0.85e-3 + 1e-12  # m, within the stroke
-    assert abs(p[-1] - RealTimeStepper(PARAMS, duty=0.3).pressure) < 1e5   # back at rest at 0.3
+    assert abs(p[-1] - rest_state(PARAMS, PARAMS.simulation.model, 0.3).state[3]) < 1e5   # back at rest at 0.3
     duty = got[f'{ns}/duty_cycle']
     assert [m.data for _, m in duty] == duties                          # each change once, the effective duty
     assert duty[0][0] == t_p[0] and all(b[0] > a[0] for a, b in itertools.pairwise(duty))

@@ -1,9 +1,10 @@
 """Gaps in a recording (issue 11, item 4): a device that skipped steps under load is reported,
 and the replay does not compare across the gaps.
 
-The bag is made by the emulator's own stepper at 1 kHz output, with two 55 ms skips placed in
-the transients of duty steps (the state stands still, time jumps, as when the emulator skips
-steps). Replaying it with the same stepper is exact everywhere except after the skips."""
+The bag is made by the emulator's own device at 1 kHz output, with two 55 ms skips placed in
+the transients of duty steps (`ValveDevice.skip`: the state stands still, time jumps, as when
+the emulator skips steps). Replaying it on the same device is exact everywhere except after the
+skips."""
 
 from __future__ import annotations
 
@@ -14,14 +15,14 @@ import numpy as np
 import pytest
 
 from pcv_sim.cli import main
+from pcv_sim.device.valve import VALVE, ValveDevice
 from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE, BagWriter
 from pcv_sim.params import load_params
 from pcv_sim.replay import check_thresholds, load_recording, replay
 from pcv_sim.replay.report import render_markdown, render_text
-from pcv_sim.simulation.stepper import RealTimeStepper
 
 T0 = 1_704_067_200 * 1_000_000_000
-DT_NS = 100_000                        # the stepper's 0.1 ms
+DT_NS = 100_000                        # the device's 0.1 ms
 EVERY = 10                             # an output sample per 1 ms
 PLAN = {0: 0.5, 1000: 0.7, 6000: 0.4}  # bag step -> duty
 SKIPS = {1050: 550, 6050: 550}         # bag step -> steps skipped (55 ms), 5 ms into each step
@@ -29,27 +30,26 @@ N = 14000                              # 1.4 s
 
 
 def _device_bag(path: Path, skips: dict[int, int]) -> Path:
-    params = load_params()
-    st = RealTimeStepper(params, duty=0.5)
-    st.reset(0.5, 0.0, params.circuit.supply_pressure)
+    dev = ValveDevice(load_params(), safe_duty=0.5, watchdog_timeout=0.0)
     topics = {"/duty_cycle": FLOAT64, "/pressure": FLUID_PRESSURE, "/spool_position": FLOAT64}
     with BagWriter(path, topics=topics, flush_thread=False, clock=lambda: 0.0) as w:
         k = 0
         while k < N:
             if k in skips:                 # the device stands still while time goes on
                 due = [s for s in PLAN if k <= s < k + skips[k]]
+                dev.skip(skips[k])
                 k += skips[k]
                 for s in due:
-                    st.set_duty(PLAN[s])
+                    dev.set_duty(VALVE, PLAN[s])
                     w.write_float64("/duty_cycle", T0 + k * DT_NS, PLAN[s])
             if k in PLAN:
-                st.set_duty(PLAN[k])
+                dev.set_duty(VALVE, PLAN[k])
                 w.write_float64("/duty_cycle", T0 + k * DT_NS, PLAN[k])
             if k % EVERY == 0:
-                _, x, _, p = st.state
+                _, x, _, p = dev.sim.x.tolist()
                 w.write_fluid_pressure("/pressure", T0 + k * DT_NS, p, 0.0)
                 w.write_float64("/spool_position", T0 + k * DT_NS, x)
-            st.advance(1)
+            dev.advance_to(k + 1)
             k += 1
     return path
 
@@ -73,7 +73,7 @@ def test_no_comparison_across_gaps(gappy: Path) -> None:
     p = r.signals["pressure"]
     # Left out: each gap's first sample after it and the next 300 ms (300 samples at 1 kHz).
     assert p.excluded == 2 * 301 and p.samples == len(rec.measured["pressure"]) - 2 * 301
-    # Compared: the same stepper, exact outside the skips; after 300 ms the model and the device
+    # Compared: the same device, exact outside the skips; after 300 ms the model and the device
     # agree to within 0.05 bar (the re-synchronisation measured in bench/replay_gaps.py).
     assert r.scalar_metrics()["pressure_max_error_bar"] < 0.05
     assert r.scalar_metrics()["gaps"] == 2 and r.scalar_metrics()["gap_max_ms"] == pytest.approx(56.0)

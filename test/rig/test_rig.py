@@ -149,42 +149,42 @@ def test_the_watchdog_waits_for_a_first_command_and_a_reset_waits_again(rig):
     assert not any(rig.watchdog_fired.values()) and rig.duties["left"] == rig.params.valves[0].initial_duty
 
 
-def test_a_valve_on_its_own_volume_runs_exactly_as_the_single_valve_stepper(rig_params, tmp_path):
+def test_a_valve_on_its_own_volume_runs_exactly_as_the_emulators_device(rig_params, tmp_path):
     """A third valve with chamber: none sits on its own dead-ended load volume: the same
-    arithmetic as the emulator's stepper, so the same numbers bit for bit."""
+    arithmetic as the emulator's device, so the same numbers bit for bit."""
     import yaml
+    from offline_valve import advance, at_rest, put
 
     from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
-    from pcv_sim.simulation.stepper import RealTimeStepper
 
     data = yaml.safe_load(DEFAULT_RIG.read_text())
     data["valves"]["pilot"] = {"config": "valve.yaml", "chamber": "none", "initial_duty": 0.5}
     rig = Rig(rig_from_mapping(data, base=DEFAULT_RIG.parent))
     assert rig.valve_names == ("left", "right", "pilot")
     run = run_lockstep(rig, lambda t, m: {"pilot": 0.7 if t >= 0.01 else 0.5, "left": 0.6}, 0.1)
-    st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
+    st = at_rest(rig.params.valve("pilot").params, 0.5)
     pressures = []
     for k in range(len(run.times)):
-        pressures.append(st.pressure)
+        pressures.append(float(st.sim.x[3]))
         if k == 10:          # the command answered at t = 0.01 s acts from the step after it
-            st.advance(1)
-            st.set_duty(0.7)
-            st.advance(9)
+            advance(st, 1)
+            put(st, "duty_cycle", 0.7)
+            advance(st, 9)
         else:
-            st.advance(10)
+            advance(st, 10)
     assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
     assert run.signal("pilot.pressure")[-1] > 110 * BAR
 
 
-def test_a_valve_with_a_fall_rate_limit_ramps_its_duty_as_the_single_valve_stepper(tmp_path):
+def test_a_valve_with_a_fall_rate_limit_ramps_its_duty_as_the_emulators_device(tmp_path):
     """The fall-rate limiter is every device's (Sec. 3.2): a rig valve whose YAML sets
     command.duty_fall_rate_limit falls at that rate, step by step, the same numbers bit for bit as
-    the emulator's stepper with the limiter; a rise passes at once."""
+    the emulator's device with the limiter; a rise passes at once."""
     import yaml
+    from offline_valve import advance, at_rest, put
 
     from pcv_sim.params import DEFAULT_CONFIG
     from pcv_sim.rig.params import DEFAULT_RIG, rig_from_mapping
-    from pcv_sim.simulation.stepper import RealTimeStepper
 
     limited = tmp_path / "limited.yaml"
     limited.write_text(DEFAULT_CONFIG.read_text().replace("duty_fall_rate_limit: null", "duty_fall_rate_limit: 2.0"))
@@ -196,13 +196,13 @@ def test_a_valve_with_a_fall_rate_limit_ramps_its_duty_as_the_single_valve_stepp
     run = run_lockstep(rig, lambda t, m: {"pilot": 0.9 if t < 0.02 else 0.3, "left": 0.6, "right": 0.55}, 0.3)
     pilot = run.duties[:, 2]
     assert pilot[19] == 0.9 and pilot[21] == 0.3        # the duty in force: the command
-    st = RealTimeStepper(rig.params.valve("pilot").params, duty=0.5)
+    st = at_rest(rig.params.valve("pilot").params, 0.5)
     pressures = []
     for k in range(len(run.times)):
-        pressures.append(st.pressure)
-        st.advance(1)
-        st.set_duty(0.9 if k < 20 else 0.3)
-        st.advance(9)
+        pressures.append(float(st.sim.x[3]))
+        advance(st, 1)
+        put(st, "duty_cycle", 0.9 if k < 20 else 0.3)
+        advance(st, 9)
     assert np.array_equal(run.signal("pilot.pressure"), np.array(pressures))
     # 0.9 -> 0.3 at 2 /s takes 0.3 s: the valve's model input is still falling at the end
     assert rig.input_values()["pilot.duty_cycle"] == pytest.approx(0.9 - 2.0 * (0.3 - 0.0201), abs=2e-4)
@@ -381,8 +381,10 @@ def test_feed_refuses_what_the_rig_would_refuse(rig):
         rig.feed(EXTERNAL_FORCE, [10, 20], [0.0, 2e6])
     with pytest.raises(CommandError, match="steps increasing"):
         rig.feed(EXTERNAL_FORCE, [20, 10], [0.0, 1.0])
-    with pytest.raises(CommandError, match=r"accepted is cylinder\.external_force"):
-        rig.feed("left.duty_cycle", [10], [0.5])
+    with pytest.raises(CommandError, match=r"accepted are cylinder\.external_force, left\.duty_cycle, "):
+        rig.feed("left.supply_pressure", [10], [2e7])     # a supply: a fault holds over it (submit it)
+    with pytest.raises(CommandError, match=r"duty cycle 1\.5 is out of range"):
+        rig.feed("left.duty_cycle", [10], [1.5])
     rig.feed(EXTERNAL_FORCE, [0, 30], [5.0, 7.0])           # a second feed of it replaces the first
     rig.feed(EXTERNAL_FORCE, [20], [6.0])
     rig.advance_to(40)

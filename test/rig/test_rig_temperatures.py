@@ -6,12 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from offline_valve import advance, at_rest, put
 
+from pcv_sim.device.valve import VALVE
 from pcv_sim.errors import CommandError
 from pcv_sim.params import load_params
 from pcv_sim.rig import Rig, load_rig
 from pcv_sim.rig.scenario import ScenarioError, run_scenario, scenario_from_mapping, schedule_timeline
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.units import kelvin
 
 REPO = Path(__file__).resolve().parents[2]
@@ -97,9 +98,9 @@ def test_coil_heating_under_a_varying_ambient_follows_its_heat_balance(probe_rig
 
 def test_oil_profile_in_the_rig_is_the_valve_fed_the_same_oil(probe_rig):
     """A cold start (oil -20 degC warming to 40 degC over 0.4 s, duty 30 -> 70 %) on the rig's
-    probe valve gives the pressure of the valve run alone (`RealTimeStepper`) with the same oil
+    probe valve gives the pressure of the valve run alone (the emulator's device) with the same oil
     temperature set at the same control instants: the rig feeds the input and the spool's pole
-    (the exponential step's rate) as the valve's own stepper does."""
+    (the exponential step's rate) as the emulator's device does."""
     path, params, valve = probe_rig
     rig = Rig(params)
     scenario = _scenario(path, [{"t": 0.0, "oil_temperature": "-20 degC"},
@@ -107,29 +108,29 @@ def test_oil_profile_in_the_rig_is_the_valve_fed_the_same_oil(probe_rig):
                                 {"t": 0.1, "oil_temperature": {"ramp": {"to": "40 degC", "duration": "0.4 s"}}},
                                 {"t": 0.3, "duty": {"probe": 0.7}}], 0.6)
     t, rows = _run(rig, scenario, ["probe.pressure", "probe.coil_temperature"], 10)
-    st = RealTimeStepper(valve, duty=0.0)
+    st = at_rest(valve, 0.0)
     period = round(params.timing.control_period / rig.dt)
-    p = [st.pressure]
+    p = [float(st.sim.x[3])]
     for step in range(1, round(0.6 / rig.dt) + 1):
         k = step - 1
         if k % period == 0:
             tk = k * rig.dt
             oil = -20.0 if tk < 0.1 - 1e-12 else -20.0 + 60.0 * min(1.0, (tk - 0.1) / 0.4)
-            st.set_input("oil_temperature", kelvin(oil))
+            st.set_temperature(VALVE, "oil_temperature", kelvin(oil))
             if k == round(0.05 / rig.dt):
-                st.set_duty(0.3)
+                put(st, "duty_cycle", 0.3)
             if k == round(0.3 / rig.dt):
-                st.set_duty(0.7)
-        st.advance(1)
+                put(st, "duty_cycle", 0.7)
+        advance(st, 1)
         if step % 10 == 0:
-            p.append(st.pressure)
+            p.append(float(st.sim.x[3]))
     alone = np.array(p)
     assert np.max(np.abs(rows[:, 0] - alone)) < 1e-3 * np.ptp(alone)
     cold_at = rows[np.searchsorted(t, 0.05 + 0.02), 0]     # 20 ms after the step, in oil at -20 degC
-    warm = RealTimeStepper(valve, duty=0.0)               # the same step in oil at the YAML's 40 degC
-    warm.set_duty(0.3)
-    warm.advance(round(0.02 / rig.dt))
-    assert abs(cold_at - warm.pressure) > 0.05 * warm.pressure    # the cold oil shows: a slower valve
+    warm = at_rest(valve, 0.0)               # the same step in oil at the YAML's 40 degC
+    put(warm, "duty_cycle", 0.3)
+    advance(warm, round(0.02 / rig.dt))
+    assert abs(cold_at - float(warm.sim.x[3])) > 0.05 * float(warm.sim.x[3])    # the cold oil shows: a slower valve
 
 
 def test_temperature_entries_are_checked(probe_rig):

@@ -237,3 +237,21 @@ def test_a_shorter_duration_drops_later_events_with_a_note(rig_scenario):
     assert result.notes == ["timeline[1] (clear at 1 s) is after the run's end (0.8 s): dropped"]
     assert "note: timeline[1]" in result.summary()
     assert [text for _, text in result.events] == ["fault coil_open on left"]
+
+
+def test_fault_values_take_units_and_are_told_in_them():
+    """A fault's values in the timeline with units (their kind from the faults' declarations, a
+    sensor fault's from its signal), stored in SI and told back in engineering units."""
+    s = scenario_from_mapping({"duration": 1.0, "timeline": [
+        {"t": 0.1, "fault": "supply_drop", "target": "left", "pressure": "80 bar"},
+        {"t": 0.2, "fault": "drift", "target": "left.pressure", "rate": "0.5 bar/s"},
+        {"t": 0.3, "fault": "delay", "target": "left.pressure", "delay": "20 ms"},
+        {"t": 0.4, "fault": "coil_short", "target": "left", "resistance_factor": "50 %"},
+        {"t": 0.5, "clear": "coil_short", "target": "left"}]})
+    assert [{k: v for k, v in e.items() if k not in ("t", "fault", "clear", "target")} for e in s.timeline] == [
+        {"pressure": pytest.approx(8e6)}, {"rate": pytest.approx(5e4)}, {"delay": pytest.approx(0.02)},
+        {"resistance_factor": pytest.approx(0.5)}, {}]
+    assert [text for _, text in s.events()] == [
+        "fault supply_drop on left: pressure 80 bar", "fault drift on left.pressure: rate 0.5 bar/s",
+        "fault delay on left.pressure: delay 20 ms", "fault coil_short on left: resistance_factor 50 %",
+        "clear coil_short on left"]

@@ -127,19 +127,20 @@ _SCRIPT = """
 import json, numpy as np
 from pcv_sim.jit import enabled
 from pcv_sim.params import default_params
-from pcv_sim.simulation.stepper import RealTimeStepper
 from pcv_sim.plant.mass_spring import mass_spring
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import compose
-from pcv_sim.simulation.valve import valve_system
+from pcv_sim.simulation.valve import valve_inputs, valve_integrator, valve_system
 out = {"jit": enabled()}
-for kind in ("simplified", "full"):
-    st = RealTimeStepper(default_params(), duty=0.5, kind=kind)
-    st.set_duty(0.7)
-    st.advance(300)
-    out[kind] = list(st.state) + [st.current]
 params = default_params()
+for kind in ("simplified", "full"):
+    valve = Simulator(valve_system(params, kind), params.simulation.time_step, valve_integrator(params, kind))
+    rest = rest_state(params, kind, 0.5, integrator=valve.integrator)
+    valve.x[:], valve.W[0] = rest.state, rest.current
+    valve.u[:] = valve_inputs(params, 0.7, 0.0, params.circuit.supply_pressure)
+    valve.advance(300)
+    out[kind] = valve.x.tolist() + [float(valve.outputs()[1])]
 plant = compose([valve_system(params, "simplified", "left"), valve_system(params, "simplified", "right"),
                  mass_spring("piston", area=1e-4, mass=1.0, stiffness=2e5, damping=2000.0)],
                 [("left.pressure", "piston.pressure_a"), ("right.pressure", "piston.pressure_b"),
