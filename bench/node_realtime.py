@@ -18,7 +18,14 @@ measures, after a 2 s warm-up:
   the previous one, minus the command's DDS source timestamp (this client's own publication,
   read back from the topic). 0.7 s lets the previous step ring down below 0.1 Pa per sample,
   while the first 0.1 ms step of a new command already moves the pressure by ~16 Pa;
-- CPU of the node process (utime + stime from /proc/<pid>/stat over the window / wall time);
+- CPU of the node process (utime + stime from /proc/<pid>/stat over the window / wall time), and
+  of it the loop's thread (the main thread) and the others (DDS, a recorder);
+- the loop thread's CPU time per wake (mean, largest) and its longest wake-to-wake gap with what
+  filled it (the node's /diagnostics: its work, a garbage collection, time off the CPU inside the
+  wake, a sleep the OS ended late; the wake's parts), and the diagnostics periods whose longest
+  gap exceeded 5 ms, by cause; how long the loop thread, runnable, waited for a CPU
+  (/proc/<pid>/task/<pid>/schedstat) and the machine's CPU pressure (/proc/pressure/cpu, "some"),
+  as shares of the window: what the OS made of the loop's time;
 - late steps, skipped steps, max model lag before/after a batch, from the node's /diagnostics
   (counts as deltas over the window, lags as the max of the per-period maxima).
 
@@ -36,6 +43,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -48,6 +56,84 @@ from pcv_sim.node.client import EmulatorClient
 def _cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _thread_cpu_seconds(pid: int) -> tuple[float, float]:
+    """(the main thread's, every other thread's) CPU seconds of process `pid`: the node's loop runs
+    in its main thread; DDS, the recorder and the rest-state worker in others."""
+    main = others = 0.0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:             # a thread that ended meanwhile
+            continue
+        seconds = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        if task.name == str(pid):
+            main += seconds
+        else:
+            others += seconds
+    return main, others
+
+
+def _waiting(pid: int) -> tuple[float, float]:
+    """(s the node's loop thread has waited for a CPU while runnable, s some task on the machine
+    has: `/proc/<pid>/task/<pid>/schedstat`, `/proc/pressure/cpu`), (nan, nan) where unreadable:
+    what the OS, not the loop, made of its time."""
+    try:
+        loop = int(Path(f"/proc/{pid}/task/{pid}/schedstat").read_text().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        loop = float("nan")
+    try:
+        some = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+        machine = int(some.rsplit("total=", 1)[1]) / 1e6
+    except (OSError, IndexError, ValueError):
+        machine = float("nan")
+    return loop, machine
+
+
+def wake_figures(diags: list[dict[str, str]]) -> dict[str, object]:
+    """From the node's /diagnostics of a window: the loop thread's CPU time per wake (the mean over
+    the window, the largest), the garbage collection in its wakes, its longest wake-to-wake gap
+    with its cause and parts, and how many diagnostics periods had their longest gap over 5 ms,
+    by cause."""
+    diags = [d for d in diags if d.get("period_max_wake_gap_ms")]
+    if not diags:
+        return {}
+    gaps = [(float(d["period_max_wake_gap_ms"]), d["period_max_wake_gap_cause"], d["period_max_wake_gap"])
+            for d in diags]
+    longest = max(gaps)
+    over: dict[str, int] = {}
+    for ms, cause, _ in gaps:
+        if ms > 5.0:
+            over[cause] = over.get(cause, 0) + 1
+    return {
+        "wake_cpu_mean_ms": float(np.mean([float(d["period_mean_wake_cpu_ms"]) for d in diags])),
+        "wake_cpu_max_ms": max(float(d["period_max_wake_cpu_ms"]) for d in diags),
+        "gc_ms": sum(float(d["period_gc_ms"]) for d in diags),
+        "longest_wake_gap_ms": longest[0], "longest_wake_gap_cause": longest[1], "longest_wake_gap": longest[2],
+        "periods_with_a_gap_over_5ms_by_cause": over, "periods": len(diags),
+        "per_period": [{"max_wake_cpu_ms": float(d["period_max_wake_cpu_ms"]), "longest_gap_ms": ms,
+                        "cause": cause, "parts": parts} for d, (ms, cause, parts) in zip(diags, gaps)],
+    }
+
+
+def wake_rows(res: dict[str, Any]) -> dict[str, str]:
+    """Table rows (figure -> value) of the thread CPU split and `wake_figures`."""
+    w = res.get("wakes") or {}
+    rows = {"node CPU: loop thread / other threads": f"{res['cpu_loop_thread_percent']:.1f} / "
+                                                     f"{res['cpu_other_threads_percent']:.1f} % of one core",
+            "loop thread runnable but waiting for a CPU / machine's CPU pressure (some)":
+                f"{res['loop_waiting_for_cpu_percent']:.1f} / {res['cpu_pressure_some_percent']:.1f} % of the window"}
+    if w:
+        over = w["periods_with_a_gap_over_5ms_by_cause"]
+        rows.update({
+            "loop CPU per wake, mean / largest": f"{w['wake_cpu_mean_ms']:.4f} / {w['wake_cpu_max_ms']:.3f} ms",
+            "garbage collection in the loop's wakes over the window": f"{w['gc_ms']:.3f} ms",
+            "longest wake-to-wake gap (cause: parts)": f"{w['longest_wake_gap_cause']}: {w['longest_wake_gap']}",
+            f"diagnostics periods (of {w['periods']}) whose longest gap > 5 ms, by cause":
+                ", ".join(f"{k} {v}" for k, v in over.items()) or "none",
+        })
+    return rows
 
 
 def _pct(values: np.ndarray, q: float) -> float:
@@ -87,7 +173,8 @@ def main() -> int:
             return 1
         client.spin_for(2.0)                                  # warm-up
         first_diag = client.wait_for_diagnostics(timeout=20)
-        cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
+        cpu0, threads0, wall0 = _cpu_seconds(proc.pid), _thread_cpu_seconds(proc.pid), time.monotonic()
+        waited0 = _waiting(proc.pid)
         n0, d0 = len(client.samples), len(client.diagnostics)
         rng = random.Random(1)
         duty = 0.3
@@ -101,7 +188,8 @@ def main() -> int:
                 client.send_duty(duty)
                 next_cmd = now + opts.spacing + rng.uniform(0.0, 0.05)
             client.executor.spin_once(timeout_sec=0.005)
-        cpu1, wall1 = _cpu_seconds(proc.pid), time.monotonic()
+        cpu1, threads1, wall1 = _cpu_seconds(proc.pid), _thread_cpu_seconds(proc.pid), time.monotonic()
+        waited1 = _waiting(proc.pid)
         last_diag = client.wait_for_diagnostics(timeout=20)
         client.spin_for(0.2)
     finally:
@@ -141,6 +229,11 @@ def main() -> int:
         "latency_ms": {"n": len(lat), "p50": _pct(lat, 50), "p99": _pct(lat, 99),
                        "max": float(lat.max()) if len(lat) else float("nan")},
         "cpu_percent": 100.0 * (cpu1 - cpu0) / (wall1 - wall0),
+        "cpu_loop_thread_percent": 100.0 * (threads1[0] - threads0[0]) / (wall1 - wall0),
+        "cpu_other_threads_percent": 100.0 * (threads1[1] - threads0[1]) / (wall1 - wall0),
+        "wakes": wake_figures(diags),
+        "loop_waiting_for_cpu_percent": 100.0 * (waited1[0] - waited0[0]) / (wall1 - wall0),
+        "cpu_pressure_some_percent": 100.0 * (waited1[1] - waited0[1]) / (wall1 - wall0),
         "late_steps": int(last_diag["late_steps"]) - int(first_diag["late_steps"]),
         "skipped_steps": int(last_diag["skipped_steps"]) - int(first_diag["skipped_steps"]),
         "steps": round((wall1 - wall0) * 1e4),
@@ -160,6 +253,8 @@ def main() -> int:
     print(f"| command -> first changed sample p50 / p99 / max (n = {la['n']}) | "
           f"{la['p50']:.3f} / {la['p99']:.3f} / {la['max']:.3f} ms |")
     print(f"| node CPU | {res['cpu_percent']:.1f} % of one core |")
+    for name, value in wake_rows(res).items():
+        print(f"| {name} | {value} |")
     print(f"| late steps / skipped steps (of ~{res['steps']}) | {res['late_steps']} / {res['skipped_steps']} |")
     print(f"| max model lag before / after a batch | {res['max_lag_before_batch_ms']:.3f} / "
           f"{res['max_lag_after_batch_ms']:.3f} ms |")

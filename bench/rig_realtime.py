@@ -13,7 +13,11 @@ square wave 0.3 <-> 0.7, period 1.4 s: what a controller at 100 Hz would send), 
 `pressure` taken best effort with a deep queue (polled with take_message, so the client stays
 cheap beside the node on 2 cores). After a 3 s warm-up, over the window:
 
-- CPU of the node's process (utime + stime from /proc over the window / wall time),
+- CPU of the node's process (utime + stime from /proc over the window / wall time), and of it
+  the loop's thread and the others,
+- the loop thread's CPU time per wake and its longest wake-to-wake gap with what filled it (the
+  node's /diagnostics), the loop thread's wait for a CPU and the machine's CPU pressure
+  (`bench/node_realtime.py` says how),
 - late steps and skipped steps (deltas of the node's /diagnostics counters), and the largest
   model lag behind wall time the node reported,
 - pressure samples received per valve, against the window's 1 ms grid.
@@ -33,7 +37,7 @@ from pathlib import Path
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from node_realtime import _cpu_seconds  # bench/ is on sys.path when run as bench/rig_realtime.py
+from node_realtime import _cpu_seconds, _thread_cpu_seconds, _waiting, wake_figures, wake_rows  # bench/ on sys.path
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Float64
@@ -96,11 +100,13 @@ def measure(kind: str, duration: float, domain: int) -> dict[str, object]:
         n0: dict[str, int] = {}
         d0 = 0
         cpu0 = 0.0
+        threads0 = waited0 = (0.0, 0.0)
         next_cmd = time.monotonic()
         while True:
             now = time.monotonic()
             if start is None and now >= warm_end and diags:
                 start, cpu0, n0, d0 = now, _cpu_seconds(proc.pid), dict(counts), len(diags)
+                threads0, waited0 = _thread_cpu_seconds(proc.pid), _waiting(proc.pid)
             if start is not None and now >= start + duration and len(diags) > d0:
                 break
             if now >= next_cmd:
@@ -113,10 +119,16 @@ def measure(kind: str, duration: float, domain: int) -> dict[str, object]:
             time.sleep(0.001)
         wall = time.monotonic() - start
         cpu = _cpu_seconds(proc.pid) - cpu0
+        threads1, waited1 = _thread_cpu_seconds(proc.pid), _waiting(proc.pid)
         first, last = diags[d0 - 1], diags[-1]
         lags = [float(d.get("period_max_lag_ms") or d.get("max_lag_ms") or "nan") for d in diags[d0:]]
         return {
             "kind": kind, "window_s": wall, "cpu_percent": 100.0 * cpu / wall,
+            "cpu_loop_thread_percent": 100.0 * (threads1[0] - threads0[0]) / wall,
+            "cpu_other_threads_percent": 100.0 * (threads1[1] - threads0[1]) / wall,
+            "wakes": wake_figures(diags[d0:]),
+            "loop_waiting_for_cpu_percent": 100.0 * (waited1[0] - waited0[0]) / wall,
+            "cpu_pressure_some_percent": 100.0 * (waited1[1] - waited0[1]) / wall,
             "late_steps": int(last["late_steps"]) - int(first["late_steps"]),
             "skipped_steps": int(last["skipped_steps"]) - int(first["skipped_steps"]),
             "steps": round(wall / 1e-4),
@@ -166,6 +178,9 @@ def main() -> int:
         f"({100.0 * x['late_steps'] / x['steps']:.2f} %)")
     row("skipped steps", lambda x: f"{x['skipped_steps']}")
     row("largest model lag reported, ms", lambda x: f"{x['max_lag_ms']:.2f}")
+    we, wr = wake_rows(e), wake_rows(r)
+    for name in dict.fromkeys([*we, *wr]):
+        print(f"| {name} | {we.get(name, '-')} | {wr.get(name, '-')} |")
     row("pressure samples received per valve (1 ms grid)", lambda x: ", ".join(
         f"{n}" for n in x["samples_per_valve"].values()) + f" of {x['samples_expected']}")
     return 0

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["ENV_VAR", "backend", "cache_root", "enabled", "jit", "kernel_sources", "source_digest"]
+__all__ = ["ENV_VAR", "backend", "cache_root", "compiled_for", "enabled", "jit", "kernel_sources", "source_digest"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -146,3 +146,20 @@ def jit(fn: F | None = None, *, inline: bool = False, nrt: bool = True) -> Any:
     options: dict[str, Any] = {} if nrt else {"_nrt": False}   # numba's flag for it (no public name)
     return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
                        inline="always" if inline else "never", **options)(fn)
+
+
+def compiled_for(fn: F, *example: Any) -> F:
+    """`fn`'s machine code for the argument types of `example` (compiled now, or loaded from the
+    cache), called without numba's dispatch: the dispatcher types every argument and picks the
+    compiled version on each call (~0.25 us for 14 arguments, as much as half a step of the rig).
+    For a call made every control period with arguments of always those types. Nothing is checked
+    then: an array of another dtype, dimension or layout is read as if it were of the example's
+    (wrong numbers, not an error), so the caller binds its arrays once and passes only arrays it
+    made of those types. Without numba: `fn` itself."""
+    dispatcher: Any = fn
+    if _NUMBA is None or not hasattr(dispatcher, "get_overload"):
+        return fn
+    types = tuple(dispatcher.typeof_pyval(a) for a in example)
+    dispatcher.compile(types)
+    entry: F = dispatcher.get_overload(types)
+    return entry

@@ -427,7 +427,12 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         (the lockstep's hot path: a call costs about as much as five steps). Returns the sample at
         `step` (in `out` when given: a float64 array of the signals' length); the device is then at
         `step + after`, or at `step` if an input fell due on the way (the caller checks `steps`).
-        ModelFault (and `fault` set) if the state runs away or the sample is no valve's."""
+        ModelFault (and `fault` set) if the state runs away or the sample is no valve's; ValueError
+        for an `out` of another type, shape or layout (the compiled call would misread it)."""
+        if out is not None and (out.dtype != np.float64 or out.shape != (len(self.signal_outputs),)
+                                or not out.flags.c_contiguous):
+            raise ValueError(f"out: accepted is a C-contiguous float64 array of the {len(self.signal_outputs)} "
+                             f"signals; got {out.dtype} {out.shape}{'' if out.flags.c_contiguous else ', strided'}")
         now = self.sim.steps
         other = self._due_step(feed=False)
         if other <= now or self.planned_until() <= now:
@@ -476,9 +481,10 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         return out
 
     def sample_planned(self, at: int, out: np.ndarray, after: int = 0, taken: float | None = None) -> None:
-        """The steps to `at`, the sample at `at` into `out` (a float64 array of the signals'
-        length), then `after` more steps with the same inputs, in one compiled call (the lockstep's
-        hot path, and `advance_sample`'s); a fed input due at `at` goes in before the sample. The
+        """The steps to `at`, the sample at `at` into `out` (a C-contiguous float64 array of the
+        signals' length: not checked, the compiled call takes it as it is, `Simulator.sample_entry`),
+        then `after` more steps with the same inputs, in one compiled call (the lockstep's hot path,
+        and `advance_sample`'s); a fed input due at `at` goes in before the sample. The
         caller has made sure nothing else falls due before `at + after` is passed
         (`planned_until(at)`, the watchdogs' `next_due`). `taken`: a batch made that call over
         this device's arrays (`pcv_sim.rig.batch`: the sample in `out`) and returned `taken`; here

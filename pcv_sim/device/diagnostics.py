@@ -250,6 +250,15 @@ class DiagnosticsBuilder:
             "period_max_lag_after_step_ms": f"{lag_after * 1e3:.3f}",
             "wakes": sched.wakes,
         })
+        gap, mean_cpu, collecting = sched.take_period_wakes()
+        values.update({
+            "period_mean_wake_cpu_ms": f"{mean_cpu * 1e3:.4f}",
+            "period_gc_ms": f"{collecting * 1e3:.3f}",
+            "max_wake_gap_ms": f"{sched.max_wake_gap * 1e3:.3f}",
+            "period_max_wake_gap_ms": f"{gap.gap * 1e3:.3f}" if gap is not None else "",
+            "period_max_wake_gap_cause": gap.cause if gap is not None else "",
+            "period_max_wake_gap": gap.describe() if gap is not None else "",
+        })
         return self._status("timing", WARN if problems else OK, problems, "on time", values)
 
     def _inputs(self, dev: Device, new: dict[str, int], named: list[str]) -> Status:

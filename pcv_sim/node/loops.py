@@ -24,12 +24,13 @@ from pcv_sim.io.recorder import SWITCH_INTERVAL
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.inputs import drain
 from pcv_sim.node.polling import Waiter
-from pcv_sim.node.tuning import freeze_heap, set_realtime_priority, tighten_timer_slack
+from pcv_sim.node.tuning import GcTimer, freeze_heap, set_realtime_priority, tighten_timer_slack
 from pcv_sim.simulation.clock import (
     NO_CLOCK_YET,
     ExternalClock,
     RealTimeSchedule,
     SimulatedSchedule,
+    WakeRecord,
 )
 
 __all__ = ["CLOCK_DISCOVERY", "CLOCK_QOS", "LOCKSTEP_FULL_POLL", "LOCKSTEP_RESEND", "StopFlag", "TimeModeLoops"]
@@ -238,31 +239,42 @@ class TimeModeLoops(Node):
         self._diag.restart(mono(), dev.steps)
         next_diag = mono() + s.diagnostics_period
         cpu = time.thread_time
-        while not stop.requested:
-            now = mono()
-            c0 = cpu()
-            self._drain()
-            if not self._halted():
-                plan = sched.plan(now)
-                if plan.skipped:
-                    self._skip(plan.skipped)
-                    st = self.settings
-                    bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
-                             else "one wake period, overrun: skip")
-                    self.get_logger().warning(
-                        f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
-                        f"skipped {plan.skipped} steps, the model state was held over them",
-                        throttle_duration_sec=1.0)
-                if plan.steps:
-                    self._compute(plan.steps)
-                sched.finish()
-            sched.note_wake_cpu(cpu() - c0)
-            if now >= next_diag:
-                self._publish_diagnostics(now)
-                next_diag = max(next_diag + self.settings.diagnostics_period, now)
-            delay = sched.next_wake() - mono()
-            if delay > 0.0:
-                time.sleep(delay)
+        # Each wake's parts, CPU time and collections (`WakeRecord`): the diagnostics name what
+        # filled the longest gap between two wakes.
+        with GcTimer(mono) as collected:
+            while not stop.requested:
+                now = mono()
+                c0 = cpu()
+                gc0 = collected.total
+                self._drain()
+                drained = mono()
+                steps = 0
+                if not self._halted():
+                    plan = sched.plan(now)
+                    if plan.skipped:
+                        self._skip(plan.skipped)
+                        st = self.settings
+                        bound = (f"max_catchup {st.max_catchup * 1e3:g} ms" if st.overrun == "catch_up"
+                                 else "one wake period, overrun: skip")
+                        self.get_logger().warning(
+                            f"{plan.lag * 1e3:.1f} ms behind wall time (more than {bound}): "
+                            f"skipped {plan.skipped} steps, the model state was held over them",
+                            throttle_duration_sec=1.0)
+                    steps = plan.steps
+                    if steps:
+                        self._compute(steps)
+                    sched.finish()
+                computed = mono()
+                sched.note_wake_cpu(cpu() - c0)
+                if now >= next_diag:
+                    self._publish_diagnostics(now)
+                    next_diag = max(next_diag + self.settings.diagnostics_period, now)
+                end = mono()
+                delay = sched.next_wake(end) - end
+                sched.note_wake(WakeRecord(now, drained - now, computed - drained, end - computed, end, cpu() - c0,
+                                           collected.total - gc0, steps, delay))
+                if delay > 0.0:
+                    time.sleep(delay)
 
     def _retime(self, settings: Any) -> None:
         """Changed settings into the running loop's schedule (late threshold, catch-up bound, pace)."""

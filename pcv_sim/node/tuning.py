@@ -7,9 +7,12 @@ import contextlib
 import ctypes
 import gc
 import os
+import time
+from collections.abc import Callable
+from types import TracebackType
 from typing import Any
 
-__all__ = ["freeze_heap", "set_realtime_priority", "tighten_timer_slack"]
+__all__ = ["GcTimer", "freeze_heap", "set_realtime_priority", "tighten_timer_slack"]
 
 
 def tighten_timer_slack() -> None:
@@ -36,3 +39,29 @@ def set_realtime_priority(priority: int, logger: Any) -> None:
                        "normal scheduling (grant an rtprio limit or run as root)")
     else:
         logger.info(f"loop thread under SCHED_FIFO, priority {priority}")
+
+
+class GcTimer:
+    """The wall time the garbage collector took (`gc.callbacks`, while entered as a context): a
+    loop reads `total` before and after a wake to see a collection's share of it."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.clock = clock
+        self.total = 0.0                # s, every collection since entered
+        self.collections = [0, 0, 0]    # per generation
+        self._t0 = 0.0
+
+    def __call__(self, phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            self._t0 = self.clock()
+        else:
+            self.total += self.clock() - self._t0
+            self.collections[info["generation"]] += 1
+
+    def __enter__(self) -> GcTimer:
+        gc.callbacks.append(self)
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, err: BaseException | None, tb: TracebackType | None) -> None:
+        if self in gc.callbacks:
+            gc.callbacks.remove(self)

@@ -126,13 +126,18 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
     batch took period k for it (its true sample in `rows[k]`, its state stepped one period and the
     step after the sample, in the arrays the batch holds and has bound `rig.sim` to), or None:
     it takes period k alone, on its own arrays. `rows`: the (n + 1, signals) array the true
-    samples go into (a new one by default)."""
+    samples go into (a new one by default; float64, each row contiguous)."""
     T = rig.params.timing.control_period
     per = rig.params.steps_per_period
     n = round(duration / T)
     k0 = rig.steps
     names = rig.signals
     valves = rig.valve_names
+    if rows is not None and (rows.dtype != np.float64 or rows.shape != (n + 1, len(names))
+                             or rows.strides[1] != rows.itemsize):
+        # (each row goes to the rig's compiled sampling as it is: `Rig.sample_planned`)
+        raise ValueError(f"rows: accepted is a ({n + 1}, {len(names)}) float64 array of contiguous rows; got "
+                         f"{rows.dtype} {rows.shape} strides {rows.strides}")
     true = np.empty((n + 1, len(names))) if rows is None else rows
     measured: dict[int, np.ndarray] = {}    # the rows a sensor fault made differ from the true ones
     duty_rows: list[Any] = []

@@ -26,6 +26,12 @@ Real time (`RealTimeSchedule`)
     (`Plan.skipped`), model time jumps to wall time, and the skip is counted. Less than that is
     caught up in one batch (a few microseconds per step).
 
+    What the loop did in each wake (`WakeRecord`: its parts, its CPU time, the garbage collector's
+    share, the sleep it asked for after it) goes to `note_wake`; the largest wake-to-wake gap of
+    each diagnostics period is kept with the wake before it and the sleep between (`WakeGap`:
+    whether the loop's own work, a garbage collection, time off the CPU inside the wake, or a
+    wake-up the OS made late filled it).
+
 Simulated time (`SimulatedSchedule`)
     Model time is decoupled from wall time: chunks of steps run back to back, paced at a
     real-time factor (chunk k may start once wall time reaches anchor + model time / factor), or
@@ -38,6 +44,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 __all__ = [
     "EXTERNAL_MAX_JUMP",
@@ -48,6 +55,8 @@ __all__ = [
     "Plan",
     "RealTimeSchedule",
     "SimulatedSchedule",
+    "WakeGap",
+    "WakeRecord",
     "steps_per",
 ]
 
@@ -73,6 +82,59 @@ class Plan:
     steps: int          # steps to compute now
     late: int           # of `steps`, how many start more than late_threshold after their scheduled wake
     lag: float          # s, now - t0 - model time, before this batch
+
+
+class WakeRecord(NamedTuple):
+    """One wake of a real-time loop (s of its monotonic clock; the loop thread's CPU time)."""
+
+    start: float        # woken (the end of the sleep before)
+    drain: float        # spent taking the inputs
+    compute: float      # spent on the model steps due and their samples (published, recorded)
+    diagnostics: float  # spent publishing diagnostics (0 in most wakes)
+    end: float          # going to sleep
+    cpu: float          # the loop thread's CPU time in the wake (garbage collection included)
+    gc: float           # garbage collection inside the wake (wall time)
+    steps: int          # model steps computed
+    asked: float        # the sleep asked for after it (<= 0: none)
+
+
+#: What filled a wake-to-wake gap most (`WakeGap.cause`).
+GAP_CAUSES = ("work", "gc", "off_cpu", "late_wake")
+
+
+@dataclass(frozen=True)
+class WakeGap:
+    """A wake-to-wake gap: the wake before it (`wake`) and the next wake's start."""
+
+    gap: float          # s, next start - wake.start
+    wake: WakeRecord
+    next_start: float
+
+    @property
+    def parts(self) -> dict[str, float]:
+        """The gap in four shares (s): the loop's own work (CPU time of the wake, collections
+        excepted), garbage collection, time off the CPU inside the wake (another process or
+        thread ran: the machine's load, the interpreter lock), and the sleep beyond what was asked
+        (the OS woke the loop late) or the time until the grid's next wake when none was asked."""
+        w = self.wake
+        busy = w.end - w.start
+        slept = self.next_start - w.end
+        return {"work": max(w.cpu - w.gc, 0.0), "gc": w.gc, "off_cpu": max(busy - w.cpu, 0.0),
+                "late_wake": max(slept - max(w.asked, 0.0), 0.0)}
+
+    @property
+    def cause(self) -> str:
+        """The largest of `parts` (one of GAP_CAUSES)."""
+        parts = self.parts
+        return max(GAP_CAUSES, key=parts.__getitem__)
+
+    def describe(self) -> str:
+        w = self.wake
+        ms = 1e3
+        return (f"{self.gap * ms:.2f} ms: a wake of {(w.end - w.start) * ms:.2f} ms (CPU {w.cpu * ms:.2f} ms; inputs "
+                f"{w.drain * ms:.2f}, {w.steps} steps and their samples {w.compute * ms:.2f}, diagnostics "
+                f"{w.diagnostics * ms:.2f}, garbage collection {w.gc * ms:.2f} ms), then asleep "
+                f"{(self.next_start - w.end) * ms:.2f} ms ({max(w.asked, 0.0) * ms:.2f} asked)")
 
 
 class RealTimeSchedule:
@@ -109,6 +171,12 @@ class RealTimeSchedule:
         self.period_max_lag_after = 0.0
         self.max_wake_cpu = 0.0         # s, the most CPU time the loop thread spent in one wake
         self.period_max_wake_cpu = 0.0  # the same since the last `take_period_wake_cpu()`
+        self.max_wake_gap = 0.0         # s, the longest from one wake's start to the next's (`note_wake`)
+        self.period_gap: WakeGap | None = None      # the longest since the last `take_period_wakes()`
+        self.period_wake_cpu = 0.0      # s, the loop thread's CPU time in the wakes since then
+        self.period_wakes = 0           # wakes since then (`note_wake`)
+        self.period_gc = 0.0            # s, garbage collection in them
+        self._last_wake: WakeRecord | None = None
 
     @property
     def started(self) -> bool:
@@ -174,6 +242,28 @@ class RealTimeSchedule:
     def take_period_wake_cpu(self) -> float:
         """The largest CPU time of one wake since the last call (diagnostics); starts a new period."""
         out, self.period_max_wake_cpu = self.period_max_wake_cpu, 0.0
+        return out
+
+    def note_wake(self, wake: WakeRecord) -> None:
+        """Record a wake (after it, before the sleep it asked for): the gap from the previous wake's
+        start to this one's, kept with that wake when it is the period's longest."""
+        last = self._last_wake
+        if last is not None:
+            gap = wake.start - last.start
+            self.max_wake_gap = max(self.max_wake_gap, gap)
+            if self.period_gap is None or gap > self.period_gap.gap:
+                self.period_gap = WakeGap(gap, last, wake.start)
+        self._last_wake = wake
+        self.period_wake_cpu += wake.cpu
+        self.period_wakes += 1
+        self.period_gc += wake.gc
+
+    def take_period_wakes(self) -> tuple[WakeGap | None, float, float]:
+        """(the longest wake-to-wake gap, the mean CPU time of a wake, the garbage collection in
+        the wakes (s)) since the last call (diagnostics); starts a new period."""
+        out = (self.period_gap, self.period_wake_cpu / self.period_wakes if self.period_wakes else 0.0,
+               self.period_gc)
+        self.period_gap, self.period_wake_cpu, self.period_wakes, self.period_gc = None, 0.0, 0, 0.0
         return out
 
     def take_period_max(self) -> tuple[float, float]:

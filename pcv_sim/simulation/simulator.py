@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
+from pcv_sim.jit import compiled_for
 from pcv_sim.simulation.compile import INTEGRATORS, arena_layout, compiled_module, exponential_weights, pack_tables
 from pcv_sim.simulation.system import Composite, System, compose
 
@@ -43,6 +44,7 @@ class Simulator:
         self._advance = getattr(module, f"sim_advance_{integrator}")
         self._run = getattr(module, f"sim_run_{integrator}")
         self._advance_sample = getattr(module, f"sim_advance_sample_{integrator}")
+        self._sample_entry: Callable[..., float] | None = None       # `sample_entry`, made on first use
         self._outputs = module.sim_outputs
         self._derivs = module.derivs
         self._project = module.project
@@ -164,9 +166,18 @@ class Simulator:
         """`advance_sample`'s compiled function and its first three arguments (the arena, the tables
         and their layout), for a loop that calls it every few steps and cannot afford the method's
         Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row, lo, hi)` with
-        n, after >= 0 and the argument types `advance_sample` passes; the caller then adds
-        n + after to `steps`. The arrays stay the simulator's for its life (`copy` makes new ones)."""
-        return self._advance_sample, (self._S, self._Fa, self._FL)
+        n, after >= 0; the caller then adds n + after to `steps`. It is the machine code for exactly
+        the argument types `advance_sample` passes (`jit.compiled_for`: no dispatch, nothing
+        checked): ints, a float, int64 `select` and `feed_i`, float64 `lo`, `hi`, a C-contiguous
+        float64 matrix `feed_v` and vector `out` of `select`'s length. The arrays stay the
+        simulator's for its life (`copy` makes new ones)."""
+        entry = self._sample_entry
+        if entry is None:
+            feed_i, feed_v, row = _NO_FEED
+            entry = self._sample_entry = compiled_for(
+                self._advance_sample, self._S, self._Fa, self._FL, 0, 0, self.dt, feed_i, np.empty(0), 0, feed_i,
+                feed_v, row, *_NO_BOUNDS)
+        return entry, (self._S, self._Fa, self._FL)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:
         """Run to the last of `sample_steps` (absolute, sorted, >= the present step) in compiled code:

@@ -201,3 +201,25 @@ def test_a_rig_of_named_valves_gets_the_same_four_concerns_and_one_status_per_va
     assert st['right'].level == OK and st['model'].level == OK and st['timing'].level == OK
     dev.set_fault('injected')
     assert statuses(3.0)['model'].level == ERROR
+
+
+def test_timing_names_the_period_s_longest_wake_gap_and_what_filled_it():
+    """The loop's wakes (`RealTimeSchedule.note_wake`): the period's longest wake-to-wake gap, its
+    cause and parts, and the mean CPU time of a wake; a period without wakes leaves them empty."""
+    from pcv_sim.simulation.clock import WakeRecord
+
+    rig = Rig()
+    sched = rig.schedule
+    for k in range(5):
+        start = k * 1e-3 + (0.075 if k == 4 else 0.0)          # the fourth wake: 75 ms off the CPU
+        busy = 0.076 if k == 3 else 2e-4
+        sched.note_wake(WakeRecord(start, 1e-5, busy - 2e-5, 1e-5, start + busy, 1.5e-4, 2e-5 if k == 1 else 0.0, 10,
+                                   0.0))
+    timing = rig.statuses()['timing'].values
+    assert timing['period_max_wake_gap_ms'] == '76.000' and timing['max_wake_gap_ms'] == '76.000'
+    assert timing['period_max_wake_gap_cause'] == 'off_cpu' and timing['period_mean_wake_cpu_ms'] == '0.1500'
+    assert timing['period_gc_ms'] == '0.020'
+    assert timing['period_max_wake_gap'].startswith('76.00 ms: a wake of 76.00 ms (CPU 0.15 ms; ')
+    again = rig.statuses()['timing'].values
+    assert (again['period_max_wake_gap_ms'], again['period_max_wake_gap_cause'], again['max_wake_gap_ms'],
+            again['period_gc_ms']) == ('', '', '76.000', '0.000')

@@ -7,6 +7,7 @@ import pytest
 
 from pcv_sim.errors import CommandError
 from pcv_sim.rig import ControllerError, Rig, run_lockstep
+from pcv_sim.rig.lockstep import lockstep_periods
 from pcv_sim.simulation.reference import VALVE_ATOL, integrate_reference
 
 BAR = 1e5
@@ -231,6 +232,20 @@ def test_reset_keeping_time_is_a_fresh_start_shifted_in_time_and_inputs_reach_th
     rig.on_input = None
     again = run_lockstep(rig, lambda t, m: step_controller(t - 0.06 + 5e-4, m), 0.05)
     assert np.array_equal(again.true, fresh.true)          # the same run, 60 ms later
+
+
+def test_an_array_the_compiled_sampling_would_misread_is_refused(rig):
+    """The planned stretch's compiled call takes the sample's array as it is (no dispatch): a
+    strided, integer or short one is refused before any step, with what is accepted."""
+    n = len(rig.signals)
+    for out in (np.empty(2 * n)[::2], np.empty(n, dtype=np.int64), np.empty(n - 1)):
+        with pytest.raises(ValueError, match="accepted is a C-contiguous float64 array"):
+            rig.advance_sample(10, 1, out)
+    with pytest.raises(ValueError, match=r"rows: accepted is a \(11, \d+\) float64 array of contiguous rows"):
+        next(lockstep_periods(rig, None, 0.01, rows=np.empty((n, 11)).T, batched=True))
+    assert rig.steps == 0
+    y = np.empty(n)
+    assert rig.advance_sample(10, 1, y) is y and rig.steps == 11
 
 
 def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):

@@ -199,3 +199,45 @@ def test_external_clock_is_followed_reanchored_when_it_goes_back_and_held_over_a
     plan = ext.plan(2)
     assert plan.skip == 20_000 and "jumped 2.000 s ahead" in ext.jumped(plan.skip)
     assert ext.plan(2 + plan.skip) == ClockPlan(run=10_000)
+
+
+def test_the_longest_wake_gap_is_kept_with_what_filled_it():
+    """`note_wake`: the gap from one wake's start to the next's, with the wake before it; its
+    cause is the largest share: the loop's work, a collection, time off the CPU inside the wake,
+    or a sleep the OS ended late."""
+    from pcv_sim.simulation.clock import WakeRecord
+
+    def gap_after(busy, cpu, gc=0.0, late=0.0):
+        s, _ = schedule()
+        asked = max(P - busy, 0.0)
+        s.note_wake(WakeRecord(0.0, 1e-5, busy - 2e-5, 1e-5, busy, cpu, gc, 10, asked))
+        s.note_wake(WakeRecord(busy + asked + late, 1e-5, 1e-4, 0.0, busy + asked + late + 1e-4, 1e-4, 0.0, 10,
+                               P - 1e-4))
+        gap, _, collecting = s.take_period_wakes()
+        assert gap is not None and s.max_wake_gap == gap.gap and collecting == gc
+        return round(gap.gap * 1e3, 1), gap.cause
+
+    assert gap_after(5e-3, 5e-3) == (5.0, "work")              # the loop's own work ran long
+    assert gap_after(2.2e-2, 2e-3) == (22.0, "off_cpu")        # 20 ms of it another process ran
+    assert gap_after(8.3e-3, 8.2e-3, gc=8e-3) == (8.3, "gc")   # a collection
+    assert gap_after(2e-4, 2e-4, late=3e-2) == (31.0, "late_wake")     # asleep 30 ms beyond what was asked
+
+
+def test_a_period_of_wakes_gives_its_longest_gap_and_mean_cpu_then_starts_anew():
+    from pcv_sim.simulation.clock import WakeRecord
+
+    s, _ = schedule()
+    for k, cpu in enumerate((1e-4, 3e-4, 2e-4)):
+        start = k * P + (4e-3 if k == 2 else 0.0)
+        s.note_wake(WakeRecord(start, 0.0, cpu, 0.0, start + cpu, cpu, 0.0, 10, P - cpu))
+    gap, mean, _ = s.take_period_wakes()
+    assert gap is not None and gap.gap == pytest.approx(5e-3) and gap.wake.cpu == 3e-4
+    assert gap.cause == "late_wake" and mean == pytest.approx(2e-4)
+    assert gap.describe().startswith("5.00 ms: a wake of 0.30 ms (CPU 0.30 ms; inputs 0.00, 10 steps and their "
+                                     "samples 0.30, diagnostics 0.00, garbage collection 0.00 ms), then asleep "
+                                     "4.70 ms (0.70 asked)")
+    assert s.take_period_wakes() == (None, 0.0, 0.0)
+    s.note_wake(WakeRecord(3 * P + 4e-3, 0.0, 1e-4, 0.0, 3 * P + 4.1e-3, 1e-4, 0.0, 10, 9e-4))
+    gap, mean, _ = s.take_period_wakes()    # the gap from the last wake of the period before
+    assert gap is not None and gap.gap == pytest.approx(P) and mean == pytest.approx(1e-4)
+    assert s.max_wake_gap == pytest.approx(5e-3)
