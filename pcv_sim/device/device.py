@@ -590,17 +590,11 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         (checked first: a row no valve can show is the fault, at its step)."""
         sim = self.sim
         first = sim.steps + 1
-        try:
-            rows = sim.run(_NO_STEPS, np.empty((0, len(sim.u))), np.arange(first, last + 1, dtype=np.int64))
-        except MODEL_FAILURES as err:
-            self._fail(f"model step failed ({type(err).__name__}: {err})")
+        targets = np.arange(first, last + 1, dtype=np.int64)
+        rows = self._run_rows(_NO_STEPS, np.empty((0, len(sim.u))), targets)
         if not self._all_outputs:
             rows = rows[:, self.signal_outputs]
-        bad = self._rows_problem(rows)
-        if bad is not None:
-            k, problem = bad
-            sim.steps = first + k
-            self._fail(problem)
+        self._check_rows(rows, targets)
         self.recorder.record_block(self.stamp_ns(first), self.dt_ns, rows)  # type: ignore[union-attr]
 
     def _idle_to(self, step: int) -> None:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from pcv_sim.device.composition import Composition
-from pcv_sim.device.spec import MODEL_FAILURES, ModelFault, Sample
+from pcv_sim.device.spec import ModelFault, Sample
 from pcv_sim.errors import CommandError
 
 __all__ = ["FedInputs"]
@@ -27,7 +27,8 @@ class FedInputs(Composition):
     # What the device's other parts offer (`Device`, `Outputs`): the offline run calls them.
     _due: Callable[[], None]
     _due_step: Callable[..., int]
-    _rows_problem: Callable[[np.ndarray], tuple[int, str] | None]
+    _run_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    _check_rows: Callable[[np.ndarray, np.ndarray], None]
 
     def feed(self, name: str, steps: Sequence[int] | np.ndarray, values: Sequence[float] | np.ndarray) -> None:
         """The input `name` (a plant's input, a valve's load flow on its own volume, or the duty of
@@ -142,16 +143,11 @@ class FedInputs(Composition):
             targets = want[j:end] if stop > last else np.append(want[j:end], stop)
             r0 = self._feed_next
             r1 = bisect_left(self._feed_steps, stop if stop <= last else last + 1, lo=r0)
-            try:
-                rows = sim.run(np.asarray(self._feed_steps[r0:r1], dtype=np.int64), self._feed_rows(r0, r1), targets)
-            except MODEL_FAILURES as err:
-                self._fail(f"model step failed ({type(err).__name__}: {err})")
+            rows = self._run_rows(np.asarray(self._feed_steps[r0:r1], dtype=np.int64), self._feed_rows(r0, r1), targets)
             self._feed_taken(r0, r1)
             got = rows[:end - j, self.signal_outputs]
-            bad = self._rows_problem(got) if end > j else None
-            if bad is not None:
-                sim.steps = int(targets[bad[0]])
-                self._fail(bad[1])
+            if end > j:
+                self._check_rows(got, targets)
             self._check_finite()
             out[j:end] = got
             j = end

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcv_sim.device.composition import Composition
-from pcv_sim.device.spec import Sample
+from pcv_sim.device.spec import MODEL_FAILURES, Sample
 
 __all__ = ["Outputs"]
 
@@ -105,3 +105,19 @@ class Outputs(Composition):
             k = int(np.argmin(ok))
             return k, lim.problem(float(p[k]), float(i[k])) or "the model state ran away (non-finite)"
         return None
+
+    def _run_rows(self, steps: np.ndarray, inputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """`Simulator.run`: one compiled call to `targets` with these input changes (every output
+        at each target); a model that fails in it is the fault (ModelFault)."""
+        try:
+            return self.sim.run(steps, inputs, targets)
+        except MODEL_FAILURES as err:
+            self._fail(f"model step failed ({type(err).__name__}: {err})")
+
+    def _check_rows(self, rows: np.ndarray, targets: np.ndarray) -> None:
+        """Rows of signals about to leave the device, one per step of `targets`: the first no valve
+        can show is the fault (ModelFault), with model time at its step."""
+        bad = self._rows_problem(rows)
+        if bad is not None:
+            self.sim.steps = int(targets[bad[0]])
+            self._fail(bad[1])
