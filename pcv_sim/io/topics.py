@@ -68,6 +68,7 @@ __all__ = [
     "cylinder_topic",
     "input_topics",
     "output_topics",
+    "qos_of",
     "role_of",
     "topic_of",
     "valve_topic",
@@ -236,6 +237,21 @@ SCENARIO_INTERFACE: Final = (
     Endpoint("out", SETPOINT, FLOAT64, "m", COMMAND_QOS),
     Endpoint("in", CONTROLLER_FLAGS, "diagnostic_msgs/msg/DiagnosticArray", "", FLAGS_QOS),
 )
+#: The QoS of every relative topic the registry lists (a valve's under `<valve>/` by its role).
+_QOS: Final = {e.name: e.qos for e in (*EMULATOR_INTERFACE, *OPTION_INTERFACE, *RIG_INTERFACE, *SCENARIO_INTERFACE)
+               if e.qos is not None}
+
+
+def qos_of(topic: str, default: Qos | None = None) -> Qos:
+    """The QoS the nodes offer on a relative topic (``left/pressure``: the role's, ``pressure``), the one
+    the node's endpoints are made with and a bag's metadata states; `default` for a topic the registry
+    does not list (ValueError without one)."""
+    qos = _QOS.get(topic, _QOS.get(topic.rpartition("/")[2]))
+    if qos is not None:
+        return qos
+    if default is None:
+        raise ValueError(f"topic {topic!r} is not in the interface registry (pcv_sim.io.topics)")
+    return default
 
 
 # --- a device's interface as topics ----------------------------------------------------------
