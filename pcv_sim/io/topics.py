@@ -205,9 +205,11 @@ EMULATOR_INTERFACE: Final = (
     Endpoint("out", CURRENT, FLOAT64, ROLE_UNITS[CURRENT], SENSOR_DATA_QOS),
     Endpoint("out", SPOOL_POSITION, FLOAT64, ROLE_UNITS[SPOOL_POSITION], SENSOR_DATA_QOS),
     Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
-    Endpoint("out", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
+    Endpoint("out/in", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
     Endpoint("in", FAULTS, "std_msgs/msg/String", "", COMMAND_QOS),      # faults.enabled only
+    Endpoint("out", LOCKSTEP_SAMPLE, "sensor_msgs/msg/JointState", "", COMMAND_QOS),   # simulated lockstep only
+    Endpoint("in", LOCKSTEP_COMMAND, "sensor_msgs/msg/JointState", "1", COMMAND_QOS),
 )
 #: The valve options' topics (docs/model.md R33-R35), each present when its option is on. The
 #: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the emulator serves them
