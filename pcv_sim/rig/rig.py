@@ -31,6 +31,7 @@ from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import CommandError
+from pcv_sim.io.topics import LOAD_FLOW, OUTPUT_ROLES
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
@@ -51,7 +52,7 @@ __all__ = [
     "signal_names",
 ]
 
-VALVE_SIGNALS = ("pressure", "current", "spool_position")
+VALVE_SIGNALS = OUTPUT_ROLES
 CYLINDER_SIGNALS = ("position", "velocity", "effort")
 
 
@@ -155,7 +156,7 @@ def _plant_spec(params: RigParams) -> PlantSpec:
         c = v.chamber
         if c not in ("a", "b"):
             continue                    # on its own load volume: load_flow and load_volume stay inputs
-        wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
+        wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.{LOAD_FLOW}"),
                   (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
     return PlantSpec(cylinder_system(params.cylinder, CYLINDER), tuple(wires), (params.cylinder.initial_position, 0.0),
                      {EXTERNAL_FORCE: check_external_force}, tuple(f"{CYLINDER}.{s}" for s in CYLINDER_SIGNALS),
