@@ -19,7 +19,7 @@ from pcv_sim.calibration.fit import first_order
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.simulate import InputTimeline, run_model
-from pcv_sim.units import M3S_PER_LPM, lpm
+from pcv_sim.units import M3S_PER_LPM
 
 __all__ = ["RIG_HEADER", "write_rig_csv"]
 
@@ -81,7 +81,7 @@ def write_rig_csv(
         cols.append(y * scale)
     header = RIG_HEADER
     if load_flows_lpm is not None:
-        cols.append(lpm(flows[segment]))
+        cols.append(flows[segment] / M3S_PER_LPM)
         header += ",load_flow[l/min]"
     rows = [",".join(f"{v:.9g}" for v in row) for row in np.column_stack(cols)]
     # A few broken rows, as a DAQ writes them: a dropped field, a text glitch, an empty value.
