@@ -97,12 +97,12 @@ class PeriodCheck:
 
 
 def _parameters() -> dict[str, float]:
-    """PositionController's keyword arguments and their defaults: the node's parameters."""
-    import inspect
+    """PositionController's gains and settings and their defaults (their declarations): the node's parameters."""
+    import dataclasses
 
-    from pcv_sim.control.steering import PositionController
+    from pcv_sim.control.params import PositionControllerParams
 
-    return {name: float(p.default) for name, p in inspect.signature(PositionController).parameters.items()}
+    return dataclasses.asdict(PositionControllerParams())
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
