@@ -2,6 +2,7 @@
 
 One control law for both ways of running it: in-process by a scenario (examples/steering.py
 re-exports it) and as the ROS 2 node `steering_controller` (`pcv_sim.node.steering_controller`).
+Its gains and settings (units, ranges, defaults) are declared once in `pcv_sim.control.params`.
 
 PI on the piston position error with velocity damping, split over the two valves around a
 common base duty: the valve on chamber a (left) gets base + u, the one on chamber b (right)
