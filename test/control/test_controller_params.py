@@ -34,7 +34,9 @@ def test_the_keywords_are_the_declarations_with_their_defaults():
     ({"base": 0.2}, r"^base: got 0.2; accepted is a duty where the valve regulates in 0.3 \.\. 1$"),
     ({"period": 0.0}, r"^period: got 0.0; accepted is a plausible value 0.0001 \.\. 1 \(s\)$"),
     ({"fault_time": 0.0}, r"^fault_time: got 0.0; accepted is a duration > 0 and <= 10 \(s\)$"),
-    ({"coil_ohm": "5.6 bar"}, r"^coil_ohm: .*"),
+    ({"coil_ohm": "5.6 bar"}, r"^coil_ohm: got '5.6 bar' \(str\); accepted is a number in ohm$"),
+    ({"current_loop": "20 bar"}, r"^current_loop: unit 'bar' in '20 bar' \(bar is a unit of pressure\); accepted for "
+                                 r"a time are s, ms"),
     ({"current_loop": -1.0}, r"^current_loop: got -1.0; accepted is a time constant in 0 \.\. 10 \(s\)$"),
     ({"kv": True}, r"^kv: got True \(bool\); accepted is a number in duty/\(m/s\)$"),
     ({"kpp": 1.0}, r"^PositionController: unknown key 'kpp' \(did you mean 'kp'\?\); accepted: kp, ki, kv, base, "
