@@ -89,6 +89,7 @@ import numpy as np
 
 from pcv_sim.device.faults import Fault, FaultError, fault_kind, fault_value_kind, parse_fault
 from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.io.topics import AMBIENT_TEMPERATURE, OIL_TEMPERATURE
 from pcv_sim.keys import check_keys, exactly_one
 from pcv_sim.model import kernel
 from pcv_sim.params import (
@@ -227,7 +228,7 @@ class TimelineKeys:
 
 
 _TOP = tuple(declarations(ScenarioKeys))
-_ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
+_ACTIONS = ("duty", "force", "supply", AMBIENT_TEMPERATURE, OIL_TEMPERATURE, "fault", "clear")
 
 
 def _ros_namespace(v: str) -> str | None:
