@@ -619,6 +619,8 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
             obj = obj(**dict(params or {}))
         except TypeError as err:
             raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
+        except ParameterError as err:                # refused by the controller's own declarations
+            raise ScenarioError(f"controller_params: {err}") from None
     if not callable(obj):
         raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
     controller: Controller = obj
