@@ -141,6 +141,10 @@ def compiled_kernels():
     # node test starts: compiled in its process beside other tests' load it outlasted START (90 s).
     with tempfile.TemporaryDirectory() as directory:
         Rig(load_rig(write_options_rig(Path(directory))))
+    options = default_params()          # and the emulator's with every option (test/node/test_emulator_options.py)
+    for key, value in (('solenoid.coil_temperature', 'lumped'), ('fluid.temperature', 'input'), ('spool.core', 'separate')):
+        options = replace_param(options, key, value)
+    ValveDevice(options)
 
 
 def write_options_rig(directory, thermal_resistance=1.0, heat_capacity=1.0):
