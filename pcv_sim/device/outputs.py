@@ -72,11 +72,6 @@ class Outputs(Composition):
             out[name] = float(y[i])
         return out
 
-    def option_input_values(self) -> dict[str, float]:
-        """The valve options' inputs in force (K), read without computing an output."""
-        u = self.sim.u
-        return {name: float(u[i]) for name, i in zip(self.option_inputs, self._option_in_i)}
-
     def load_volumes(self) -> list[float]:
         """Each valve's load volume at the last `sample()` (not updated by `advance_sample`'s fused
         path; m^3: its chamber's, or its own), in the order of `valve_names`. Its change over an

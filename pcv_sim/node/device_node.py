@@ -85,7 +85,6 @@ class DeviceNode(NodeBase):
         self.sample_extras: dict[str, float] = {}
         self._channel: NamedVector | None = None               # the lockstep sample's writer, for its names
         self._fault_logged: str | None = None
-        self._reset_answer: list[Any] | None = None            # a real-time reset's response, until it acted
 
         def publisher(msg_type: Any, topic: str, qos: Any = qos_profile_sensor_data, hint: str = SAMPLE_HINT) -> Any:
             return self.create_publisher(msg_type, topic, qos, event_callbacks=self.output_events(topic, hint))
