@@ -506,12 +506,13 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
             self._planned_failed(at, after, out)
 
     def planned_stretch(self) -> Callable[[int, np.ndarray, int, float | None], None]:
-        """`sample_planned` where no fed input is due at `at` either (`planned_until()`: the step
-        before which nothing but duties falls due), as one function bound to the device's compiled
-        call: `stretch(at, out, after=0, taken=None)`, what the lockstep calls every control period
-        of such a stretch (without the method's lookups). The same call, numbers and errors as
-        `sample_planned`, which makes it for the periods without a fed row. Bound to the present
-        simulator: taken again after a restart with new parameters (`install`)."""
+        """The planned stretch's call as one function bound to the device's compiled call:
+        `stretch(at, out, after=0, taken=None)` is `sample_planned(at, out, after, taken)` for a
+        period at which no fed input is due either (the caller has made sure: `planned_until()`
+        beyond `at + after`, and the watchdogs' `next_due`), without the method's lookups; what the
+        lockstep calls every control period of such a stretch. `sample_planned` calls it for every
+        period without a fed row: the same numbers and errors. Bound to the present simulator:
+        take it again after a restart with new parameters (`install`)."""
         return self._stretch
 
     def _bind_stretch(self) -> None:
