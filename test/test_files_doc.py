@@ -1,4 +1,5 @@
-"""docs/files.md's tables of the keys of scenario and campaign files are their declarations
+"""docs/files.md's tables of the keys of scenario and campaign files (and of the example
+controller's `controller_params`) are their declarations
 (pcv_sim.params.key_table of each declaring dataclass), and every declaring dataclass of those
 files has its table there; its table of faults is the faults' declarations
 (pcv_sim.device.faults.fault_table)."""
@@ -14,7 +15,8 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "files.md"
 MARK = re.compile(r"^<!-- keys: ([\w.]+) -->$")
 FAULTS_MARK = "<!-- faults: pcv_sim.device.faults.fault_table -->"
 #: The modules that declare the keys of scenario and campaign files.
-MODULES = ("pcv_sim.rig.scenario", "pcv_sim.rig.profiles", "pcv_sim.rig.assertions", "pcv_sim.campaign.spec")
+MODULES = ("pcv_sim.rig.scenario", "pcv_sim.rig.profiles", "pcv_sim.rig.assertions", "pcv_sim.campaign.spec",
+           "pcv_sim.control.params")
 
 
 def table_after(lines: list[str], k: int) -> str:
@@ -76,7 +78,8 @@ def test_every_file_declaration_is_found():
     names = set(declaring_classes())
     assert {"pcv_sim.rig.scenario.ScenarioKeys", "pcv_sim.rig.scenario.RosController",
             "pcv_sim.rig.profiles.RampKeys", "pcv_sim.rig.assertions.AssertionKeys",
-            "pcv_sim.campaign.spec.CampaignKeys", "pcv_sim.campaign.spec.DistributionKeys"} <= names
+            "pcv_sim.campaign.spec.CampaignKeys", "pcv_sim.campaign.spec.DistributionKeys",
+            "pcv_sim.control.params.PositionControllerParams"} <= names
 
 
 def test_a_difference_is_found():

@@ -39,7 +39,7 @@ from pcv_sim.analysis.static import balance_pressure, static_point
 from pcv_sim.errors import ParameterError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams, replace_param
-from pcv_sim.units import PA_PER_BAR, bar
+from pcv_sim.units import MM_PER_M, PA_PER_BAR, bar, lpm
 
 __all__ = [
     "CALIBRATION_KINDS",
@@ -265,7 +265,8 @@ def report(title: str, results: list[WorkingPointResult]) -> str:
         lines.append(
             f"  {r.name:5s}  {r.model_current:.3f}/{r.table_current:.3f}        "
             f"{bar(r.model_pressure_at_table_x):7.2f}/{bar(r.table_pressure):6.1f} ({bar(r.pressure_error):+.2f})     "
-            f"{r.model_x_at_table_p * 1e3:+.4f}/{r.table_spool_position * 1e3:+.4f} ({r.position_error * 1e3:+.4f})   "
-            f"{r.load_flow_at_table_x * 6e4:7.3f}     {r.branch}"
+            f"{r.model_x_at_table_p * MM_PER_M:+.4f}/{r.table_spool_position * MM_PER_M:+.4f} "
+            f"({r.position_error * MM_PER_M:+.4f})   "
+            f"{lpm(r.load_flow_at_table_x):7.3f}     {r.branch}"
         )
     return "\n".join(lines)

@@ -81,7 +81,7 @@ def write_rig_csv(
         cols.append(y * scale)
     header = RIG_HEADER
     if load_flows_lpm is not None:
-        cols.append(flows[segment] * 60e3)
+        cols.append(flows[segment] / M3S_PER_LPM)
         header += ",load_flow[l/min]"
     rows = [",".join(f"{v:.9g}" for v in row) for row in np.column_stack(cols)]
     # A few broken rows, as a DAQ writes them: a dropped field, a text glitch, an empty value.

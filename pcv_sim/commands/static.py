@@ -12,7 +12,7 @@ from pcv_sim.commands.common import add_output_options, emit_json, fraction, par
 from pcv_sim.errors import UsageError
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.plotting import pyplot
-from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR
+from pcv_sim.units import M3S_PER_LPM, MM_PER_M, PA_PER_BAR
 
 NAME = "static"
 HELP = "zero-flow equilibria and pressure-flow curves (Fig. 10)"
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         print("Zero load flow (the spool sits on the tank side, x < 0):")
         print("  duty   current [A]   spool x [mm]   pressure [bar]   pump leakage [L/min]")
         for r in rest:
-            print(f"  {r.duty:4.2f}   {r.current:11.3f}   {r.spool_position * 1e3:+12.4f}   {r.pressure / PA_PER_BAR:14.2f}"
+            print(f"  {r.duty:4.2f}   {r.current:11.3f}   {r.spool_position * MM_PER_M:+12.4f}   {r.pressure / PA_PER_BAR:14.2f}"
                   f"   {r.pump_flow / M3S_PER_LPM:20.3f}")
         print("Pressure-flow curves (reducing: q > 0, relieving: q < 0): pressure [bar] at load flow [L/min]")
         grid = np.array([-10.0, -5.0, -2.0, 0.0, 2.0, 5.0, 10.0, 15.0])
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
             q = c.load_flow / M3S_PER_LPM
             keep = np.abs(q) <= lim
             ax_p.plot(q[keep], c.pressure[keep] / PA_PER_BAR, label=f"{c.duty * 100:.0f} %")
-            ax_x.plot(q[keep], c.spool_position[keep] * 1e3, label=f"{c.duty * 100:.0f} %")
+            ax_x.plot(q[keep], c.spool_position[keep] * MM_PER_M, label=f"{c.duty * 100:.0f} %")
         ax_p.set(xlabel="load flow [L/min]  (relieving < 0 < reducing)", ylabel="load pressure [bar]",
                  title="pressure vs flow (cf. Fig. 10a)")
         ax_x.set(xlabel="load flow [L/min]", ylabel="spool position [mm]  (+ opens pump)",

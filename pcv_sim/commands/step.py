@@ -21,6 +21,7 @@ from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
 from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import PcvSimError, UsageError
+from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, OUTPUT_ROLES, PRESSURE, ROLE_UNITS, SPOOL_POSITION
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.plotting import pyplot
@@ -32,8 +33,8 @@ from pcv_sim.units import MM_PER_M, PA_PER_BAR
 NAME = "step"
 HELP = "simulate a duty step and report rise time, overshoot, settling time, steady state"
 
-SIGNALS = (("pressure", "pressure [bar]", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR), ("current", "current [A]", 1.0, 0.005),
-           ("spool_position", "spool position [mm]", MM_PER_M, 0.002e-3))
+SIGNALS = ((PRESSURE, "pressure [bar]", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR), (CURRENT, "current [A]", 1.0, 0.005),
+           (SPOOL_POSITION, "spool position [mm]", MM_PER_M, 0.002e-3))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -74,7 +75,7 @@ def device_step(params: ValveParams, profile: DutyProfile, duration: float) -> T
     dev = ValveDevice(params, safe_duty=profile.values[0], watchdog_timeout=0.0, sample_every=1)
     dt = dev.dt
     for t, duty in zip(profile.times, profile.values, strict=True):
-        dev.submit("duty_cycle", duty, at_step=math.ceil(t / dt - 1e-9))
+        dev.submit(DUTY_CYCLE, duty, at_step=math.ceil(t / dt - 1e-9))
     dev.run_to(0)                                      # what is due at step 0 acts before its sample
     samples = [dev.valve_sample(), *dev.run(round(duration / dt))]
     if dev.fault is not None:
@@ -90,7 +91,7 @@ def steady_state(args: argparse.Namespace) -> dict[str, float] | None:
         eq = zero_flow_equilibrium(ValveModel(step_params(args), args.model), args.end)
     except EquilibriumError:
         return None
-    return {"pressure": eq.pressure, "current": eq.current, "spool_position": eq.spool_position}
+    return {PRESSURE: eq.pressure, CURRENT: eq.current, SPOOL_POSITION: eq.spool_position}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                    "in_force": state.as_dict(),
                    "steady_state": "static solution" if static else "window end",
                    "metrics": {k: v.as_dict() for k, v in metrics.items()}, "warnings": warnings,
-                   "units": {"pressure": "Pa", "current": "A", "spool_position": "m", "times": "s"}})
+                   "units": {**{r: ROLE_UNITS[r] for r in OUTPUT_ROLES}, "times": "s"}})
     else:
         print(f"Duty step {args.start:g} -> {args.end:g} at {args.at:g} s, {args.model} model")
         print(f"  in force: {state.text()}")

@@ -2,6 +2,7 @@
 
 One control law for both ways of running it: in-process by a scenario (examples/steering.py
 re-exports it) and as the ROS 2 node `steering_controller` (`pcv_sim.node.steering_controller`).
+Its gains and settings (units, ranges, defaults) are declared once in `pcv_sim.control.params`.
 
 PI on the piston position error with velocity damping, split over the two valves around a
 common base duty: the valve on chamber a (left) gets base + u, the one on chamber b (right)
@@ -34,6 +35,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from pcv_sim.control.params import PositionControllerParams, controller_params
+
 #: What the law reads, each with the attribute holding its last value (a dropped sample keeps it).
 _HELD = (("setpoint", "setpoint"), ("cylinder.position", "position"), ("cylinder.velocity", "velocity"),
          ("left.current", "left_current"), ("right.current", "right_current"))
@@ -41,17 +44,16 @@ _UNSEEN: Any = None             # a measurement not sampled yet: the law cannot 
 
 
 class PositionController:
-    """PI + velocity feedback on the steering position (gains in duty per m, per m s, per m/s)."""
+    """PI + velocity feedback on the steering position (gains in duty per m, per m s, per m/s).
 
-    def __init__(self, kp: float = 15.0, ki: float = 30.0, kv: float = 0.5, base: float = 0.6,
-                 period: float = 1e-3, fault_time: float = 0.02, coil_volts: float = 12.0,
-                 coil_ohm: float = 5.6, current_loop: float = 0.0) -> None:
-        if not current_loop >= 0.0:
-            raise ValueError(f"current_loop {current_loop!r}: accepted is a time constant in s >= 0 (0: off)")
-        self.kp, self.ki, self.kv, self.base, self.period = kp, ki, kv, base, period
-        self.fault_time, self.amps_per_duty = fault_time, coil_volts / coil_ohm
-        self._half_amps = 0.5 * self.amps_per_duty     # the coil monitor's threshold per unit duty
-        self.current_loop = current_loop
+    `PositionController(params)` or by keyword, `PositionController(kp=15.0, current_loop=0.02)`:
+    the gains and settings of `pcv_sim.control.params.PositionControllerParams` (their units,
+    ranges and defaults), checked by their declarations (ParameterError naming the key)."""
+
+    def __init__(self, params: PositionControllerParams | None = None, /, **values: Any) -> None:
+        if params is not None and values:
+            raise TypeError("PositionController: give its params or keywords, not both")
+        self.retune(params if params is not None else controller_params(values))
         self.trim = {"left": 0.0, "right": 0.0}
         self.integral = 0.0
         # The last value seen of each measurement (None: none yet; a setpoint defaults to 0).
@@ -61,8 +63,17 @@ class PositionController:
         self.left_current: float = _UNSEEN
         self.right_current: float = _UNSEEN
         self.low_since: dict[str, float | None] = {"left": None, "right": None}
-        self.left_duty = self.right_duty = base        # the PI's duties of the last period
+        self.left_duty = self.right_duty = self.base   # the PI's duties of the last period
         self.fault = 0.0
+
+    def retune(self, params: PositionControllerParams) -> None:
+        """The gains and settings in force from the next period on; the state (integral, trims,
+        held measurements, the coil monitor's timers) carries over."""
+        self.params = params
+        self.kp, self.ki, self.kv, self.base, self.period = params.kp, params.ki, params.kv, params.base, params.period
+        self.fault_time, self.amps_per_duty = params.fault_time, params.coil_volts / params.coil_ohm
+        self._half_amps = 0.5 * self.amps_per_duty     # the coil monitor's threshold per unit duty
+        self.current_loop = params.current_loop
 
     @property
     def duty(self) -> dict[str, float]:

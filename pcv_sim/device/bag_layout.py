@@ -20,22 +20,20 @@ from pcv_sim.io.bag import COMMAND_QOS, FLOAT64, Qos
 from pcv_sim.io.topics import (
     CYLINDER,
     DUTY_CYCLE,
-    EMULATOR_INTERFACE,
     EVENTS,
     FAULTS,
     INPUT_ROLES,
     JOINT_STATE,
     LOAD_FLOW,
     OPTION_INTERFACE,
-    RIG_INTERFACE,
     ROLE_ALIASES,
     ROLE_TYPES,
     ROLES,
-    SCENARIO_INTERFACE,
     STRING,
     bag_topic,
     input_topics,
     output_topics,
+    qos_of,
     role_of,
     topic_of,
 )
@@ -45,15 +43,12 @@ __all__ = ["RECORDABLE", "BagLayout", "Topic", "check_signals"]
 #: Signals the emulator's recording can select, by role (`record.signals`).
 RECORDABLE: Final = ROLES
 _OPTION_DIRECTION: Final = {e.name: e.direction for e in OPTION_INTERFACE}
-#: The QoS the nodes offer per relative topic (a valve's topics by role); a topic only bags have
-#: (the events, the controller's flags) as a command's.
-_QOS: Final = {e.name: e.qos for e in (*EMULATOR_INTERFACE, *OPTION_INTERFACE, *RIG_INTERFACE, *SCENARIO_INTERFACE)
-               if e.qos is not None}
 
 
 def _qos(relative: str) -> Qos:
-    """The QoS of a relative topic (``left/pressure``: the role's) from the registry."""
-    return _QOS.get(relative, _QOS.get(relative.rpartition("/")[2], COMMAND_QOS))
+    """The QoS of a relative topic (``left/pressure``: the role's) from the registry; a topic only bags
+    have (the events) as a command's."""
+    return qos_of(relative, COMMAND_QOS)
 
 
 def check_signals(signals: Iterable[str]) -> tuple[str, ...]:

@@ -32,7 +32,7 @@ from pcv_sim.device.spec import (
     ValveSpec,
 )
 from pcv_sim.errors import CommandError, ParameterError
-from pcv_sim.io.topics import FAULTS
+from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, LOAD_FLOW, SUPPLY_PRESSURE
 from pcv_sim.model import kernel
 from pcv_sim.simulation.duty import FallRateLimiter, check_duty
 from pcv_sim.simulation.simulator import Simulator
@@ -251,11 +251,11 @@ class Composition:
         self._load_flow = [0.0] * len(valves)
         self._plant_i = {name: plant.index("input", name) for name in (plant_spec.inputs if plant_spec else {})}
         self._declare_inputs({
-            **{f"{self._prefix[v.name]}duty_cycle": InputKind(partial(check_duty, duty_range=self._ranges[v.name]),
+            **{f"{self._prefix[v.name]}{DUTY_CYCLE}": InputKind(partial(check_duty, duty_range=self._ranges[v.name]),
                                                               partial(self._take_command, v.name)) for v in valves},
-            **{f"{self._prefix[v.name]}load_flow": InputKind(check_load_flow, partial(self._set_load_flow, k))
+            **{f"{self._prefix[v.name]}{LOAD_FLOW}": InputKind(check_load_flow, partial(self._set_load_flow, k))
                for k, v in enumerate(valves) if self._flow_i[k] >= 0},
-            **{f"{self._prefix[v.name]}supply_pressure": InputKind(check_supply_pressure, partial(self._set_supply, k))
+            **{f"{self._prefix[v.name]}{SUPPLY_PRESSURE}": InputKind(check_supply_pressure, partial(self._set_supply, k))
                for k, v in enumerate(valves)},
             **{f"{self._prefix[v]}{name}": InputKind(partial(check_temperature, name.replace("_", " ")),
                                                      partial(self.set_temperature, v, name))

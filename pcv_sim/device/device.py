@@ -105,7 +105,7 @@ from pcv_sim.device.spec import (
     ValveSpec,
 )
 from pcv_sim.errors import CommandError
-from pcv_sim.io.topics import FAULTS
+from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, OIL_TEMPERATURE, SUPPLY_PRESSURE
 from pcv_sim.model import kernel
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.valve import (
@@ -229,8 +229,8 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         out = {}
         for k, name in enumerate(self.valve_names):
             pre = self._prefix[name]
-            out[f"{pre}duty_cycle"] = float(u[self._duty_i[k]])
-            out[f"{pre}supply_pressure"] = float(u[self._supply_i[k]])
+            out[f"{pre}{DUTY_CYCLE}"] = float(u[self._duty_i[k]])
+            out[f"{pre}{SUPPLY_PRESSURE}"] = float(u[self._supply_i[k]])
         for name, i in self._plant_i.items():
             out[name] = float(u[i])
         for name, i in zip(self.option_inputs, self._option_in_i):
@@ -260,7 +260,7 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         else:
             self.sim.u[self._supply_i[k]] = supply
             if self.on_input is not None:
-                self.on_input(self.sim.steps, f"{self._prefix[name]}supply_pressure", supply)
+                self.on_input(self.sim.steps, f"{self._prefix[name]}{SUPPLY_PRESSURE}", supply)
 
     def _put_plant_input(self, name: str, value: float) -> None:
         self.sim.u[self._plant_i[name]] = value
@@ -287,7 +287,7 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
             raise CommandError(f"{where}no {name.replace('_', ' ')} input; the valve YAML's "
                                f"{TEMPERATURE_INPUTS[name]} brings it")
         value = check_temperature(self._what(valve, name), temperature)
-        if name == "oil_temperature":
+        if name == OIL_TEMPERATURE:
             off = self._p_off[k]
             p = self.sim.P[off:off + kernel.N_PARAMS]
             check_oil_step(params, p, self.dt, self._exact_spool[k], value)
@@ -316,7 +316,7 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
             try:
                 d = check_duty(duty, (lo, hi))
             except CommandError as err:
-                self._reject(f"{self._prefix[valve]}duty_cycle", str(err))
+                self._reject(f"{self._prefix[valve]}{DUTY_CYCLE}", str(err))
                 raise
         self._take_command(valve, d)
 
@@ -347,7 +347,7 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
                 self.queue.push(sim.steps + 1, partial(self._ramp_step, k))
         sim.u[i] = duty
         if self.on_input is not None:
-            self.on_input(sim.steps, f"{self._prefix[valve]}duty_cycle", duty)
+            self.on_input(sim.steps, f"{self._prefix[valve]}{DUTY_CYCLE}", duty)
 
     def _ramp_step(self, k: int) -> None:
         """A step of a falling duty's ramp: valve k's duty for this step, from the last step's toward

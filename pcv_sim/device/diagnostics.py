@@ -34,12 +34,15 @@ from pcv_sim.device.device import Device
 from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import (
+    CURRENT,
     DUTY_CYCLE,
     EMULATOR_INTERFACE,
     FAULTS,
     LOAD_FLOW,
     OPTION_INTERFACE,
+    PRESSURE,
     RIG_INTERFACE,
+    SPOOL_POSITION,
     SUPPLY_PRESSURE,
     input_topics,
 )
@@ -145,10 +148,10 @@ def valve_signals(device: Device, valve: str) -> dict[str, Any]:
         return format(v, fmt) if v is not None else ""
 
     values: dict[str, Any] = {
-        "pressure_pa": show("pressure", ".1f"),
-        "pressure_bar": format(bar(y[f"{prefix}pressure"]), ".3f") if f"{prefix}pressure" in y else "",
-        "current_a": show("current", ".5f"),
-        "spool_position_m": show("spool_position", ".4e"),
+        "pressure_pa": show(PRESSURE, ".1f"),
+        "pressure_bar": format(bar(y[f"{prefix}{PRESSURE}"]), ".3f") if f"{prefix}{PRESSURE}" in y else "",
+        "current_a": show(CURRENT, ".5f"),
+        "spool_position_m": show(SPOOL_POSITION, ".4e"),
     }
     for signal in device.option_outputs:
         if signal.startswith(prefix) and signal in y:

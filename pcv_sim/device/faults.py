@@ -29,6 +29,7 @@ import yaml
 
 from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import ParameterError, PcvSimError
+from pcv_sim.io.topics import CYLINDER  # the plant's target name, the one target of CYLINDER_FAULTS
 from pcv_sim.keys import closest, unknown_message
 from pcv_sim.model import kernel
 from pcv_sim.params import any_value, at_least, between, declarations, key_cells, parameter, read
@@ -40,10 +41,6 @@ __all__ = ["CYLINDER", "CYLINDER_FAULTS", "FAULT_KINDS", "SENSOR_FAULTS", "VALVE
 
 class FaultError(PcvSimError, ValueError):
     """A fault that does not exist, on a target that does not exist, or with values out of range."""
-
-
-#: The plant's target name, the one target of CYLINDER_FAULTS.
-CYLINDER = "cylinder"
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import numpy as np
 from pcv_sim.device.composition import Composition
 from pcv_sim.device.spec import ModelFault, Sample
 from pcv_sim.errors import CommandError
+from pcv_sim.io.topics import DUTY_CYCLE, LOAD_FLOW
 
 __all__ = ["FedInputs"]
 
@@ -59,9 +60,9 @@ class FedInputs(Composition):
         out = dict(self._plant_i)
         for k, name in enumerate(self.valve_names):
             if self._flow_i[k] >= 0:
-                out[f"{self._prefix[name]}load_flow"] = self._flow_i[k]
+                out[f"{self._prefix[name]}{LOAD_FLOW}"] = self._flow_i[k]
             if k not in self._limited:              # a limited duty ramps step by step: `submit` it
-                out[f"{self._prefix[name]}duty_cycle"] = self._duty_i[k]
+                out[f"{self._prefix[name]}{DUTY_CYCLE}"] = self._duty_i[k]
         return out
 
     def _pending_feed(self) -> dict[str, dict[int, float]]:

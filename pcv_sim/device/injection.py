@@ -13,6 +13,7 @@ from pcv_sim.device.faults import (
     FaultError,
     valve_fault_parameters,
 )
+from pcv_sim.io.topics import SUPPLY_PRESSURE
 
 __all__ = ["FaultInjection"]
 
@@ -81,7 +82,7 @@ class FaultInjection(Composition):
         self.sim.set_parameters(k, p)
         self.sim.u[self._supply_i[k]] = supply
         if self.on_input is not None:
-            self.on_input(self.sim.steps, f"{self._prefix[valve]}supply_pressure", supply)
+            self.on_input(self.sim.steps, f"{self._prefix[valve]}{SUPPLY_PRESSURE}", supply)
 
     def _apply_plant_faults(self) -> None:
         """The plant's parameters: healthy, then every active fault on it (a device with a plant)."""

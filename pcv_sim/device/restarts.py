@@ -20,6 +20,7 @@ from pcv_sim.device.spec import (
     ValveSpec,
 )
 from pcv_sim.errors import CommandError, ParameterError
+from pcv_sim.io.topics import DUTY_CYCLE, LOAD_FLOW, SUPPLY_PRESSURE
 from pcv_sim.model import kernel
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.duty import check_duty
@@ -145,10 +146,10 @@ class Restarts(Composition):
             x.append(state)
             w.append(current)
             i = sim.plant.index
-            sim.u[i("input", f"{v.name}.duty_cycle")] = duties[k]
-            sim.u[i("input", f"{v.name}.supply_pressure")] = supply
-            if f"{v.name}.load_flow" in sim.plant.inputs:
-                sim.u[i("input", f"{v.name}.load_flow")] = flow
+            sim.u[i("input", f"{v.name}.{DUTY_CYCLE}")] = duties[k]
+            sim.u[i("input", f"{v.name}.{SUPPLY_PRESSURE}")] = supply
+            if f"{v.name}.{LOAD_FLOW}" in sim.plant.inputs:
+                sim.u[i("input", f"{v.name}.{LOAD_FLOW}")] = flow
                 sim.u[i("input", f"{v.name}.load_volume")] = v.params.circuit.load_volume
             lay = kernel.layout(v.params, kind)
             for name, configured in zip(lay.inputs[len(kernel.INPUTS):], kernel.option_inputs(v.params), strict=True):

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from pcv_sim.errors import PcvSimError
+from pcv_sim.io import topics
 from pcv_sim.params import ValveParams
 from pcv_sim.simulation.simulator import Simulator
 from pcv_sim.simulation.system import System
@@ -27,13 +28,13 @@ MODEL_FAILURES = (ArithmeticError, ValueError)
 
 
 #: The valve options' temperature inputs (R33, R34) and the valve YAML's switch that brings each.
-TEMPERATURE_INPUTS = {"ambient_temperature": "solenoid.coil_temperature: lumped",
-                      "oil_temperature": "fluid.temperature: input"}
+TEMPERATURE_INPUTS = {topics.AMBIENT_TEMPERATURE: "solenoid.coil_temperature: lumped",
+                      topics.OIL_TEMPERATURE: "fluid.temperature: input"}
 
 
 #: What a recorder gets of each valve besides its outputs (`Device.record_values`): the duty in force
 #: (the command, or the watchdog's), the duty after the fall-rate limiter, load flow, supply pressure.
-RECORD_INPUTS = ("duty_command", "duty", "load_flow", "supply_pressure")
+RECORD_INPUTS = ("duty_command", "duty", topics.LOAD_FLOW, topics.SUPPLY_PRESSURE)
 
 
 def signal_kind(signal: str) -> str:
@@ -42,10 +43,10 @@ def signal_kind(signal: str) -> str:
     if signal.startswith("controller."):
         return "number"
     tail = signal.rsplit(".", 1)[-1]
-    return {"pressure": "pressure", "current": "current", "spool_position": "length", "duty": "fraction",
+    return {topics.PRESSURE: "pressure", topics.CURRENT: "current", topics.SPOOL_POSITION: "length", "duty": "fraction",
             "position": "length", "velocity": "velocity", "effort": "force", "setpoint": "length",
-            "coil_temperature": "temperature", "core_position": "length",
-            "oil_temperature": "temperature", "ambient_temperature": "temperature"}.get(tail, "number")
+            topics.COIL_TEMPERATURE: "temperature", topics.CORE_POSITION: "length",
+            topics.OIL_TEMPERATURE: "temperature", topics.AMBIENT_TEMPERATURE: "temperature"}.get(tail, "number")
 
 
 #: `Device.on_input(step, name, value)`: an input of the model changed, acting from `step` on.

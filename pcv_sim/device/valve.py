@@ -17,16 +17,18 @@ from pcv_sim.device.device import Device, Recorder, ValveSpec
 from pcv_sim.device.device import Sample as DeviceSample
 from pcv_sim.device.inputs import Watchdog, WatchdogState
 from pcv_sim.device.limits import PhysicalLimits
+from pcv_sim.device.spec import RECORD_INPUTS
+from pcv_sim.io.topics import DUTY_CYCLE, LOAD_FLOW, OPTION_INTERFACE, OUTPUT_ROLES, SUPPLY_PRESSURE
 from pcv_sim.params import ValveParams
 
 __all__ = ["OPTION_SIGNALS", "SIGNALS", "VALVE", "Recorder", "Sample", "ValveDevice", "WatchdogState"]
 
 #: What a recorder receives per sample, SI units: duty fractions, m^3/s, Pa, A, m.
-SIGNALS = ("duty_command", "duty", "load_flow", "supply_pressure", "pressure", "current", "spool_position")
+SIGNALS = (*RECORD_INPUTS, *OUTPUT_ROLES)
 #: The options' signals (docs/model.md R33-R35; `pcv_sim.io.topics.OPTION_INTERFACE`): inputs
 #: ambient_temperature, oil_temperature (K), outputs coil_temperature (K), coil_resistance (ohm),
 #: core_position (m); `record_values()` adds those the valve's options bring.
-OPTION_SIGNALS = ("ambient_temperature", "oil_temperature", "coil_temperature", "coil_resistance", "core_position")
+OPTION_SIGNALS = tuple(e.name for e in OPTION_INTERFACE)
 
 #: The name of the emulator's one valve (its watchdog's key, a fault's target).
 VALVE = "valve"
@@ -129,8 +131,8 @@ class ValveDevice(Device):
         CommandError for a value `submit` refuses, `pcv_sim.model.statics.EquilibriumError` when
         the valve has no rest there; the device is unchanged then."""
         checked = [self.inputs[name].check(value) for name, value in (
-            ("duty_cycle", duty), ("load_flow", load_flow),
-            ("supply_pressure", self._supply0[0] if supply_pressure is None else supply_pressure))]
+            (DUTY_CYCLE, duty), (LOAD_FLOW, load_flow),
+            (SUPPLY_PRESSURE, self._supply0[0] if supply_pressure is None else supply_pressure))]
         duty, load_flow, supply = checked
         state, current = self._rest_state(0, self.params, duty, load_flow, supply, self.sim.integrator)
         self.reset()

@@ -34,21 +34,31 @@ from pcv_sim.io.topics import (
     bag_topic,
     role_of,
 )
-from pcv_sim.units import M3S_PER_LPM, PA_PER_BAR
+from pcv_sim.units import KINDS, M3S_PER_LPM
 
 __all__ = ["RANGES", "UNITS", "BadRow", "CsvImportError", "CsvImportResult", "Range", "import_csv", "parse_units"]
 
 TIME: Final = "time"
-_PRESSURE_UNITS: Final = {"pa": 1.0, "kpa": 1e3, "bar": PA_PER_BAR, "mbar": 1e2, "mpa": 1e6, "psi": 6894.757293168}
-#: Accepted units per column and their factor to SI.
+
+
+def _of_table(kind: str, *names: str) -> dict[str, float]:
+    """Units of the one table (`pcv_sim.units.KINDS`) by their names there, keyed as a header is read
+    (lower case)."""
+    return {name.lower(): KINDS[kind].factor(name) for name in names}
+
+
+_PRESSURE_UNITS: Final = _of_table("pressure", "Pa", "kPa", "bar", "mbar", "MPa", "psi")
+#: Accepted units per column and their factor to SI; beside the table's, the words a data logger's
+#: header uses for them (ns, percent, lpm, l/s).
 UNITS: Final[Mapping[str, Mapping[str, float]]] = {
-    TIME: {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
-    DUTY_CYCLE: {"1": 1.0, "fraction": 1.0, "-": 1.0, "percent": 0.01, "%": 0.01},
+    TIME: {**_of_table("time", "s", "ms", "us"), "ns": 1e-9},
+    DUTY_CYCLE: {"1": 1.0, "fraction": 1.0, **_of_table("fraction", "-"), "percent": KINDS["fraction"].factor("%"),
+                 **_of_table("fraction", "%")},
     PRESSURE: _PRESSURE_UNITS,
     SUPPLY_PRESSURE: _PRESSURE_UNITS,
-    CURRENT: {"a": 1.0, "ma": 1e-3},
-    SPOOL_POSITION: {"m": 1.0, "mm": 1e-3, "um": 1e-6},
-    LOAD_FLOW: {"m3/s": 1.0, "m^3/s": 1.0, "l/min": M3S_PER_LPM, "lpm": M3S_PER_LPM, "l/s": 1e-3},
+    CURRENT: _of_table("current", "A", "mA"),
+    SPOOL_POSITION: _of_table("length", "m", "mm", "um"),
+    LOAD_FLOW: {**_of_table("flow", "m3/s", "m^3/s", "L/min"), "lpm": KINDS["flow"].factor("L/min"), "l/s": 1e-3},
 }
 _SI: Final = {TIME: "s", DUTY_CYCLE: "1", PRESSURE: "pa", SUPPLY_PRESSURE: "pa", CURRENT: "a",
               SPOOL_POSITION: "m", LOAD_FLOW: "m3/s"}  # keys of UNITS (lower case)

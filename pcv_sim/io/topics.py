@@ -68,6 +68,7 @@ __all__ = [
     "cylinder_topic",
     "input_topics",
     "output_topics",
+    "qos_of",
     "role_of",
     "topic_of",
     "valve_topic",
@@ -204,9 +205,11 @@ EMULATOR_INTERFACE: Final = (
     Endpoint("out", CURRENT, FLOAT64, ROLE_UNITS[CURRENT], SENSOR_DATA_QOS),
     Endpoint("out", SPOOL_POSITION, FLOAT64, ROLE_UNITS[SPOOL_POSITION], SENSOR_DATA_QOS),
     Endpoint("out", DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "", RELIABLE_10),
-    Endpoint("out", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
+    Endpoint("out/in", CLOCK, "rosgraph_msgs/msg/Clock", "s", RELIABLE_10),
     Endpoint("srv", RESET, "std_srvs/srv/Trigger", ""),
     Endpoint("in", FAULTS, "std_msgs/msg/String", "", COMMAND_QOS),      # faults.enabled only
+    Endpoint("out", LOCKSTEP_SAMPLE, "sensor_msgs/msg/JointState", "", COMMAND_QOS),   # simulated lockstep only
+    Endpoint("in", LOCKSTEP_COMMAND, "sensor_msgs/msg/JointState", "1", COMMAND_QOS),
 )
 #: The valve options' topics (docs/model.md R33-R35), each present when its option is on. The
 #: device gives them as signals (`pcv_sim.device.valve.OPTION_SIGNALS`); the emulator serves them
@@ -236,6 +239,21 @@ SCENARIO_INTERFACE: Final = (
     Endpoint("out", SETPOINT, FLOAT64, "m", COMMAND_QOS),
     Endpoint("in", CONTROLLER_FLAGS, "diagnostic_msgs/msg/DiagnosticArray", "", FLAGS_QOS),
 )
+#: The QoS of every relative topic the registry lists (a valve's under `<valve>/` by its role).
+_QOS: Final = {e.name: e.qos for e in (*EMULATOR_INTERFACE, *OPTION_INTERFACE, *RIG_INTERFACE, *SCENARIO_INTERFACE)
+               if e.qos is not None}
+
+
+def qos_of(topic: str, default: Qos | None = None) -> Qos:
+    """The QoS the nodes offer on a relative topic (``left/pressure``: the role's, ``pressure``), the one
+    the node's endpoints are made with and a bag's metadata states; `default` for a topic the registry
+    does not list (ValueError without one)."""
+    qos = _QOS.get(topic, _QOS.get(topic.rpartition("/")[2]))
+    if qos is not None:
+        return qos
+    if default is None:
+        raise ValueError(f"topic {topic!r} is not in the interface registry (pcv_sim.io.topics)")
+    return default
 
 
 # --- a device's interface as topics ----------------------------------------------------------

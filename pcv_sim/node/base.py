@@ -22,7 +22,6 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.qos import QoSProfile
 
 from pcv_sim.device.diagnostics import Status
 from pcv_sim.device.parameters import check_params_files, command_line_overrides
@@ -36,9 +35,7 @@ from pcv_sim.node.qos_events import QosEvents
 from pcv_sim.node.recording import NodeRecording
 from pcv_sim.node.services import ServicePolling
 
-__all__ = ["DIAGNOSTICS_QOS", "NodeBase", "StopFlag"]
-
-DIAGNOSTICS_QOS = QoSProfile(depth=10)
+__all__ = ["NodeBase", "StopFlag"]
 
 
 class NodeBase(NodeParameters, NodeInputs, ServicePolling, QosEvents, TimeModeLoops, NodeRecording):

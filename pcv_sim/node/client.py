@@ -70,6 +70,7 @@ from pcv_sim.node.client_messages import ClientMessages, PressureSample, diagnos
 from pcv_sim.node.client_services import SERVICE_AGAIN, ServiceCalls, call_service
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector
 from pcv_sim.node.polling import Waiter
+from pcv_sim.node.qos_events import topic_qos
 
 __all__ = ["FULL_POLL", "SERVICE_AGAIN", "Controller", "DeviceClient", "EmulatorClient", "Period", "PressureSample",
            "RigClient", "call_service", "diagnostic_level", "sample_qos", "stamp_ns"]
@@ -110,9 +111,7 @@ class DeviceClient(ClientMessages, LockstepRunner, ServiceCalls):
         self.channel = channel
         self.lockstep = lockstep or channel
         self._currents = currents
-        cmd = QoSProfile(depth=10)
-        self._cmd_qos = cmd
-        self.fault_pub = node.create_publisher(String, topics.FAULTS, cmd)
+        self.fault_pub = node.create_publisher(String, topics.FAULTS, topic_qos(topics.FAULTS))
         self._clients: dict[str, Any] = {}
         self._srv: tuple[Any, SingleThreadedExecutor] | None = None     # services of a node given (`_service_node`)
 
@@ -128,7 +127,7 @@ class DeviceClient(ClientMessages, LockstepRunner, ServiceCalls):
             self._publisher(name)
         self.duty_pubs = {v: self._pubs[self.key(v, topics.DUTY_CYCLE)][0] for v in self.valves
                           if self.key(v, topics.DUTY_CYCLE) in self._pubs}
-        self.command_pub = node.create_publisher(JointState, COMMAND_TOPIC, cmd) if channel else None
+        self.command_pub = node.create_publisher(JointState, COMMAND_TOPIC, topic_qos(COMMAND_TOPIC)) if channel else None
         self._commands: dict[tuple[str, ...], NamedVector] = {}
         self._duty_msg = Float64()
         self.duty_sent: list[tuple[float, int]] = []
@@ -160,7 +159,7 @@ class DeviceClient(ClientMessages, LockstepRunner, ServiceCalls):
         with_info: Any                       # callbacks of (message, MessageInfo): rclpy passes the info
         if channel:
             with_info = self._sample
-            last = (node.create_subscription(JointState, SAMPLE_TOPIC, with_info, cmd, raw=True), with_info)
+            last = (node.create_subscription(JointState, SAMPLE_TOPIC, with_info, topic_qos(SAMPLE_TOPIC), raw=True), with_info)
         if not channel and (self.lockstep or topics.PRESSURE in outputs):
             for v in self.valves:
                 with_info = self._pressure(v)
@@ -217,7 +216,7 @@ class DeviceClient(ClientMessages, LockstepRunner, ServiceCalls):
             else:
                 msg = Float64()
                 setter = lambda m, v: setattr(m, "data", v)                   # noqa: E731
-            entry = self._pubs[name] = (self.node.create_publisher(type(msg), it.topic, self._cmd_qos), msg, setter)
+            entry = self._pubs[name] = (self.node.create_publisher(type(msg), it.topic, topic_qos(it.topic)), msg, setter)
         return entry
 
     def send(self, name: str, value: float) -> None:

@@ -97,11 +97,14 @@ class LockstepRunner:
     def run(self, controller: Controller, periods: int | None, *, timeout: float | None = 60.0,
             before: Callable[[int], None] | None = None, stop: Any = None,
             on_flags: Callable[[int, Mapping[str, float]], None] | None = None,
-            rewind: Callable[[], Controller] | None = None) -> list[Period]:
+            rewind: Callable[[], Controller] | None = None,
+            on_poll: Callable[[], None] | None = None) -> list[Period]:
         """Answer `periods` sample periods (None: until `stop.requested`) with
         `controller(t, measured) -> {valve: duty, "flags": {name: value}}`; `before(k)` runs
         before the k-th answer (e.g. to inject a fault), `on_flags(stamp_ns, flags)` before the
-        duties are published. The answered periods (kept only with `history`). Needs `lockstep`."""
+        duties are published, `on_poll()` at every poll of every topic (every FULL_POLL s, between
+        two answers: a node's service requests). The answered periods (kept only with `history`).
+        Needs `lockstep`."""
         if not self._completing or self._waiter is None:
             raise ValueError("run: the client was made without lockstep=True (or channel=True)")
         waiter = self._waiter
@@ -123,6 +126,8 @@ class LockstepRunner:
                 waiter.wait(next_full - now)
                 continue
             if now >= next_full or not self.channel:      # on the channel a sample is the whole period
+                if on_poll is not None and now >= next_full:
+                    on_poll()
                 next_full = now + FULL_POLL
                 if not self.poll() and not self._partial and not self._samples:
                     continue

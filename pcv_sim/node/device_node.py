@@ -43,7 +43,6 @@ from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -52,10 +51,9 @@ from pcv_sim.device.diagnostics import DiagnosticsBuilder, Shown, Status
 from pcv_sim.errors import CommandError
 from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
-from pcv_sim.node.base import DIAGNOSTICS_QOS, NodeBase
-from pcv_sim.node.inputs import COMMAND_QOS
+from pcv_sim.node.base import NodeBase
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
-from pcv_sim.node.qos_events import COMMAND_HINT, SAMPLE_HINT
+from pcv_sim.node.qos_events import COMMAND_HINT, SAMPLE_HINT, topic_qos
 from pcv_sim.node.samples import SamplePublisher
 
 __all__ = ["DeviceNode"]
@@ -86,18 +84,18 @@ class DeviceNode(NodeBase):
         self._channel: NamedVector | None = None               # the lockstep sample's writer, for its names
         self._fault_logged: str | None = None
 
-        def publisher(msg_type: Any, topic: str, qos: Any = qos_profile_sensor_data, hint: str = SAMPLE_HINT) -> Any:
-            return self.create_publisher(msg_type, topic, qos, event_callbacks=self.output_events(topic, hint))
+        def publisher(msg_type: Any, topic: str, hint: str = SAMPLE_HINT) -> Any:
+            return self.create_publisher(msg_type, topic, topic_qos(topic), event_callbacks=self.output_events(topic, hint))
 
         self._samples = SamplePublisher(output_topics(dev.signals, kind.chambers(dev)), dev.signals, s.frame_id,
                                         publisher)
         lockstep = self.simulated and s.lockstep
         # The lockstep channel (pcv_sim.node.lockstep_channel): a period in one message each way.
-        self._pub_sample = publisher(JointState, SAMPLE_TOPIC, COMMAND_QOS, COMMAND_HINT) if lockstep else None
+        self._pub_sample = publisher(JointState, SAMPLE_TOPIC, COMMAND_HINT) if lockstep else None
         self._duty_inputs = {e.answers: e for e in input_topics(dev.input_names, dev.valve_names) if e.answers}
         self.subscribe_inputs(input_topics(dev.input_names, dev.valve_names), self._on_command if lockstep else None)
         self.subscribe_faults()
-        self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS, COMMAND_HINT)
+        self._pub_diag = publisher(DiagnosticArray, DIAGNOSTICS, COMMAND_HINT)
         self.publish_clock(kind.clock_advice)
         self.follow_clock()
         self.create_service(Trigger, RESET, self._on_reset)

@@ -18,7 +18,6 @@ from typing import Any
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64, String
 
@@ -27,12 +26,12 @@ from pcv_sim.device.inputs import InputTiming
 from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
 from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, InputTopic
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC
+from pcv_sim.node.qos_events import topic_qos
 from pcv_sim.node.services import SERVICE_POLL_PERIOD
 from pcv_sim.simulation.clock import RealTimeSchedule
 
-__all__ = ["COMMAND_QOS", "KEPT", "NodeInputs", "drain", "publisher_name"]
+__all__ = ["KEPT", "NodeInputs", "drain", "publisher_name"]
 
-COMMAND_QOS = QoSProfile(depth=10)          # reliable, volatile
 KEPT = "the last valid value stays in force"            # what a refused input leaves
 #: An input topic's message type -> (message class, what it carries).
 _INPUT_MESSAGES: dict[str, tuple[Any, Callable[[Any], Any]]] = {
@@ -101,14 +100,14 @@ class NodeInputs(Node):
         for entry in (*duties, None, *(e for e in table if not e.answers)):
             if entry is None:
                 if on_command is not None:
-                    sub = self.create_subscription(JointState, COMMAND_TOPIC, on_command, COMMAND_QOS, raw=True,
+                    sub = self.create_subscription(JointState, COMMAND_TOPIC, on_command, topic_qos(COMMAND_TOPIC), raw=True,
                                                    event_callbacks=self.input_events(COMMAND_TOPIC))
                     self._inputs.append((sub, on_command))
                     self._channel_sub = sub
                 continue
             msg_type, value_of = _INPUT_MESSAGES[entry.type]
             handler = partial(self._on_input, entry, value_of)
-            sub = self.create_subscription(msg_type, entry.topic, handler, COMMAND_QOS,
+            sub = self.create_subscription(msg_type, entry.topic, handler, topic_qos(entry.topic),
                                            event_callbacks=self.input_events(entry.topic))
             self._inputs.append((sub, handler))
             if entry.answers:
@@ -147,7 +146,7 @@ class NodeInputs(Node):
     def subscribe_faults(self) -> None:
         """The `faults` topic, with faults.enabled only: any node on the domain could break the bench."""
         if self.settings.faults_enabled:
-            sub = self.create_subscription(String, FAULTS, self._on_fault, COMMAND_QOS,
+            sub = self.create_subscription(String, FAULTS, self._on_fault, topic_qos(FAULTS),
                                            event_callbacks=self.input_events(FAULTS))
             self._inputs.append((sub, self._on_fault))
 

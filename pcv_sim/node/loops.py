@@ -14,7 +14,6 @@ from typing import Any, Protocol
 
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
 from pcv_sim.device.device import Device
@@ -24,6 +23,7 @@ from pcv_sim.io.recorder import SWITCH_INTERVAL
 from pcv_sim.io.topics import CLOCK
 from pcv_sim.node.inputs import drain
 from pcv_sim.node.polling import Waiter
+from pcv_sim.node.qos_events import topic_qos
 from pcv_sim.node.tuning import GcTimer, freeze_heap, set_realtime_priority, tighten_timer_slack
 from pcv_sim.simulation.clock import (
     NO_CLOCK_YET,
@@ -33,9 +33,8 @@ from pcv_sim.simulation.clock import (
     WakeRecord,
 )
 
-__all__ = ["CLOCK_DISCOVERY", "CLOCK_QOS", "LOCKSTEP_FULL_POLL", "LOCKSTEP_RESEND", "StopFlag", "TimeModeLoops"]
+__all__ = ["CLOCK_DISCOVERY", "LOCKSTEP_FULL_POLL", "LOCKSTEP_RESEND", "StopFlag", "TimeModeLoops"]
 
-CLOCK_QOS = QoSProfile(depth=10)
 CLOCK_DISCOVERY = 3.0                       # s a simulated-time node looks for another /clock publisher at start
 LOCKSTEP_RESEND = 0.5                       # s without a command: publish the last sample again
 LOCKSTEP_FULL_POLL = 1e-3                   # s (wall) between polls of every input while the lockstep waits for its answers
@@ -357,14 +356,14 @@ class TimeModeLoops(Node):
         (`accepted` says what to do instead); otherwise none."""
         if self.simulated:
             self.refuse_a_second_clock(accepted)
-        self._pub_clock = (self.create_publisher(Clock, CLOCK, CLOCK_QOS, event_callbacks=self.output_events(CLOCK))
+        self._pub_clock = (self.create_publisher(Clock, CLOCK, topic_qos(CLOCK), event_callbacks=self.output_events(CLOCK))
                            if self.simulated else None)
 
     def follow_clock(self) -> None:
         """With use_sim_time, /clock in: the model follows it (`ExternalClock`, `_run_external_clock`)."""
         self._external = ExternalClock(self.device.dt_ns)
         if self.external_clock:
-            sub = self.create_subscription(Clock, CLOCK, self._on_clock, CLOCK_QOS,
+            sub = self.create_subscription(Clock, CLOCK, self._on_clock, topic_qos(CLOCK),
                                            event_callbacks=self.input_events(CLOCK))
             self._inputs.append((sub, self._on_clock))
 

@@ -1,6 +1,8 @@
-"""QoS incompatibility events of a node that runs without an executor: the callbacks its endpoints
-are made with (`output_events`, `input_events`), polled by `_poll_events` with the service requests
-(`pcv_sim.node.services`), each logged with what the other side must change to connect."""
+"""The QoS of a node's endpoints: the interface registry's (`pcv_sim.io.topics.qos_of`) as rclpy's
+profiles (`ros_qos`, `topic_qos`), and their incompatibility events for a node that runs without an
+executor: the callbacks its endpoints are made with (`output_events`, `input_events`), polled by
+`_poll_events` with the service requests (`pcv_sim.node.services`), each logged with what the other
+side must change to connect."""
 
 from __future__ import annotations
 
@@ -9,13 +11,32 @@ from typing import Any
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
-from rclpy.qos import QoSPolicyKind
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 
-__all__ = ["COMMAND_HINT", "SAMPLE_HINT", "QosEvents"]
+from pcv_sim.io.bag import Qos
+from pcv_sim.io.topics import qos_of
+
+__all__ = ["COMMAND_HINT", "SAMPLE_HINT", "QosEvents", "ros_qos", "topic_qos"]
 
 SAMPLE_HINT = ("subscribe best effort (QoSProfile(depth=1000, reliability=BEST_EFFORT); "
                "ros2 topic echo --qos-reliability best_effort)")
 COMMAND_HINT = "subscribe with a compatible QoS (reliable, volatile)"
+
+
+def ros_qos(qos: Qos) -> QoSProfile:
+    """A QoS of the registry as rclpy's profile (the other policies rclpy's defaults, as in a bag's
+    metadata)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST if qos.history == "keep_last" else HistoryPolicy.KEEP_ALL,
+        depth=qos.depth,
+        reliability=ReliabilityPolicy.RELIABLE if qos.reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE if qos.durability == "volatile" else DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def topic_qos(topic: str) -> QoSProfile:
+    """The profile of a node's endpoint on a relative topic: the registry's (ValueError for a topic it
+    does not list)."""
+    return ros_qos(qos_of(topic))
 
 
 class QosEvents(Node):

@@ -68,6 +68,8 @@ class _Host:
     def __init__(self, node: Any, scenario: Scenario, ros: RosController, proc: Any, log_path: Path | None) -> None:
         from std_msgs.msg import Float64
 
+        from pcv_sim.node.qos_events import topic_qos
+
         self.node, self.scenario, self.ros, self.proc, self.log_path = node, scenario, ros, proc, log_path
         rig = node.device
         self.per = rig.params.steps_per_period
@@ -86,7 +88,7 @@ class _Host:
         self._msg = Float64()
         self._last_sp = math.nan                     # the setpoint last published on the topic
         self.channel = False                         # the controller is on the lockstep channel
-        self._pub_sp = node.create_publisher(Float64, SETPOINT_TOPIC, 10)
+        self._pub_sp = node.create_publisher(Float64, SETPOINT_TOPIC, topic_qos(SETPOINT_TOPIC))
         self.done = False
         self.failure: str | None = None
         self.progress = time.monotonic()
@@ -271,10 +273,10 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
     from rclpy.parameter import Parameter
-    from rclpy.qos import QoSProfile
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
+    from pcv_sim.node.qos_events import topic_qos
     from pcv_sim.node.rig import rig_node
 
     spec = scenario.ros
@@ -301,7 +303,7 @@ def run_ros_scenario(scenario: Scenario, *, domain: int | None = None) -> Scenar
         if node.device.params != scenario.rig:
             raise ScenarioAborted("the rig node's rig differs from the scenario's (rig_config)")
         host = _Host(node, scenario, spec, proc, log_path)
-        flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, QoSProfile(depth=100))
+        flags_sub = node.add_input(DiagnosticArray, FLAGS_TOPIC, host.on_flags, topic_qos(FLAGS_TOPIC))
         schedule_timeline(node.device, scenario)
         host.channel = channel = _wait_for_controller(node, host, spec, proc, flags_sub)
         if channel:                  # the flags come with the answers; unsubscribed, nobody writes them

@@ -25,8 +25,12 @@ and a wait set, as the rig). Topics, relative to the namespace:
                                  (level ERROR while fault_detected, else OK) with a KeyValue per
                                  flag, the value as repr(float) (`fault_detected`: "0.0" or "1.0")
 
-Parameters: the controller's gains and constants (kp, ki, kv, base, period, fault_time,
-coil_volts, coil_ohm: `PositionController`'s keywords, its defaults); `lockstep_channel` (true;
+Parameters, each declared once (unit, range, default, doc) and refused with its declaration's
+message, at start (exit 2) and at run time: the controller's gains and settings (kp, ki, kv,
+base, period, fault_time, coil_volts, coil_ohm, current_loop:
+`pcv_sim.control.params.PositionControllerParams`, docs/files.md has their table), changed with
+`ros2 param set` between two control periods (the integral and the held samples carry over;
+`period` is fixed while the node runs); `lockstep_channel` (true;
 false: the rig's per-valve topics, `<valve>/pressure`, `<valve>/current`, `cylinder/joint_states`
 in, one `<valve>/duty_cycle` per valve and `controller/flags` out, a period complete when
 joint_states, published last, has come); `period` must be the rig's
@@ -42,14 +46,20 @@ unless one came with that sample). Exit status as the rig:
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import sys
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
+from pcv_sim.control.params import PositionControllerParams
+from pcv_sim.device.settings import NodeParameter, parameters_of
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
+from pcv_sim.params import any_value, key_cells, setting
 
-__all__ = ["FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "PeriodCheck", "main"]
+__all__ = ["DECLARING", "FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "ControllerNodeSettings",
+           "PeriodCheck", "main", "node_parameters"]
 
 NODE_NAME = "steering_controller"
 FLAGS_TOPIC = "controller/flags"
@@ -96,46 +106,81 @@ class PeriodCheck:
                 f"{self.period * 1e3:g} ms: set -p period:={median:.4g} (the rig's control_period)")
 
 
-def _parameters() -> dict[str, float]:
-    """PositionController's keyword arguments and their defaults: the node's parameters."""
-    import inspect
+@dataclass(frozen=True)
+class ControllerNodeSettings:
+    """The node's own setting, beside the controller's gains and settings
+    (`pcv_sim.control.params.PositionControllerParams`)."""
 
-    from pcv_sim.control.steering import PositionController
+    lockstep_channel: bool = setting(
+        True, "-", "answer over the rig's lockstep channel (lockstep/sample, lockstep/command); false: the "
+        "per-valve topics", any_value, "bool", read_only=True)
 
-    return {name: float(p.default) for name, p in inspect.signature(PositionController).parameters.items()}
+
+#: What the node declares, each from its one declaration: the controller's, then the node's own.
+DECLARING = (PositionControllerParams, ControllerNodeSettings)
+
+
+def node_parameters() -> tuple[NodeParameter, ...]:
+    """The node's parameters as it declares them: each described by its doc, the range it accepts and
+    its unit (`pcv_sim.device.settings.NodeParameter`, as the device nodes' settings)."""
+    out: list[NodeParameter] = []
+    for cls in DECLARING:
+        accepted = {key: words for key, _, words, _, _ in key_cells(cls)}
+        out += [dataclasses.replace(p, description=f"{p.description}; accepted {accepted[p.name]}")
+                for p in parameters_of(cls)]
+    return tuple(out)
+
+
+def _help() -> str:
+    """The parameters for --help: name = default unit (accepted), from the declarations."""
+    return ", ".join(f"{key} = {default.strip('`')}{'' if unit == '-' else ' ' + unit} ({accepted})"
+                     for cls in DECLARING for key, unit, accepted, default, _ in key_cells(cls))
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
     """The node (rclpy initialized); ParameterError for an invalid parameter."""
-    import math
-
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.node import Node
+    from rcl_interfaces.msg import SetParametersResult
     from rclpy.qos import QoSProfile
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64
 
+    from pcv_sim.control.params import controller_params
     from pcv_sim.control.steering import PositionController
+    from pcv_sim.device.parameters import check_params_files, command_line_overrides
     from pcv_sim.errors import ParameterError
     from pcv_sim.node.client import RigClient
+    from pcv_sim.node.parameters import NodeParameters
     from pcv_sim.node.polling import linger_for_rosout
+    from pcv_sim.node.qos_events import QosEvents
+    from pcv_sim.node.services import ServicePolling
     from pcv_sim.node.tuning import freeze_heap, tighten_timer_slack
 
-    class SteeringControllerNode(Node):
-        """PositionController between the rig's samples and its duty commands; `run(stop)`."""
+    gain_names = frozenset(f.name for f in dataclasses.fields(PositionControllerParams))
+
+    class SteeringControllerNode(NodeParameters, ServicePolling, QosEvents):
+        """PositionController between the rig's samples and its duty commands; `run(stop)`. Its
+        parameters as the device nodes': declared from their declarations, refused with their
+        messages at start and at run time (`pcv_sim.node.parameters`), a change of the gains checked
+        on the service worker and put in force by the loop between two periods
+        (`pcv_sim.node.services`, polled by the client's run)."""
 
         def __init__(self) -> None:
             super().__init__(NODE_NAME, **kwargs)
+            self._init_services()
+            self._init_parameters()
+            self._init_qos_events()
+            self._staged_gains: PositionControllerParams | None = None
             try:
-                self.gains = self._declare()
-                self.channel = self._declare_channel()
+                check_params_files(argv)
+                self._cli = command_line_overrides(argv, NODE_NAME)
+                self.gains, self.channel = self._declare()
             except ParameterError as err:
                 self.get_logger().error(f"invalid parameters: {err}")
                 linger_for_rosout(self)
                 self.destroy_node()
                 raise
-            self.law = PositionController(**self.gains)
+            self.law = PositionController(self.gains)
             self.setpoint: float | None = None
             self._setpoint_fresh = False
             self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
@@ -147,33 +192,53 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
             self._clock_msg = Clock()
             self._drop_clock_subscription()
-            self._period_check = PeriodCheck(self.gains["period"])
+            self._period_check = PeriodCheck(self.gains.period)
             self.get_logger().info(
-                f"steering controller: valves {', '.join(VALVES)}, period {self.gains['period'] * 1e3:g} ms, "
-                + ", ".join(f"{k} {v:g}" for k, v in self.gains.items() if k != "period")
+                f"steering controller: valves {', '.join(VALVES)}, period {self.gains.period * 1e3:g} ms, "
+                + ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(self.gains).items() if k != "period")
                 + f"; setpoint on {self.resolve_topic_name(SETPOINT_TOPIC)}, flags on "
                 f"{self.resolve_topic_name(FLAGS_TOPIC)}; waiting for the rig's samples")
 
-        def _declare(self) -> dict[str, float]:
-            values = {}
-            for name, default in _parameters().items():
-                desc = ParameterDescriptor(description=f"PositionController({name}=...)", dynamic_typing=True)
-                v: Any = self.declare_parameter(name, default, desc).value
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ParameterError(f"{name}: got {v!r}; accepted is a finite number")
-                if name in ("period", "fault_time", "coil_ohm") and v <= 0.0:
-                    raise ParameterError(f"{name}: got {v!r}; accepted is a number > 0")
-                values[name] = float(v)
-            return values
+        def _declare(self) -> tuple[PositionControllerParams, bool]:
+            """Every parameter declared and checked by its declaration; names nobody declares refused."""
+            specs = {p.name: p for p in node_parameters()}
+            values = self.declare_settings(specs.values(), lambda name, value: specs[name].check(name, value))
+            self.refuse_unknown_names(False)
+            self.set_retaken()
+            self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), False)
+            self.add_on_set_parameters_callback(self._check_change)
+            self.add_post_set_parameters_callback(self._stage_change)
+            return (PositionControllerParams(**{k: v for k, v in values.items() if k in gain_names}),
+                    bool(values[CHANNEL_PARAMETER]))
 
-        def _declare_channel(self) -> bool:
-            desc = ParameterDescriptor(description="answer over the rig's lockstep channel (lockstep/sample, "
-                                                   "lockstep/command); false: the per-valve topics",
-                                       read_only=True)
-            v: Any = self.declare_parameter(CHANNEL_PARAMETER, True, desc).value
-            if not isinstance(v, bool):
-                raise ParameterError(f"{CHANNEL_PARAMETER}: got {v!r}; accepted is true or false")
-            return v
+        def _check_change(self, parameters: list[Any]) -> SetParametersResult:
+            """on-set callback (the service worker): the gains with the change, checked as at start
+            (rclpy refuses the read-only ones); staged for `_stage_change`. The base is the node's
+            parameters, which hold the changes of the request so far (one request sets each of its
+            parameters on its own, all put in force after it)."""
+            changes = {p.name: p.value for p in parameters if p.name in gain_names}
+            if not changes:
+                return SetParametersResult(successful=True)
+            now = {name: self.get_parameter(name).value for name in gain_names}
+            try:
+                self._staged_gains = controller_params({**now, **changes}, where=NODE_NAME)
+            except ParameterError as err:
+                return SetParametersResult(successful=False, reason=str(err))
+            return SetParametersResult(successful=True)
+
+        def _stage_change(self, parameters: list[Any]) -> None:
+            """post-set callback: what `_check_change` staged, put in force by the loop between two
+            periods (`_pump`), the request answered only then."""
+            gains, self._staged_gains = self._staged_gains, None
+            if gains is None:
+                return
+            changed = ", ".join(f"{p.name} = {p.value!r}" for p in parameters)
+            self._ready.append(lambda: self._retune(gains, changed))
+
+        def _retune(self, gains: PositionControllerParams, changed: str) -> None:
+            self.gains = gains
+            self.law.retune(gains)
+            self.get_logger().info(f"parameters changed: {changed}")
 
         def _drop_clock_subscription(self) -> None:
             """use_sim_time: the TimeSource's /clock subscription goes (no executor would take it); the
@@ -214,7 +279,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def _rewind(self) -> Any:
             self.get_logger().info("a sample before the last one answered: the rig started again; a fresh "
                                    "controller")
-            self.law = PositionController(**self.gains)
+            self.law = PositionController(self.gains)
             self._period_check.restart()
             if not self._setpoint_fresh:       # the new run sent none before its first sample: it has none
                 self.setpoint = None
@@ -239,8 +304,11 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         def run(self, stop: Stop) -> None:
             tighten_timer_slack()        # wait-set timeouts land on time
             freeze_heap()                # no 17 ms collection over rclpy's objects in a period
-            self.client.run(self._control, None, timeout=None, stop=stop, on_flags=self._publish_flags,
-                            rewind=self._rewind)
+            try:
+                self.client.run(self._control, None, timeout=None, stop=stop, on_flags=self._publish_flags,
+                                rewind=self._rewind, on_poll=self._poll_services)
+            finally:
+                self._stop_worker()
 
     return SteeringControllerNode()
 
@@ -261,9 +329,10 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "lockstep with the rig node in its namespace: in <valve>/pressure, <valve>/current, "
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
-        epilog="parameters (--ros-args -p NAME:=VALUE): " + ", ".join(f"{k} = {v:g}" for k, v in _parameters().items())
-               + f"; period must be the rig's control period; use_sim_time follows the rig's model time; "
-               f"{CHANNEL_PARAMETER} = true (false: the per-valve topics instead of the lockstep channel)")
+        epilog="parameters (--ros-args -p NAME:=VALUE): " + _help()
+               + f"; period must be the rig's control period; period and {CHANNEL_PARAMETER} are fixed while the "
+               "node runs, the others change between two periods (ros2 param set); use_sim_time follows the rig's "
+               f"model time; {CHANNEL_PARAMETER} false: the per-valve topics instead of the lockstep channel")
     try:
         parser.parse_args(remove_ros_args(argv)[1:])
     except Exception as err:

@@ -235,14 +235,14 @@ def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: n
     # The recording's inputs at their steps: the duty and the load flow fed (into the model inside
     # the compiled calls), a duty through a fall-rate limiter and the supply as queued inputs.
     if params.command.duty_fall_rate_limit is None:
-        device.feed("duty_cycle", cmd_step, tl.duty)
+        device.feed(DUTY_CYCLE, cmd_step, tl.duty)
     else:
         for k, d in zip(cmd_step.tolist(), tl.duty.tolist()):
-            device.submit("duty_cycle", d, k)
-    device.feed("load_flow", cmd_step, tl.load_flow)
+            device.submit(DUTY_CYCLE, d, k)
+    device.feed(LOAD_FLOW, cmd_step, tl.load_flow)
     supply = np.flatnonzero(np.diff(tl.supply_pressure)) + 1
     for k, p in zip(cmd_step[supply].tolist(), tl.supply_pressure[supply].tolist()):
-        device.submit("supply_pressure", p, k)
+        device.submit(SUPPLY_PRESSURE, p, k)
     # Each sample needs the state at the step at or before it and, between steps, the next one.
     below = sample_ns // dt_ns
     frac = (sample_ns - below * dt_ns) / dt_ns

@@ -23,6 +23,14 @@ from typing import Any
 
 import numpy as np
 
+from pcv_sim.io.topics import (
+    AMBIENT_TEMPERATURE,
+    COIL_RESISTANCE,
+    COIL_TEMPERATURE,
+    CORE_POSITION,
+    OIL_TEMPERATURE,
+    SPOOL_POSITION,
+)
 from pcv_sim.rig.assertions import Outcome, outcome_kind, signal_kind
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.rig import TEMPERATURE_INPUTS
@@ -41,8 +49,8 @@ _GAP = "core_gap"
 def _derived(run: RigRun) -> dict[str, np.ndarray]:
     """The core's gap to the spool (spool position - core position, m) of each valve whose core
     is its own body (R35): zero while they move as one."""
-    return {f"{v}.{_GAP}": run.signal(f"{v}.spool_position") - run.signal(f"{v}.core_position")
-            for v in run.valves if f"{v}.core_position" in run.signals}
+    return {f"{v}.{_GAP}": run.signal(f"{v}.{SPOOL_POSITION}") - run.signal(f"{v}.{CORE_POSITION}")
+            for v in run.valves if f"{v}.{CORE_POSITION}" in run.signals}
 
 
 def _panels(run: RigRun, extra: Mapping[str, np.ndarray]) -> list[tuple[str, str, list[str]]]:
@@ -56,12 +64,12 @@ def _panels(run: RigRun, extra: Mapping[str, np.ndarray]) -> list[tuple[str, str
            ("coil currents", "current", [f"{x}.current" for x in v]),
            ("piston velocity", "velocity", ["cylinder.velocity"]),
            ("forces", "force", ["cylinder.effort", *forces])]
-    temperatures = [f"{x}.{n}" for x in v for n in ("coil_temperature", "ambient_temperature", "oil_temperature")
+    temperatures = [f"{x}.{n}" for x in v for n in (COIL_TEMPERATURE, AMBIENT_TEMPERATURE, OIL_TEMPERATURE)
                     if f"{x}.{n}" in present]
     if temperatures:
         out.append(("temperatures", "temperature", temperatures))
-    if any(f"{x}.coil_resistance" in present for x in v):
-        out.append(("coil resistances [ohm]", "number", [f"{x}.coil_resistance" for x in v]))
+    if any(f"{x}.{COIL_RESISTANCE}" in present for x in v):
+        out.append(("coil resistances [ohm]", "number", [f"{x}.{COIL_RESISTANCE}" for x in v]))
     if any(f"{x}.{_GAP}" in present for x in v):
         out.append(("core gap to the spool", "length", [f"{x}.{_GAP}" for x in v]))
     if run.flags:

@@ -31,6 +31,8 @@ from pcv_sim.device.faults import CYLINDER
 from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.device.spec import signal_kind
 from pcv_sim.errors import CommandError
+from pcv_sim.io import topics
+from pcv_sim.io.topics import JOINT_FIELDS, LOAD_FLOW, OUTPUT_ROLES
 from pcv_sim.model import kernel
 from pcv_sim.plant import cylinder
 from pcv_sim.plant.cylinder import cylinder_system
@@ -51,8 +53,8 @@ __all__ = [
     "signal_names",
 ]
 
-VALVE_SIGNALS = ("pressure", "current", "spool_position")
-CYLINDER_SIGNALS = ("position", "velocity", "effort")
+VALVE_SIGNALS = OUTPUT_ROLES
+CYLINDER_SIGNALS = JOINT_FIELDS
 
 
 def signal_names(valve_names: Sequence[str], options: Mapping[str, Sequence[str]] | None = None) -> tuple[str, ...]:
@@ -60,7 +62,7 @@ def signal_names(valve_names: Sequence[str], options: Mapping[str, Sequence[str]
     outputs its options bring (`options`: valve -> names), then `cylinder.<...>`."""
     opts = options or {}
     return tuple(f"{n}.{s}" for n in valve_names for s in (*VALVE_SIGNALS, *opts.get(n, ()))) + tuple(
-        f"cylinder.{s}" for s in CYLINDER_SIGNALS)
+        f"{CYLINDER}.{s}" for s in CYLINDER_SIGNALS)
 
 
 def rig_signals(params: RigParams) -> tuple[str, ...]:
@@ -75,7 +77,7 @@ def rig_signals(params: RigParams) -> tuple[str, ...]:
 MAX_EXTERNAL_FORCE = 1.0e6
 #: The input name of the external force in `Rig.on_input` (valve inputs are `<valve>.duty_cycle`,
 #: `<valve>.supply_pressure`).
-EXTERNAL_FORCE = "cylinder.external_force"
+EXTERNAL_FORCE = f"{CYLINDER}.{topics.EXTERNAL_FORCE}"
 
 
 def check_external_force(force: Any) -> float:
@@ -155,7 +157,7 @@ def _plant_spec(params: RigParams) -> PlantSpec:
         c = v.chamber
         if c not in ("a", "b"):
             continue                    # on its own load volume: load_flow and load_volume stay inputs
-        wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.load_flow"),
+        wires += [(f"{v.name}.pressure", f"cylinder.pressure_{c}"), (f"cylinder.flow_{c}", f"{v.name}.{LOAD_FLOW}"),
                   (f"cylinder.volume_{c}", f"{v.name}.load_volume")]
     return PlantSpec(cylinder_system(params.cylinder, CYLINDER), tuple(wires), (params.cylinder.initial_position, 0.0),
                      {EXTERNAL_FORCE: check_external_force}, tuple(f"{CYLINDER}.{s}" for s in CYLINDER_SIGNALS),

@@ -89,6 +89,7 @@ import numpy as np
 
 from pcv_sim.device.faults import Fault, FaultError, fault_kind, fault_value_kind, parse_fault
 from pcv_sim.errors import CommandError, ParameterError, PcvSimError
+from pcv_sim.io.topics import AMBIENT_TEMPERATURE, OIL_TEMPERATURE
 from pcv_sim.keys import check_keys, exactly_one
 from pcv_sim.model import kernel
 from pcv_sim.params import (
@@ -227,7 +228,7 @@ class TimelineKeys:
 
 
 _TOP = tuple(declarations(ScenarioKeys))
-_ACTIONS = ("duty", "force", "supply", "ambient_temperature", "oil_temperature", "fault", "clear")
+_ACTIONS = ("duty", "force", "supply", AMBIENT_TEMPERATURE, OIL_TEMPERATURE, "fault", "clear")
 
 
 def _ros_namespace(v: str) -> str | None:
@@ -618,6 +619,8 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
             obj = obj(**dict(params or {}))
         except TypeError as err:
             raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
+        except ParameterError as err:                # refused by the controller's own declarations
+            raise ScenarioError(f"controller_params: {err}") from None
     if not callable(obj):
         raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
     controller: Controller = obj

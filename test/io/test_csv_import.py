@@ -202,3 +202,22 @@ def test_unknown_header_names_are_listed(tmp_path, capsys):
         import_csv(csv, tmp_path / "b")
     assert main(["import-csv", str(csv), str(tmp_path / "c")]) == 2
     assert "['-', '-'" not in capsys.readouterr().err
+
+
+def test_the_units_are_those_of_the_one_table():
+    """A CSV header's units are the units of pcv_sim.units.KINDS (the table's factors, found by their
+    names there in lower case); beside them only a data logger's words for a few."""
+    from pcv_sim.io.csv_import import UNITS
+    from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, LOAD_FLOW, PRESSURE, SPOOL_POSITION, SUPPLY_PRESSURE
+    from pcv_sim.units import KINDS
+
+    kinds = {"time": "time", DUTY_CYCLE: "fraction", PRESSURE: "pressure", SUPPLY_PRESSURE: "pressure",
+             CURRENT: "current", SPOOL_POSITION: "length", LOAD_FLOW: "flow"}
+    own = {}
+    for column, units in UNITS.items():
+        table = {name.lower(): f for name, f in KINDS[kinds[column]].units.items()}
+        assert {u: f for u, f in units.items() if u in table} == {u: table[u] for u in units if u in table}, column
+        own[column] = {u for u in units if u not in table}
+    assert own == {"time": {"ns"}, DUTY_CYCLE: {"1", "fraction", "percent"}, PRESSURE: set(), SUPPLY_PRESSURE: set(),
+                   CURRENT: set(), SPOOL_POSITION: set(), LOAD_FLOW: {"lpm", "l/s"}}
+    assert UNITS[DUTY_CYCLE]["percent"] == UNITS[DUTY_CYCLE]["%"] and UNITS[LOAD_FLOW]["lpm"] == UNITS[LOAD_FLOW]["l/min"]

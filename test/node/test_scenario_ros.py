@@ -125,7 +125,7 @@ def test_a_directory_starts_each_scenarios_controller_in_its_own_domain(ros, tmp
 def test_the_node_refuses_invalid_parameters_with_exit_2(ros):
     ctl = start_controller(ros, args=['-p', 'period:=0.0'])
     assert ctl.wait(60) == 2
-    assert 'invalid parameters: period: got 0.0; accepted is a number > 0' in ctl.output()
+    assert 'invalid parameters: period: got 0.0; accepted is a plausible value 0.0001 .. 1 (s)' in ctl.output()
 
 
 def test_a_directory_with_a_node_the_user_started_runs_its_scenarios_one_after_the_other(ros, tmp_path, capsys):

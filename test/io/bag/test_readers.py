@@ -3,6 +3,8 @@ package's reader (with the ros2 decoder-free raw API), and agree with pcv_sim's 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -11,8 +13,11 @@ from rosbags.typesys import Stores, get_typestore
 
 from pcv_sim.io.bag import read_bag
 from pcv_sim.io.topics import BAG_TOPICS
+from pcv_sim.replay.reference_bags import PROTOCOLS
 
-from .conftest import BAGS, REFERENCE_BAGS
+BAGS = Path(__file__).resolve().parents[3] / "bags"
+REFERENCE_BAGS = tuple(PROTOCOLS)
+
 
 
 @pytest.mark.parametrize("name", REFERENCE_BAGS)

@@ -32,7 +32,7 @@ from rosbags.typesys import Stores, get_typestore
 from pcv_sim.errors import BagError
 from pcv_sim.io import FLOAT64, FLUID_PRESSURE, BagWriter, read_bag
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 TS = get_typestore(Stores.ROS2_JAZZY)
 DIAG = "diagnostic_msgs/msg/DiagnosticArray"
 T0 = 1_700_000_000_000_000_000  # a realistic epoch time in ns

@@ -1,0 +1,53 @@
+"""The rig node's settings without ROS (pcv_sim.rig.settings): checked by name, cross-checked with the
+rig's step, and the settings every node shares declared once, as the emulator's."""
+import pytest
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('time_mode', 'fast', r"time_mode: got 'fast'; accepted is one of 'real', 'simulated'"),
+    ('real_time_factor', -1.0, r'real_time_factor: got -1.0; accepted is a number >= 0'),
+    ('control_period', -0.001, r'control_period'),
+    ('seed', -1, r'seed'),
+    ('nope', 1, r"unknown parameter 'nope'; accepted are: rig_config"),
+])
+def test_rig_parameters_are_checked_by_name(name, value, match):
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.rig.settings import check_rig_value
+
+    with pytest.raises(ParameterError, match=match):
+        check_rig_value(name, value)
+
+
+def test_settings_cross_check_the_rig_step_and_override_the_control_period():
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.rig import load_rig
+    from pcv_sim.rig.settings import RigNodeSettings
+
+    rig = load_rig()
+    assert RigNodeSettings(control_period=0.01).rig_params(rig).steps_per_period == 100
+    assert RigNodeSettings().rig_params(rig) is rig
+    with pytest.raises(ParameterError, match=r'wake_period 0.00025 s is not a whole multiple of the model step'):
+        RigNodeSettings(wake_period=2.5e-4).check(rig)
+    with pytest.raises(ParameterError, match=r'max_catchup: got 0.0005; accepted is a number >= wake_period'):
+        RigNodeSettings(max_catchup=5e-4).check(rig)
+
+
+def test_the_rig_declares_every_setting_all_nodes_share_as_the_emulator_does():
+    """One declaration (pcv_sim.device.settings.CommonSettings): the real-time loop's settings (overrun
+    and realtime_priority too), diagnostics, the rejection log and the bag's place."""
+    import dataclasses
+
+    from pcv_sim.device.settings import NODE_PARAMETERS, CommonSettings
+    from pcv_sim.errors import ParameterError
+    from pcv_sim.rig.settings import RIG_PARAMETERS, RigNodeSettings, check_rig_value
+
+    common = [f.metadata["name"] or f.name for f in dataclasses.fields(CommonSettings)]
+    rig, emulator = {p.name: p for p in RIG_PARAMETERS}, {p.name: p for p in NODE_PARAMETERS}
+    assert {"overrun", "realtime_priority", "wake_period", "max_catchup"} <= set(common)
+    for name in common:
+        assert (rig[name].default, rig[name].unit, rig[name].description, rig[name].read_only) == \
+               (emulator[name].default, emulator[name].unit, emulator[name].description, emulator[name].read_only)
+    assert RigNodeSettings().catchup_bound == 0.05
+    assert RigNodeSettings(overrun="skip").catchup_bound == 1e-3            # one wake period
+    with pytest.raises(ParameterError, match=r"realtime_priority: got 100; accepted is an integer 0..99"):
+        check_rig_value("realtime_priority", 100)
