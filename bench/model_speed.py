@@ -1,6 +1,7 @@
 """Benchmark: the simulation core's cost per 0.1 ms step, compiled (numba) and as plain Python.
 
     .venv-kilted/bin/python bench/model_speed.py [--repeats 5] [--steps 20000] [--json]
+    .venv-kilted/bin/python bench/model_speed.py --first-start [--repeats 3] [--json]
 
 Times are CPU time of the measuring process (`time.process_time`: on a shared machine the wall
 clock also counts waiting for a core). Every figure is measured twice in the same run: in this process
@@ -15,7 +16,8 @@ Prints the Markdown table for BENCHMARKS.md, or with --json every figure as JSON
 - replay of bags/pcv_step_levels with the emulator's integrator (model run + comparison; the
   bag is read once outside the timing), simplified and full: real-time factor
 - first start: the emulator's device (`ValveDevice`, which loads every compiled call it steps with)
-  to its first steps, compiling the kernels into an empty cache, and loading them from the cache
+  to its first steps, compiling the kernels into an empty cache, and loading them from the cache;
+  alone with `--first-start` (median of `--repeats` fresh processes each)
 - `--options`: the valve with its three options beyond the paper's bench on (coil heating, oil
   at 41 degC, core-spool separation; docs/model.md R33-R35) against the paper's, per step, both
   models, alternating in one run; the ratio is the figure (goal: <= 1.5). Also coil heating with
@@ -141,19 +143,29 @@ def _child(args: list[str], env: dict[str, str]) -> dict[str, float]:
     return json.loads(proc.stdout)
 
 
-def _first_start() -> dict[str, float]:
-    """Seconds to the first step of a valve in a fresh process: into an empty cache (compiles) and
-    again from the filled cache (loads)."""
-    code = ("import time; t0 = time.perf_counter(); from pcv_sim.params import load_params; "
+def _first_start(repeats: int = 1) -> dict[str, float]:
+    """Seconds to the first steps of the emulator's device in a fresh process (from before its
+    imports): into an empty cache (compiles), and again from the filled cache (loads); the median
+    of `repeats` processes each (each empty-cache run in a cache of its own). Wall clock, and the
+    child's CPU time beside it (on a shared machine the wall clock also counts waiting for a core)."""
+    code = ("import time; t0, c0 = time.perf_counter(), time.process_time(); from pcv_sim.params import load_params; "
             "from pcv_sim.device.valve import ValveDevice; "
-            "d = ValveDevice(load_params(), safe_duty=0.5); d.advance_to(10); print(time.perf_counter() - t0)")
+            "d = ValveDevice(load_params(), safe_duty=0.5); d.advance_to(10); "
+            "print(time.perf_counter() - t0, time.process_time() - c0)")
+    runs: dict[str, list[tuple[float, float]]] = {"first_start_empty_cache": [], "first_start_cached": []}
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as cache:
+            env = {**os.environ, "PCV_SIM_CACHE": cache}
+            env.pop("NUMBA_CACHE_DIR", None)
+            for values in runs.values():   # empty cache first, then the cache it filled
+                proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                      check=True)
+                wall, cpu = (float(v) for v in proc.stdout.split())
+                values.append((wall, cpu))
     out = {}
-    with tempfile.TemporaryDirectory() as cache:
-        env = {**os.environ, "PCV_SIM_CACHE": cache}
-        env.pop("NUMBA_CACHE_DIR", None)
-        for label in ("first_start_empty_cache_s", "first_start_cached_s"):
-            proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-            out[label] = float(proc.stdout.strip())
+    for label, values in runs.items():
+        out[f"{label}_s"] = statistics.median(w for w, _ in values)
+        out[f"{label}_cpu_s"] = statistics.median(c for _, c in values)
     return out
 
 
@@ -191,7 +203,13 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print every figure as JSON")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--options", action="store_true", help="only: the options on vs the paper's valve")
+    ap.add_argument("--first-start", action="store_true",
+                    help="only: the first start (median of --repeats processes each, empty cache and cached)")
     args = ap.parse_args()
+    if args.first_start:
+        start = _first_start(args.repeats)
+        print(json.dumps(start, indent=2) if args.json else _first_start_line(start))
+        return
     if args.options:
         _options(args.repeats, args.steps, args.json)
         return
@@ -223,8 +241,14 @@ def main() -> None:
         print(f"| replay pcv_step_levels, {kind}: real-time factor (max pressure error) | "
               f"{compiled[f'replay_levels_{kind}_real_time_factor']:.0f}x "
               f"({compiled[f'replay_levels_{kind}_pressure_max_error_bar']:.4f} bar) | - | - | {target} |")
-    print(f"\nfirst start (fresh process to the first step): {start['first_start_empty_cache_s']:.1f} s compiling "
-          f"into an empty cache, {start['first_start_cached_s']:.2f} s from the cache")
+    print(f"\n{_first_start_line(start)}")
+
+
+def _first_start_line(start: dict[str, float]) -> str:
+    return (f"first start (fresh process to the emulator's device's first steps): "
+            f"{start['first_start_empty_cache_s']:.1f} s compiling into an empty cache "
+            f"(CPU {start['first_start_empty_cache_cpu_s']:.1f} s), {start['first_start_cached_s']:.2f} s from "
+            f"the cache (CPU {start['first_start_cached_cpu_s']:.2f} s)")
 
 
 if __name__ == "__main__":

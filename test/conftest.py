@@ -4,6 +4,7 @@ import contextlib
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -136,6 +137,14 @@ def compiled_kernels():
     for kind in ('simplified', 'full'):
         ValveDevice(replace_param(default_params(), 'simulation.model', kind))   # loads what it steps with
     Rig(load_rig())          # compiles (or loads) what the rig node and the lockstep call
+    # The options rig's composite (a third valve with the options, a kernel of its own), which a rig
+    # node test starts: compiled in its process beside other tests' load it outlasted START (90 s).
+    with tempfile.TemporaryDirectory() as directory:
+        Rig(load_rig(write_options_rig(Path(directory))))
+    options = default_params()          # and the emulator's with every option (test/node/test_emulator_options.py)
+    for key, value in (('solenoid.coil_temperature', 'lumped'), ('fluid.temperature', 'input'), ('spool.core', 'separate')):
+        options = replace_param(options, key, value)
+    ValveDevice(options)
 
 
 def write_options_rig(directory, thermal_resistance=1.0, heat_capacity=1.0):

@@ -53,6 +53,7 @@ from pcv_sim.io.recorder import RecorderStatus
 from pcv_sim.io.topics import DIAGNOSTICS, RESET, input_topics, output_topics
 from pcv_sim.node.base import NodeBase
 from pcv_sim.node.lockstep_channel import COMMAND_TOPIC, SAMPLE_TOPIC, NamedVector, decode, split_command
+from pcv_sim.node.loops import StopFlag
 from pcv_sim.node.qos_events import COMMAND_HINT, SAMPLE_HINT, topic_qos
 from pcv_sim.node.samples import SamplePublisher
 
@@ -104,8 +105,15 @@ class DeviceNode(NodeBase):
         self.recorder = self.open_recorder(kind.recorder(self))
         if self.recorder is not None:
             self.recorder.attach(dev)
-        self.get_logger().info(kind.describe(self))
         self.collect_event_handlers()
+
+    def run(self, stop: StopFlag) -> None:
+        # The start line is said once a signal is a stop the loop takes (the bag closed, the node
+        # torn down: `pcv_sim.node.process.serve`); during the construction it abandons the start-up.
+        # Whoever waits for the line and then signals gets the clean stop.
+        if not stop.requested:
+            self.get_logger().info(self.kind.describe(self))
+        super().run(stop)
 
     def _device_parameters(self, settings: Any) -> Any:
         return self.kind.device_parameters(self, settings)

@@ -193,7 +193,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self._clock_msg = Clock()
             self._drop_clock_subscription()
             self._period_check = PeriodCheck(self.gains.period)
-            self.get_logger().info(
+            self._start_line = (
                 f"steering controller: valves {', '.join(VALVES)}, period {self.gains.period * 1e3:g} ms, "
                 + ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(self.gains).items() if k != "period")
                 + f"; setpoint on {self.resolve_topic_name(SETPOINT_TOPIC)}, flags on "
@@ -302,6 +302,8 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self._pub_flags.publish(msg)
 
         def run(self, stop: Stop) -> None:
+            if not stop.requested:          # said once a signal is a clean stop (as the device nodes')
+                self.get_logger().info(self._start_line)
             tighten_timer_slack()        # wait-set timeouts land on time
             freeze_heap()                # no 17 ms collection over rclpy's objects in a period
             try:

@@ -1,4 +1,5 @@
-"""A short scenario (0.3 s) and campaign files over it, written into the test's tmp dir."""
+"""A short scenario (0.3 s) and campaign files over it, written into the test's tmp dir; one real
+Dask cluster for them all."""
 import os
 from pathlib import Path
 
@@ -27,6 +28,20 @@ def child_env(**extra):
     env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
     env.update(extra)
     return env
+
+
+@pytest.fixture(scope="package")
+def dask_cluster(tmp_path_factory):
+    """tcp://127.0.0.1:PORT of a scheduler with two single-threaded workers (real `dask scheduler` and
+    `dask worker` processes), shared by the campaign tests: each only submits a campaign to it, and
+    its start and stop (the workers' nannies close on SIGTERM) take ~5-10 s. Stopped at the end."""
+    from pcv_sim import testing
+
+    try:
+        with testing.dask_cluster(tmp_path_factory.mktemp("dask"), 2) as address:
+            yield address
+    except RuntimeError as err:
+        pytest.fail(str(err))
 
 
 @pytest.fixture

@@ -88,16 +88,13 @@ def test_a_negative_batch_exits_2_naming_what_is_accepted(write_campaign, tmp_pa
     assert not (tmp_path / "out").exists()
 
 
-def test_dask_tasks_in_batches_give_the_table_of_each_variant_alone(write_campaign, tmp_path, capsys):
+def test_dask_tasks_in_batches_give_the_table_of_each_variant_alone(write_campaign, tmp_path, capsys,
+                                                                   dask_cluster):
     """The Dask workers (real `dask scheduler` and `dask worker` processes) run their chunks in
     batches of two: the table of the variants alone, byte for byte."""
-    from pcv_sim import testing
-
     path = write_campaign(MONTE_CARLO, FAULTED)
     alone = run(path, tmp_path / "alone", "--batch", "1")
-    (tmp_path / "dask").mkdir()
-    with testing.dask_cluster(tmp_path / "dask", 2) as address:
-        assert main(["campaign", "run", str(path), "--out", str(tmp_path / "batched"), "--json",
-                     "--scheduler", address, "--batch", "2"]) == alone
+    assert main(["campaign", "run", str(path), "--out", str(tmp_path / "batched"), "--json",
+                 "--scheduler", dask_cluster, "--batch", "2"]) == alone
     capsys.readouterr()
     assert (tmp_path / "batched" / "results.csv").read_text() == (tmp_path / "alone" / "results.csv").read_text()

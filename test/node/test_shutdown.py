@@ -13,7 +13,7 @@ from pcv_sim.node.services import WORKER_STOP_BOUND
 #: An emulator process whose teardown is made to hang in one of three ways (argv[1]); the node and
 #: the process machinery are the real ones.
 HANGING = """if True:
-    import atexit, ctypes, sys, threading
+    import atexit, ctypes, sys, threading, time
     from pcv_sim.node.emulator import emulator_node
     from pcv_sim.node.process import main_process, serve
 
@@ -33,6 +33,8 @@ HANGING = """if True:
         node.destroy_node = destroy_node
         if how == 'worker':                 # a parameter change whose preparation never ends
             node._prepare = lambda params, changes: threading.Event().wait()
+        if how == 'slow':                   # the construction's last steps slow (a busy machine)
+            time.sleep(2.0)
         if how == 'exit':                   # the interpreter's exit would join this thread, and wait in atexit
             threading.Thread(target=threading.Event().wait, name='never ends').start()
             atexit.register(threading.Event().wait)
@@ -114,3 +116,19 @@ def test_a_parameter_change_still_being_prepared_does_not_hold_up_the_stop(ros):
     assert (f'stopping: the request to emulator/set_parameters in progress is left unanswered after '
             f'{WORKER_STOP_BOUND:g} s') in out, out
     assert 'stopping on SIGINT' in out and 'did not finish' not in out and 'Traceback' not in out, out
+
+
+def test_a_signal_right_after_the_start_line_is_a_clean_stop(ros):
+    """The start line ("... samples at ...") is what a supervisor or a test waits for before it
+    signals; it is said once a signal is the loop's stop (the teardown runs, a bag would be
+    closed), not while the construction is still ending, where a signal abandons the start-up.
+    Here the construction's end is made slow (2 s after the node's own constructor)."""
+    emu = _emulator(ros, 'slow')
+    end = time.monotonic() + 120
+    while 'samples at' not in emu.output():
+        assert emu.proc.poll() is None and time.monotonic() < end, emu.output()
+        time.sleep(0.01)
+    emu.proc.send_signal(signal.SIGINT)
+    assert emu.wait(TEARDOWN_BOUND + MARGIN + 10) == 0, emu.output()
+    out = emu.output()
+    assert 'stopping on SIGINT' in out and 'while starting' not in out, out
