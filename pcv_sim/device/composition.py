@@ -72,6 +72,7 @@ class Composition:
     _inputs_changed: Callable[[], None]
     input_values: Callable[[], dict[str, float]]
     duty_held: Callable[[str], float]
+    _bind_stretch: Callable[[], None]
 
     def __init__(self, dt: float, valves: Sequence[ValveSpec], plant: PlantSpec | None = None, *,
                  watchdog_timeout: float = 0.0, safe_duty: float = 0.0, sample_every: int = 1, seed: int = 0,
@@ -208,10 +209,12 @@ class Composition:
             lo[jp], hi[jp] = lim.pressure_min, lim.pressure_max
             lo[ji], hi[ji] = -lim.current_max, lim.current_max
         self.signal_bounds = (lo, hi)
-        #: The planned stretch's compiled call (`Simulator.sample_entry`) and its fixed arguments:
-        #: the arena, the tables, their layout, the step, the signals and their bounds.
+        #: The planned stretch's compiled call (`Simulator.sample_entry`: no fed row) and its fixed
+        #: arguments: the arena, the tables, their layout, the step, the signals and their bounds;
+        #: the device binds its stretch to them (`Device.planned_stretch`).
         fn, arrays = sim.sample_entry()
         self._planned_call = (fn, *arrays, self.dt, self.signal_outputs, lo, hi)
+        self._bind_stretch()
         #: The valve options' inputs (ambient and oil temperature, K; R33, R34) at their configured
         #: values: (input index, value) per valve that has them.
         self._option_defaults = [(plant.index("input", f"{v.name}.{name}"), value) for v, lay in zip(valves, layouts)

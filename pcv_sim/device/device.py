@@ -491,30 +491,58 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
         only what follows it. ModelFault (and `fault` set) when the model runs away or the sample
         is none a valve can show (its physical limits, checked in the compiled call): the same
         error as on every path of the device."""
+        r = self._feed_next
+        if taken is not None or r >= len(self._feed_steps) or self._feed_steps[r] != at:
+            self._stretch(at, out, after, taken)
+            return
         sim = self.sim
-        now = sim.steps
-        row = -1
-        if taken is None:
-            fn, S, Fa, FL, dt, select, lo, hi = self._planned_call
-            r = self._feed_next
-            if r < len(self._feed_steps) and self._feed_steps[r] == at:
-                row = r
-            try:
-                norm = fn(S, Fa, FL, at - now, now, dt, select, out, after, self._feed_i, self._feed_v, row, lo, hi)
-            except MODEL_FAILURES as err:
-                self._fail(f"model step failed ({type(err).__name__}: {err})")
-        else:
-            norm = taken
-        sim.steps = at + after
-        if row >= 0:
-            self._feed_row(row, at)                    # already in the model; for the hook and the bookkeeping
+        try:            # the row in the same call, after the steps to `at`, before the sample
+            norm = sim.advance_sample(at - sim.steps, self.signal_outputs, out, after,
+                                      feed=(self._feed_i, self._feed_v, r), bounds=self.signal_bounds)
+        except MODEL_FAILURES as err:
+            self._fail(f"model step failed ({type(err).__name__}: {err})")
+        self._feed_row(r, at)                          # already in the model; for the hook and the bookkeeping
         if not math.isfinite(norm):
-            # The sample first (at its step: none a valve cannot show leaves), then the state reached;
-            # each raises, naming the time and the active faults.
-            sim.steps = at
-            self._check_limits(out)
+            self._planned_failed(at, after, out)
+
+    def planned_stretch(self) -> Callable[[int, np.ndarray, int, float | None], None]:
+        """The planned stretch's call as one function bound to the device's compiled call:
+        `stretch(at, out, after=0, taken=None)` is `sample_planned(at, out, after, taken)` for a
+        period at which no fed input is due either (the caller has made sure: `planned_until()`
+        beyond `at + after`, and the watchdogs' `next_due`), without the method's lookups; what the
+        lockstep calls every control period of such a stretch. `sample_planned` calls it for every
+        period without a fed row: the same numbers and errors. Bound to the present simulator:
+        take it again after a restart with new parameters (`install`)."""
+        return self._stretch
+
+    def _bind_stretch(self) -> None:
+        """`planned_stretch`'s function over the simulator's compiled call as it is now (its arena,
+        tables, the signals and their bounds: `Composition._planned_call`)."""
+        fn, S, Fa, FL, dt, select, lo, hi = self._planned_call
+        sim = self.sim
+        isfinite = math.isfinite
+
+        def stretch(at: int, out: np.ndarray, after: int = 0, taken: float | None = None) -> None:
+            if taken is None:
+                now = sim.steps
+                try:
+                    taken = fn(S, Fa, FL, at - now, now, dt, select, out, after, lo, hi)
+                except MODEL_FAILURES as err:
+                    self._fail(f"model step failed ({type(err).__name__}: {err})")
             sim.steps = at + after
-            self._check_finite()
+            if not isfinite(taken):
+                self._planned_failed(at, after, out)
+
+        self._stretch = stretch
+
+    def _planned_failed(self, at: int, after: int, out: np.ndarray) -> None:
+        """A planned call's norm was not finite: the sample first (at its step: none a valve cannot
+        show leaves), then the state reached; each raises, naming the time and the active faults."""
+        sim = self.sim
+        sim.steps = at
+        self._check_limits(out)
+        sim.steps = at + after
+        self._check_finite()
 
     def run_to(self, step: int) -> list[Sample]:
         """Advance to `step` (inputs, fault commands and watchdog deadlines acting at their steps;

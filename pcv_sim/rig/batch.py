@@ -113,7 +113,7 @@ def compiled_before(rig: Rig, copies: int) -> bool:
     if key in _READY:
         return _READY[key]
     digest = hashlib.sha1(generate_source(batch_plant(rig.plant, copies)).encode()).hexdigest()[:16]
-    pattern = f"pcv_sim_kernel_{digest}.sim_advance_sample_{rig.sim.integrator}-*.nbi"
+    pattern = f"pcv_sim_kernel_{digest}.sim_sample_{rig.sim.integrator}-*.nbi"
     found = enabled() and any((cache_root() / "numba" / source_digest()).rglob(pattern))
     _READY[key] = found
     return found
@@ -232,7 +232,6 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
     select = batch.select
     lo, hi = batch.bounds
     dt = sim.dt
-    feed_i, feed_v = np.zeros(0, dtype=np.int64), np.zeros((0, 0))
     stale: list[int] = []               # places of copies whose run ended, not yet mirroring a live one
     bound = False                       # every live copy's state in the batch
     together = alone = retaken = 0
@@ -267,7 +266,7 @@ def run_lockstep_batch(rigs: Sequence[Rig], controllers: Sequence[Controller | N
                 at = k0 + k * per
                 before[:] = S
                 try:
-                    norm = fused(S, Fa, FL, at - now, now, dt, select, rows[k], 1, feed_i, feed_v, -1, lo, hi)
+                    norm = fused(S, Fa, FL, at - now, now, dt, select, rows[k], 1, lo, hi)
                 except MODEL_FAILURES:
                     norm = math.nan
                 if math.isfinite(norm):

@@ -152,11 +152,12 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
     sim = rig.sim
     # The periods in which nothing but the controller's commands falls due (no scheduled input,
     # watchdog deadline, or fed input other than one at the sampled step) take the fast path:
-    # the rig's planned stretch (one compiled call, `rig.sample_planned`), the commands of the
-    # valves the rig lets write their duty straight into the model (`rig.direct_duties`) written
-    # there; every other period the rig's own (rig.advance_sample, rig.set_duty). Both give the
-    # same numbers bit for bit.
+    # the rig's planned stretch (one compiled call, `rig.sample_planned`; `rig.planned_stretch`
+    # where no fed input is due at all), the commands of the valves the rig lets write their duty
+    # straight into the model (`rig.direct_duties`) written there; every other period the rig's
+    # own (rig.advance_sample, rig.set_duty). Both give the same numbers bit for bit.
     sample_planned = rig.sample_planned
+    stretch = rig.planned_stretch()
     planned_until = rig.planned_until
     watchdogs = [rig.watchdogs[v] for v in valves]
     duty_name = [f"{v}.duty_cycle" for v in valves]
@@ -235,7 +236,7 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
                     if batched:             # each period in the batch (got: its norm) or alone (None)
                         got = yield end
                         u = sim.u
-                    sample_planned(at, y, 1, got)
+                    stretch(at, y, 1, got)
                     now = at + 1
                     t = at * dt
                     measure(t, y)                   # no sensor fault: y itself (kept for a later fault)

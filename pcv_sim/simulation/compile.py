@@ -175,20 +175,13 @@ def relax(t, y, y0, u, P, F, W, Y, U, s, E, A):
 _SAMPLE = '''
 
 @jit(nrt=False)
-def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
-                         feed_i, feed_v, row, lo, hi):
-    # n steps, then the inputs of row `row` of feed_v (u[feed_i[j]] = feed_v[row, j]; NaN: left
-    # as it is; row < 0: none) and the outputs at the step reached (inputs in force from there
-    # on): out[i] = Y[select[i]], then `after` more steps with the same inputs. One call where
-    # advance + inputs + outputs + advance would be four: each call from Python costs its
-    # argument unboxing and the Python around it, about a step of the rig.
+def advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after, lo, hi):
+    # n steps, the outputs at the step reached (inputs in force from there on): out[i] =
+    # Y[select[i]], then `after` more steps with the same inputs. One call where advance +
+    # outputs + advance would be three: each call from Python costs its argument unboxing and the
+    # Python around it, about a step of the rig.
     if n > 0:
         advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
-    if row >= 0:
-        for j in range(len(feed_i)):
-            v = feed_v[row, j]
-            if v == v:
-                u[feed_i[j]] = v
     outputs((k0 + n) * h, x, u, P, F, W, Y, U)
     for i in range(len(select)):
         out[i] = Y[select[i]]
@@ -251,8 +244,28 @@ def sim_advance_{name}(S, Fa, FL, n, k0, h):
 @jit(nrt=False)
 def sim_advance_sample_{name}(S, Fa, FL, n, k0, h, select, out, after, feed_i, feed_v, row, lo, hi):
 {views}
+    if row >= 0:
+        # After the n steps, before the outputs: the inputs of row `row` of feed_v (u[feed_i[j]] =
+        # feed_v[row, j]; NaN: left as it is), the inputs due at the sampled step.
+        if n > 0:
+            advance_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B)
+        for j in range(len(feed_i)):
+            v = feed_v[row, j]
+            if v == v:
+                u[feed_i[j]] = v
+        return advance_sample_{name}(0, k0 + n, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out,
+                                     after, lo, hi)
     return advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
-                                 feed_i, feed_v, row, lo, hi)
+                                 lo, hi)
+
+
+@jit(nrt=False)
+def sim_sample_{name}(S, Fa, FL, n, k0, h, select, out, after, lo, hi):
+{views}
+    # sim_advance_sample without a fed row: three arguments fewer to unbox on every call of a
+    # loop that samples every control period (the lockstep's planned stretch)
+    return advance_sample_{name}(n, k0, h, x, u, P, F, W, Y, U, s1, s2, s3, s4, xt, E, A, B, select, out, after,
+                                 lo, hi)
 
 
 @jit(nrt=False)

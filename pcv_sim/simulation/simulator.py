@@ -44,6 +44,7 @@ class Simulator:
         self._advance = getattr(module, f"sim_advance_{integrator}")
         self._run = getattr(module, f"sim_run_{integrator}")
         self._advance_sample = getattr(module, f"sim_advance_sample_{integrator}")
+        self._sample = getattr(module, f"sim_sample_{integrator}")        # the same without a fed row
         self._sample_entry: Callable[..., float] | None = None       # `sample_entry`, made on first use
         self._outputs = module.sim_outputs
         self._derivs = module.derivs
@@ -163,20 +164,19 @@ class Simulator:
         return float(norm)
 
     def sample_entry(self) -> tuple[Callable[..., float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """`advance_sample`'s compiled function and its first three arguments (the arena, the tables
-        and their layout), for a loop that calls it every few steps and cannot afford the method's
-        Python: `fn(*arrays, n, steps, dt, select, out, after, feed_i, feed_v, row, lo, hi)` with
-        n, after >= 0; the caller then adds n + after to `steps`. It is the machine code for exactly
-        the argument types `advance_sample` passes (`jit.compiled_for`: no dispatch, nothing
-        checked): ints, a float, int64 `select` and `feed_i`, float64 `lo`, `hi`, a C-contiguous
-        float64 matrix `feed_v` and vector `out` of `select`'s length. The arrays stay the
-        simulator's for its life (`copy` makes new ones)."""
+        """`advance_sample` without a fed row, as compiled code, and its first three arguments (the
+        arena, the tables and their layout), for a loop that calls it every few steps and cannot
+        afford the method's Python: `fn(*arrays, n, steps, dt, select, out, after, lo, hi)` with
+        n, after >= 0 (the same numbers as `advance_sample(n, select, out, after, bounds=(lo, hi))`);
+        the caller then adds n + after to `steps`. It is the machine code for exactly these argument
+        types (`jit.compiled_for`: no dispatch, nothing checked): ints, a float, int64 `select`,
+        float64 `lo` and `hi` and a C-contiguous float64 vector `out` of `select`'s length; the
+        caller passes only arrays it made so. The arrays stay the simulator's for its life (`copy`
+        makes new ones)."""
         entry = self._sample_entry
         if entry is None:
-            feed_i, feed_v, row = _NO_FEED
             entry = self._sample_entry = compiled_for(
-                self._advance_sample, self._S, self._Fa, self._FL, 0, 0, self.dt, feed_i, np.empty(0), 0, feed_i,
-                feed_v, row, *_NO_BOUNDS)
+                self._sample, self._S, self._Fa, self._FL, 0, 0, self.dt, _NO_FEED[0], np.empty(0), 0, *_NO_BOUNDS)
         return entry, (self._S, self._Fa, self._FL)
 
     def run(self, change_steps: np.ndarray, change_values: np.ndarray, sample_steps: np.ndarray) -> np.ndarray:

@@ -248,6 +248,42 @@ def test_an_array_the_compiled_sampling_would_misread_is_refused(rig):
     assert rig.advance_sample(10, 1, y) is y and rig.steps == 11
 
 
+def test_the_planned_stretch_gives_sample_planneds_numbers_also_after_a_restart(rig):
+    """`planned_stretch` (what the lockstep calls every period of a stretch in which nothing falls
+    due) gives `Rig.sample_planned`'s numbers bit for bit (the samples, the steps, the whole state),
+    and after a restart with new valve parameters it steps the new model: a fresh rig's numbers."""
+    from pcv_sim.rig.params import load_rig
+
+    per = rig.params.steps_per_period
+    n = len(rig.signals)
+
+    def run(stretch, other, first, periods):
+        mine, theirs = np.empty((periods, n)), np.empty((periods, n))
+        for k in range(1, periods):
+            stretch(first + k * per, mine[k], 1)
+            other.sample_planned(k * per, theirs[k], 1)
+            assert rig.steps == first + k * per + 1 and other.steps == k * per + 1
+        assert np.array_equal(mine[1:], theirs[1:]) and np.array_equal(rig.sim.x, other.sim.x)
+        assert len(np.unique(mine[1:, rig.signals.index("left.pressure")])) > periods // 2     # it moved
+
+    other = Rig(rig.params)
+    for dev in (rig, other):
+        dev.submit("left.duty_cycle", 0.7, at_step=1)
+        dev.advance_to(1)
+    run(rig.planned_stretch(), other, 0, 30)
+    heavier = load_rig(valve_changes={"left": {("spool", "mass"): 0.05}})
+    original = rig.params
+    rig.install(rig.prepare(heavier))
+    try:
+        fresh = Rig(heavier)
+        for dev in (rig, fresh):
+            dev.submit("left.duty_cycle", 0.7, at_step=dev.steps + 1)
+            dev.advance_to(dev.steps + 1)
+        run(rig.planned_stretch(), fresh, rig.steps - 1, 30)
+    finally:
+        rig.install(rig.prepare(original))          # the module's rig, as the other tests know it
+
+
 def test_advance_sample_gives_the_numbers_of_advance_to_and_sample(rig):
     """The lockstep's fused call (steps and sampling in one compiled call) against the plain path,
     bit for bit, with inputs scheduled on, between and just after sample instants, and the

@@ -218,23 +218,23 @@ def test_bind_hands_the_arrays_to_another_arena_and_unbind_takes_them_back() -> 
 
 
 def test_sample_entry_is_advance_sample_without_the_dispatch() -> None:
-    """`sample_entry` hands out the compiled code for exactly the argument types `advance_sample`
-    passes (with numba: not the dispatcher, which types every argument on every call): the same
-    numbers, a fed row and the bounds included; the caller adds the steps."""
+    """`sample_entry` hands out the compiled code of `advance_sample` without a fed row, for exactly
+    the argument types it takes (with numba: not the dispatcher, which types every argument on
+    every call): the same numbers, the bounds included; the caller adds the steps."""
     select = np.arange(3, dtype=np.int64)
-    feed_i, feed_v = np.array([1], dtype=np.int64), np.array([[2.0e-6], [np.nan]])
     lo, hi = np.full(2, -np.inf), np.full(2, np.inf)
     method, entry = _valve_at_rest(), _valve_at_rest()
     y_method, y_entry = np.empty(3), np.empty(3)
-    norm = method.advance_sample(40, select, y_method, 2, feed=(feed_i, feed_v, 0), bounds=(lo, hi))
+    norm = method.advance_sample(40, select, y_method, 2, bounds=(lo, hi))
     fn, (S, Fa, FL) = entry.sample_entry()
-    assert fn(S, Fa, FL, 40, entry.steps, entry.dt, select, y_entry, 2, feed_i, feed_v, 0, lo, hi) == norm
+    assert fn(S, Fa, FL, 40, entry.steps, entry.dt, select, y_entry, 2, lo, hi) == norm
     entry.steps += 42
     assert np.array_equal(y_entry, y_method) and np.array_equal(entry.arena, method.arena)
-    assert entry.u[1] == 2.0e-6
     hi[1] = y_method[1] * 0.5       # a sample beyond its bounds: the NaN norm, as the method's
-    assert math.isnan(fn(S, Fa, FL, 0, entry.steps, entry.dt, select, y_entry, 0, feed_i, feed_v, -1, lo, hi))
+    assert math.isnan(method.advance_sample(0, select, y_method, 0, bounds=(lo, hi)))
+    assert math.isnan(fn(S, Fa, FL, 0, entry.steps, entry.dt, select, y_entry, 0, lo, hi))
+    assert np.array_equal(y_entry, y_method) and np.array_equal(entry.arena, method.arena)
     if enabled():
-        assert fn is not entry._advance_sample and fn is entry.sample_entry()[0]   # made once
+        assert fn is not entry._sample and fn is entry.sample_entry()[0]   # made once
     else:
-        assert fn is entry._advance_sample
+        assert fn is entry._sample
