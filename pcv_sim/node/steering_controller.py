@@ -58,12 +58,10 @@ from pcv_sim.device.settings import NodeParameter, parameters_of
 from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
 from pcv_sim.params import any_value, key_cells, setting
 
-__all__ = ["DECLARING", "FLAGS_TOPIC", "NODE_NAME", "SETPOINT_TOPIC", "STATUS_NAME", "VALVES", "ControllerNodeSettings",
-           "PeriodCheck", "main", "node_parameters"]
+__all__ = ["DECLARING", "NODE_NAME", "STATUS_NAME", "VALVES", "ControllerNodeSettings", "PeriodCheck", "main",
+           "node_parameters"]
 
 NODE_NAME = "steering_controller"
-FLAGS_TOPIC = "controller/flags"
-SETPOINT_TOPIC = "setpoint"
 STATUS_NAME = "steering_controller"
 CHANNEL_PARAMETER = "lockstep_channel"
 VALVES = ("left", "right")        # the valves PositionController drives (chambers a and b)
@@ -141,7 +139,6 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
     """The node (rclpy initialized); ParameterError for an invalid parameter."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
-    from rclpy.qos import QoSProfile
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64
 
@@ -149,10 +146,12 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
     from pcv_sim.control.steering import PositionController
     from pcv_sim.device.parameters import check_params_files, command_line_overrides
     from pcv_sim.errors import ParameterError
+    from pcv_sim.io.topics import CONTROLLER_FLAGS as FLAGS_TOPIC
+    from pcv_sim.io.topics import SETPOINT as SETPOINT_TOPIC
     from pcv_sim.node.client import RigClient
     from pcv_sim.node.parameters import NodeParameters
     from pcv_sim.node.polling import linger_for_rosout
-    from pcv_sim.node.qos_events import QosEvents
+    from pcv_sim.node.qos_events import QosEvents, topic_qos
     from pcv_sim.node.services import ServicePolling
     from pcv_sim.node.tuning import freeze_heap, tighten_timer_slack
 
@@ -186,9 +185,9 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.client = RigClient(None, VALVES, node=self, currents=True, history=False, channel=self.channel)
             # Taken by the client's poll with its MessageInfo (jazzy's rclpy types callbacks as (msg) only).
             on_setpoint: Callable[..., None] = self._on_setpoint
-            sub = self.create_subscription(Float64, SETPOINT_TOPIC, on_setpoint, QoSProfile(depth=10))
+            sub = self.create_subscription(Float64, SETPOINT_TOPIC, on_setpoint, topic_qos(SETPOINT_TOPIC))
             self.client.add_input(sub, on_setpoint)
-            self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, QoSProfile(depth=100))
+            self._pub_flags = self.create_publisher(DiagnosticArray, FLAGS_TOPIC, topic_qos(FLAGS_TOPIC))
             self._msg_flags = DiagnosticArray(status=[DiagnosticStatus(name=STATUS_NAME)])
             self._clock_msg = Clock()
             self._drop_clock_subscription()
