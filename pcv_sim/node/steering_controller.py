@@ -55,7 +55,7 @@ from typing import Any
 
 from pcv_sim.control.params import PositionControllerParams
 from pcv_sim.device.settings import NodeParameter, parameters_of
-from pcv_sim.node.process import EXIT_INVALID_PARAMETERS, EXIT_OK, Stop, main_process, serve
+from pcv_sim.node.process import Stop, main_process, parameter_help, run_node
 from pcv_sim.params import any_value, key_cells, setting
 
 __all__ = ["DECLARING", "NODE_NAME", "STATUS_NAME", "VALVES", "ControllerNodeSettings", "PeriodCheck", "main",
@@ -127,12 +127,6 @@ def node_parameters() -> tuple[NodeParameter, ...]:
         out += [dataclasses.replace(p, description=f"{p.description}; accepted {accepted[p.name]}")
                 for p in parameters_of(cls)]
     return tuple(out)
-
-
-def _help() -> str:
-    """The parameters for --help: name = default unit (accepted), from the declarations."""
-    return ", ".join(f"{key} = {default.strip('`')}{'' if unit == '-' else ' ' + unit} ({accepted})"
-                     for cls in DECLARING for key, unit, accepted, default, _ in key_cells(cls))
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
@@ -320,28 +314,16 @@ def main(args: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str], stop: Stop) -> int:
-    import argparse
-
-    from rclpy.utilities import remove_ros_args
-
-    parser = argparse.ArgumentParser(
-        prog=NODE_NAME, formatter_class=argparse.RawDescriptionHelpFormatter,
+    return run_node(
+        NODE_NAME, argv, stop, make_node=make_node,
         description="The example steering position controller (pcv_sim.control.steering) as a ROS 2 node, in "
                     "lockstep with the rig node in its namespace: in <valve>/pressure, <valve>/current, "
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
-        epilog="parameters (--ros-args -p NAME:=VALUE): " + _help()
-               + f"; period must be the rig's control period; period and {CHANNEL_PARAMETER} are fixed while the "
-               "node runs, the others change between two periods (ros2 param set); use_sim_time follows the rig's "
-               f"model time; {CHANNEL_PARAMETER} false: the per-valve topics instead of the lockstep channel")
-    try:
-        parser.parse_args(remove_ros_args(argv)[1:])
-    except Exception as err:
-        print(f"{NODE_NAME}: invalid parameters: --ros-args: {err}", file=sys.stderr)
-        return EXIT_INVALID_PARAMETERS
-    if stop.requested:
-        return EXIT_OK
-    return serve(NODE_NAME, argv, stop, make_node)
+        epilog=lambda: parameter_help(
+            node_parameters(), "FILE", "period must be the rig's control period; the others but "
+            f"{CHANNEL_PARAMETER} change between two periods (ros2 param set)",
+            "use_sim_time follows the rig's model time"))
 
 
 if __name__ == "__main__":
