@@ -58,6 +58,12 @@ class Simulator:
             self.W[off:off + len(s.w0)] = s.w0
         self.refresh_rates()
         self.steps = 0
+        # Every entry's machine code carries its own copy of what it calls (the integrator loop,
+        # derivs, project); a process runs the copies of the entry it loaded first, wherever it calls
+        # from. Where that code lies changes a step's time by several % (BENCHMARKS.md, Rig), so
+        # `sim_advance` is loaded first, always: the same copies in every process whatever is called
+        # first (zero steps: nothing changes).
+        self._advance(self._S, self._Fa, self._FL, 0, 0, self.dt)
 
     def _views(self) -> None:
         """x, u, P, W, Y, U, the scratch and the weights as views of the arena."""
