@@ -105,14 +105,14 @@ def main() -> None:
         json.dump(out, sys.stdout, indent=2)
         print()
         return
-    print(f"load average {out['load_before']:.1f}; floor (10 steps), us, best / median of {args.rounds} rounds")
-    print("| copy loaded first | derivs in its page | best | median |")
-    print("|---|---|---|---|")
-    for k, v in out["code"].items():     # type: ignore[attr-defined]
-        print(f"| {k} | {v['derivs_in_page']:#05x} | {v['best_us']:.2f} | {v['median_us']:.2f} |")
+    code_rows = [f"| {k} | {v['derivs_in_page']:#05x} | {v['best_us']:.2f} | {v['median_us']:.2f} |"
+                 for k, v in out["code"].items()]      # type: ignore[attr-defined]
     d = out["data"]
-    print(f"the arena at each 64-byte slot of a page (code fixed): {d['best_us_min']:.2f}-{d['best_us_max']:.2f} us "  # type: ignore[index]
-          f"(median {d['best_us_median']:.2f})")                                                                     # type: ignore[index]
+    print("\n".join([
+        f"load average {out['load_before']:.1f}; floor (10 steps), us, best / median of {args.rounds} rounds",
+        "| copy loaded first | derivs in its page | best | median |", "|---|---|---|---|", *code_rows,
+        f"the arena at each 64-byte slot of a page (code fixed): {d['best_us_min']:.2f}-"     # type: ignore[index]
+        f"{d['best_us_max']:.2f} us (median {d['best_us_median']:.2f})"]))                    # type: ignore[index]
 
 
 if __name__ == "__main__":
