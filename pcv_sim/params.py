@@ -48,6 +48,7 @@ __all__ = [
     "SolenoidParams",
     "SpoolParams",
     "ValveParams",
+    "WatchdogParams",
     "any_value",
     "at_least",
     "between",
@@ -78,6 +79,7 @@ __all__ = [
     "section_from_mapping",
     "setting",
     "speed_factor",
+    "watchdog_parameter",
     "yaml_load_unique",
 ]
 
@@ -250,6 +252,24 @@ def setting(default: Any, unit: str, description: str, check: Check = _any_finit
     """A node setting: `parameter` with its default first (every setting has one)."""
     return parameter(unit, description, check, kind=kind, default=default, name=name, read_only=read_only,
                      convert=convert)
+
+
+@dataclass(frozen=True)
+class WatchdogParams:
+    """The duty watchdog every device has (the emulator's valve, each valve of a rig), declared once:
+    a node's settings and the rig YAML's `rig:` take these fields (`watchdog_parameter`)."""
+
+    watchdog_timeout: float = parameter(
+        "s", "model time without a valid duty command (after the first) -> safe_duty; 0 = off. 2 s is above the "
+        "1 s period of `ros2 topic pub`'s default rate", between(0.0, 60.0, "a duration"), default=2.0)
+    safe_duty: float = parameter("-", "duty fraction when the watchdog fires, and before the first command of a "
+                                 "valve without an initial duty (the emulator's)", duty_fraction, default=0.0)
+
+
+def watchdog_parameter(key: str) -> Any:
+    """A field declared as `WatchdogParams`' `key`: the same type, unit, range, default and doc."""
+    f = {g.name: g for g in dataclasses.fields(WatchdogParams)}[key]
+    return field(default=f.default, metadata=f.metadata)
 
 
 # --- sections ---------------------------------------------------------------------------------

@@ -33,8 +33,8 @@ from pcv_sim.params import (
     params_to_mapping,
     positive,
     setting,
+    watchdog_parameter,
 )
-from pcv_sim.params import duty_fraction as _duty_fraction
 from pcv_sim.params import fraction as _fraction
 from pcv_sim.params import speed_factor as real_time_factor
 from pcv_sim.simulation.clock import steps_per
@@ -190,11 +190,8 @@ class NodeSettings(CommonSettings):
     publish_rate: float = setting(
         1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
         "whole multiple of the model step", positive)
-    watchdog_timeout: float = setting(
-        2.0, "s", "no valid duty command for this long (model time) -> safe_duty; 0 = off. Above the 1 s "
-        "period of `ros2 topic pub`'s default rate", non_negative)
-    safe_duty: float = setting(
-        0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
+    watchdog_timeout: float = watchdog_parameter("watchdog_timeout")
+    safe_duty: float = watchdog_parameter("safe_duty")
     valve_config: str = setting(
         "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
     record_signals: tuple[str, ...] = setting(
