@@ -287,7 +287,8 @@ def test_the_planned_stretch_gives_sample_planneds_numbers_also_after_a_restart(
         dev.submit("left.duty_cycle", 0.7, at_step=1)
         dev.advance_to(1)
     run(rig.planned_stretch(), other, 0, 30)
-    heavier = load_rig(valve_changes={"left": {("spool", "mass"): 0.05}})
+    heavier = dataclasses.replace(load_rig(valve_changes={"left": {("spool", "mass"): 0.05}}),
+                                  timing=rig.params.timing)           # this module's watchdog (a restart keeps it)
     original = rig.params
     rig.install(rig.prepare(heavier))
     try:
