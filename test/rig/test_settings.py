@@ -83,6 +83,8 @@ def test_the_watchdog_is_declared_once_for_every_device_with_the_emulators_defau
         del data["rig"][key]
     left_out = rig_from_mapping(data, base=DEFAULT_RIG.parent).timing
     assert (left_out.watchdog_timeout, left_out.safe_duty) == (NodeSettings().watchdog_timeout, NodeSettings().safe_duty)
+    with pytest.raises(ParameterError, match=r"missing key\(s\) rig\.time_step$"):       # the others stay required
+        rig_from_mapping({**data, "rig": {k: v for k, v in data["rig"].items() if k != "time_step"}})
     dev = ValveDevice(default_params())
     assert dev.safe_duty == 0.0 and dev.watchdogs[dev.valve_names[0]].timeout_steps == round(2.0 / dev.dt)
 
