@@ -24,6 +24,7 @@ from pcv_sim.device.bag_layout import RECORDABLE, check_signals
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.params import (
     ValveParams,
+    accepted_words,
     any_value,
     check_value,
     int_range,
@@ -84,6 +85,9 @@ def bag_name_check(v: str) -> str | None:
     if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
         return "'' (a timestamped name) or a plain directory name of letters, digits, '_', '-', '.'"
     return None
+
+
+bag_name_check.accepted = "'' or a plain directory name"     # type: ignore[attr-defined]  # a descriptor's words
 
 
 _seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
@@ -244,6 +248,13 @@ class NodeParameter:
     @property
     def is_float(self) -> bool:
         return bool(self.meta["kind"] == "float")
+
+    @property
+    def described(self) -> str:
+        """Its doc and the range it accepts, from its declaration ("...; accepted 0 .. 60"), as a
+        node's parameter descriptor and --help say it."""
+        accepted = accepted_words(self.meta).replace("\\|", "|")      # a table's escaped bar
+        return f"{self.description}; accepted {accepted}" if accepted else self.description
 
 
 def parameters_of(settings: type) -> tuple[NodeParameter, ...]:

@@ -192,9 +192,10 @@ class NodeParameters(Node):
         raise NotImplementedError
 
     def declare_settings(self, specs: Iterable[Any], check: Callable[[str, Any], Any]) -> dict[str, Any]:
-        """Declare each setting from its one declaration (`pcv_sim.params.setting`); its value checked
-        by `check(name, value)` as soon as it is declared (ParameterError naming it)."""
-        return {spec.name: check(spec.name, self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
+        """Declare each setting from its one declaration (`pcv_sim.params.setting`), described by its
+        doc, the range it accepts and its unit; its value checked by `check(name, value)` as soon as
+        it is declared (ParameterError naming it)."""
+        return {spec.name: check(spec.name, self.declare(spec.name, spec.default, f"{spec.described} [{spec.unit}]",
                                                           read_only=spec.read_only, is_float=spec.is_float))
                 for spec in specs}
 

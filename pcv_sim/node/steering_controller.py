@@ -56,7 +56,7 @@ from typing import Any
 from pcv_sim.control.params import PositionControllerParams
 from pcv_sim.device.settings import NodeParameter, parameters_of
 from pcv_sim.node.process import Stop, main_process, parameter_help, run_node
-from pcv_sim.params import any_value, key_cells, setting
+from pcv_sim.params import any_value, setting
 
 __all__ = ["DECLARING", "NODE_NAME", "STATUS_NAME", "VALVES", "ControllerNodeSettings", "PeriodCheck", "main",
            "node_parameters"]
@@ -119,14 +119,9 @@ DECLARING = (PositionControllerParams, ControllerNodeSettings)
 
 
 def node_parameters() -> tuple[NodeParameter, ...]:
-    """The node's parameters as it declares them: each described by its doc, the range it accepts and
-    its unit (`pcv_sim.device.settings.NodeParameter`, as the device nodes' settings)."""
-    out: list[NodeParameter] = []
-    for cls in DECLARING:
-        accepted = {key: words for key, _, words, _, _ in key_cells(cls)}
-        out += [dataclasses.replace(p, description=f"{p.description}; accepted {accepted[p.name]}")
-                for p in parameters_of(cls)]
-    return tuple(out)
+    """The node's parameters as it declares them (`pcv_sim.device.settings.NodeParameter`, as the
+    device nodes' settings): the controller's, then the node's own."""
+    return tuple(p for cls in DECLARING for p in parameters_of(cls))
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
@@ -316,7 +311,8 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
         epilog=lambda: parameter_help(
-            node_parameters(), "FILE", "period must be the rig's control period; the others but "
+            [dataclasses.replace(p, description=p.described) for p in node_parameters()], "FILE",
+            "period must be the rig's control period; the others but "
             f"{CHANNEL_PARAMETER} change between two periods (ros2 param set)",
             "use_sim_time follows the rig's model time"))
 
