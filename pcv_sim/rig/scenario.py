@@ -561,8 +561,8 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
                                 "(in its command: --ros-args -p name:=value)")
         if params is not None and ctrl is None:
             raise ScenarioError("controller_params: given without a controller")
-        if params is not None:
-            _check_controller_params(ctrl, params, base)
+        if params is not None:                       # the callable the run will take (its base: the file's folder)
+            _check_controller_params(ctrl, params, path.parent if path else None)
         if valve_changes and ros is not None:
             raise ScenarioError("valves: the rig node of a ROS controller loads the rig YAML itself (its rig_config); "
                                 "accepted is a rig whose valve YAMLs hold these keys, named by `rig`")
@@ -593,7 +593,7 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario_from_mapping(read_yaml(path, "scenario", ScenarioError), path=Path(path))
 
 
-def _check_controller_params(spec: str, params: Mapping[str, Any], base: Path) -> None:
+def _check_controller_params(spec: str, params: Mapping[str, Any], base: Path | None) -> None:
     """On load: `controller_params` checked by the callable's own declarations when it has them (a
     `check_params(values)` that raises ParameterError, as `PositionController`), with their message."""
     check = getattr(controller_callable(spec, base), "check_params", None)
