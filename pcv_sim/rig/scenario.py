@@ -595,8 +595,10 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def _check_controller_params(spec: str, params: Mapping[str, Any], base: Path | None) -> None:
     """On load: `controller_params` checked by the callable's own declarations when it has them (a
-    `check_params(values)` that raises ParameterError, as `PositionController`), with their message."""
-    check = getattr(controller_callable(spec, base), "check_params", None)
+    `check_params(values)` that raises ParameterError, as `PositionController`), with their message.
+    Its own: a subclass with other keywords does not inherit its base's check."""
+    obj = controller_callable(spec, base)
+    check = getattr(obj, "check_params", None) if "check_params" in vars(obj) else None
     if callable(check):
         try:
             check(params)

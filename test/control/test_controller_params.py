@@ -89,6 +89,13 @@ def test_a_scenario_s_controller_params_are_checked_on_load_naming_the_file(tmp_
     assert ok.controller_params == {"kp": 20.0, "current_loop": "20 ms"}
     assert resolve_controller(ok.controller, ok.controller_params, None).params == \
         PositionControllerParams(kp=20.0, current_loop=0.02)
+    (tmp_path / "derived.py").write_text("from pcv_sim.control.steering import PositionController\n\n\n"
+                                         "class Derived(PositionController):\n"
+                                         "    def __init__(self, fail_at):\n        super().__init__()\n")
+    derived = scenario_from_mapping({**scenario, "controller": "derived:Derived", "controller_params": {"fail_at": 1}},
+                                    path=tmp_path / "s.yaml")       # its own keywords: not its base's check
+    assert resolve_controller(derived.controller, derived.controller_params, tmp_path).params == \
+        PositionControllerParams()
     (tmp_path / "plain.py").write_text("def make(gain):\n    return lambda t, m: {'left': gain}\n")
     loose = scenario_from_mapping({**scenario, "controller": "plain:make", "controller_params": {"gains": 1}},
                                   path=tmp_path / "s.yaml")
