@@ -598,7 +598,7 @@ def _check_controller_params(spec: str, params: Mapping[str, Any], base: Path | 
     `check_params(values)` that raises ParameterError, as `PositionController`), with their message.
     Its own: a subclass with other keywords does not inherit its base's check."""
     obj = controller_callable(spec, base)
-    check = getattr(obj, "check_params", None) if "check_params" in vars(obj) else None
+    check = getattr(obj, "check_params", None) if "check_params" in getattr(obj, "__dict__", {}) else None
     if callable(check):
         try:
             check(params)
