@@ -4,17 +4,19 @@ Every function of the physics that the simulation core runs is written once, in 
 Python that numba compiles (floats, tuples and numpy arrays, `math`), and decorated with `jit`.
 With numba the decorator compiles it on first use and caches the machine code on disk (under
 `cache_root()`, keyed by a digest of the sources the kernels depend on), so a process that starts later
-loads it instead of compiling; without
+loads it instead of compiling (processes that compile at the same time share the cache
+safely: `_SharedCache`); without
 numba, or with the environment variable `PCV_SIM_JIT=0`, the same function runs as written. A
 test runs both paths on the same inputs and checks that they agree to rounding.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -107,6 +109,50 @@ def _numba() -> Any:
 
 
 _NUMBA = _numba()
+
+
+@contextlib.contextmanager
+def _locked(directory: str) -> Iterator[None]:
+    """An exclusive lock on the cache directory `directory` across processes (flock on its
+    `.lock`; where flock is missing, none)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    os.makedirs(directory, exist_ok=True)
+    fd = os.open(os.path.join(directory, ".lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)                # releases the lock
+
+
+def _shared_cache(py_func: Callable[..., Any]) -> Any:
+    """numba's disk cache of `py_func`, read and written under the cache directory's lock.
+
+    numba keeps one index per function (signature -> data file) and picks a data file's number
+    from the index it read: two processes that save two signatures of one function at the same
+    time both read the old index, both write file 1 and each its own index, so the index can name
+    the other signature's machine code for a signature (called with the wrong types: a crash or
+    wrong numbers). Under the lock an index and its data files change together; compiling stays
+    outside it, so processes still compile side by side (the test session's warm-up does).
+    """
+    from numba.core import caching
+
+    base: Any = caching.FunctionCache          # untyped
+
+    class _SharedCache(base):  # type: ignore[misc]
+        def load_overload(self, sig: Any, target_context: Any) -> Any:
+            with _locked(self._cache_path):
+                return super().load_overload(sig, target_context)
+
+        def save_overload(self, sig: Any, data: Any) -> None:
+            with _locked(self._cache_path):
+                super().save_overload(sig, data)
+
+    return _SharedCache(py_func)
 #: Contraction (FMA) and reciprocals only. Never reassociation (C_q,gap (1 - L) + C_q,hole L with
 #: C_q,gap ~ 1e19 far from the gap region cancels to 0 when reordered), never 'nnan'/'ninf' (the
 #: compiler could drop the finiteness checks that turn a diverging model into a fault).
@@ -144,8 +190,10 @@ def jit(fn: F | None = None, *, inline: bool = False, nrt: bool = True) -> Any:
     if _NUMBA is None:
         return fn
     options: dict[str, Any] = {} if nrt else {"_nrt": False}   # numba's flag for it (no public name)
-    return _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
-                       inline="always" if inline else "never", **options)(fn)
+    dispatcher = _NUMBA.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH,
+                             inline="always" if inline else "never", **options)(fn)
+    dispatcher._cache = _shared_cache(fn)       # what cache=True set, locked (numba has no option)
+    return dispatcher
 
 
 def compiled_for(fn: F, *example: Any) -> F:

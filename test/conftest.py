@@ -8,7 +8,9 @@ import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
+import kernel_warmup
 import pytest
+from kernel_warmup import write_options_rig
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'pcv_sim'
@@ -123,49 +125,45 @@ def cpu_burners():
         yield lambda n: stack.enter_context(burning(n))
 
 
+_WARM_UP = pytest.StashKey()
+
+
+def pytest_sessionstart(session):
+    """Start the kernels' second warm-up process (`compiled_kernels`) now: it compiles its share
+    while the tests are collected."""
+    if session.config.option.collectonly:
+        return
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name('kernel_warmup.py')), *kernel_warmup.BESIDE],
+                            stdout=log, stderr=subprocess.STDOUT, env=clean_child_env())
+    session.config.stash[_WARM_UP] = (proc, log)
+
+
+def pytest_sessionfinish(session):
+    proc, log = session.config.stash.get(_WARM_UP, (None, None))
+    if proc is not None and proc.poll() is None:     # the run ended before a test waited for it
+        proc.kill()
+        proc.wait()
+    if log is not None:
+        log.close()
+
+
 @pytest.fixture(scope='session', autouse=True)
-def compiled_kernels():
-    """Compile the core's kernels (both valve models, and the shipped rig's composite: two valves
-    and the cylinder, a kernel of its own) once, before any test starts an emulator or a rig node
-    process: the processes then load them from the disk cache (~1 s) instead of each compiling
-    them (several seconds, minutes on a busy machine after a model change), which would eat into
-    their start timeouts."""
-    from pcv_sim.device.valve import ValveDevice
-    from pcv_sim.params import default_params, replace_param
-    from pcv_sim.rig import Rig, load_rig
-
-    for kind in ('simplified', 'full'):
-        ValveDevice(replace_param(default_params(), 'simulation.model', kind))   # loads what it steps with
-    Rig(load_rig())          # compiles (or loads) what the rig node and the lockstep call
-    # The options rig's composite (a third valve with the options, a kernel of its own), which a rig
-    # node test starts: compiled in its process beside other tests' load it outlasted START (90 s).
-    with tempfile.TemporaryDirectory() as directory:
-        Rig(load_rig(write_options_rig(Path(directory))))
-    options = default_params()          # and the emulator's with every option (test/node/test_emulator_options.py)
-    for key, value in (('solenoid.coil_temperature', 'lumped'), ('fluid.temperature', 'input'), ('spool.core', 'separate')):
-        options = replace_param(options, key, value)
-    ValveDevice(options)
-
-
-def write_options_rig(directory, thermal_resistance=1.0, heat_capacity=1.0):
-    """The shipped rig plus a valve `probe` on its own load volume with the options of docs/model.md
-    R33, R34 that bring inputs: a lumped coil (ambient temperature in; coil temperature and resistance
-    out; by default a 1 s thermal time constant, so a short run sees it warm) and an oil temperature
-    input; no watchdog. Written into `directory`; returns the rig YAML's path."""
-    import yaml
-
-    valve = yaml.safe_load((REPO / 'config' / 'valve.yaml').read_text())
-    valve['solenoid'].update(coil_temperature='lumped', coil_thermal_resistance=thermal_resistance,
-                             coil_heat_capacity=heat_capacity)
-    valve['fluid']['temperature'] = 'input'
-    (directory / 'probe.yaml').write_text(yaml.safe_dump(valve))
-    rig = yaml.safe_load((REPO / 'config' / 'rig.yaml').read_text())
-    for slot in rig['valves'].values():
-        slot['config'] = str(REPO / 'config' / 'valve.yaml')
-    rig['rig']['watchdog_timeout'] = 0.0
-    rig['valves']['probe'] = {'config': str(directory / 'probe.yaml'), 'chamber': 'none', 'initial_duty': 0.0}
-    (directory / 'rig.yaml').write_text(yaml.safe_dump(rig))
-    return directory / 'rig.yaml'
+def compiled_kernels(request):
+    """Compile the core's kernels (both valve models, the shipped rig's composite: two valves and the
+    cylinder, a kernel of its own, the options rig and the valve with every option:
+    `kernel_warmup.BUILDS`) once, before any test starts an emulator or a rig node process: the
+    processes then load them from the disk cache (~1 s) instead of each compiling them (several
+    seconds, minutes on a busy machine after a model change), which would eat into their start
+    timeouts. Two processes compile them, each its share (`pytest_sessionstart` started the other),
+    on the machine's two cores: with an empty cache about half the wait."""
+    kernel_warmup.build(kernel_warmup.IN_SESSION)
+    proc, log = request.config.stash.get(_WARM_UP, (None, None))
+    if proc is not None:
+        proc.wait()
+        log.seek(0)
+        assert proc.returncode == 0, f"the kernels' warm-up process failed:\n{log.read().decode(errors='replace')}"
+    kernel_warmup.build(kernel_warmup.BESIDE)       # loaded from the cache: this process has them all
 
 
 @pytest.fixture(scope='session')

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Any
+
+import pytest
 
 from pcv_sim import jit
 
@@ -41,3 +45,46 @@ def test_the_key_follows_a_relative_import(tmp_path: Path) -> None:
     modules = {jit._module_name(pkg, p): p for p in pkg.rglob("*.py")}
     got = jit._imported("pkg.sub.k", pkg / "sub" / "k.py", (pkg / "sub" / "k.py").read_text(), modules)
     assert got == {"pkg", "pkg.c", "pkg.sub", "pkg.sub.h"}
+
+
+PROBE = '''
+from pcv_sim.jit import jit
+
+
+@jit
+def double(x):
+    return x + x
+'''
+
+
+@pytest.mark.skipif(not jit.enabled(), reason="numba's cache")
+def test_the_cache_is_written_under_the_directorys_lock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While numba writes a function's index, no other process can take the cache directory's lock:
+    numba alone numbers a function's data files from the index each writer read, so two processes
+    saving two signatures at once could both write file 1, and an index could then name the other
+    signature's machine code (the session's warm-up compiles in two processes into one cache)."""
+    import fcntl
+
+    from numba.core import caching
+
+    tried: list[bool] = []
+    save_index = caching.IndexDataCacheFile._save_index
+
+    def probe(self: Any, overloads: Any) -> None:
+        fd = os.open(os.path.join(self._cache_path, ".lock"), os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            tried.append(True)
+        except BlockingIOError:
+            tried.append(False)
+        finally:
+            os.close(fd)
+        save_index(self, overloads)
+
+    monkeypatch.setattr(caching.IndexDataCacheFile, "_save_index", probe)
+    (tmp_path / "locked_probe.py").write_text(PROBE)      # a new source file: not in the cache yet
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import locked_probe  # type: ignore[import-not-found]
+
+    assert locked_probe.double(1.5) == 3.0
+    assert tried == [False]

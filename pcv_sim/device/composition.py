@@ -161,9 +161,9 @@ class Composition:
         self._prefix = {v.name: "" if lone else f"{v.name}." for v in valves}
         names = self.valve_names
         self._k = {n: k for k, n in enumerate(names)}
-        self._duty_i = [plant.index("input", f"{n}.duty_cycle") for n in names]
-        self._supply_i = [plant.index("input", f"{n}.supply_pressure") for n in names]
-        self._flow_i = [plant.inputs.index(f"{n}.load_flow") if f"{n}.load_flow" in plant.inputs else -1
+        self._duty_i = [plant.index("input", f"{n}.{DUTY_CYCLE}") for n in names]
+        self._supply_i = [plant.index("input", f"{n}.{SUPPLY_PRESSURE}") for n in names]
+        self._flow_i = [plant.inputs.index(f"{n}.{LOAD_FLOW}") if f"{n}.{LOAD_FLOW}" in plant.inputs else -1
                         for n in names]
         self._volume_in_i = [plant.inputs.index(f"{n}.load_volume") if f"{n}.load_volume" in plant.inputs else -1
                              for n in names]
@@ -177,7 +177,7 @@ class Composition:
         #: (its own: input; a chamber's: the plant's output), supply input and its three outputs
         self._record_slots = [
             (n, tuple(f"{self._prefix[n]}{r}" for r in (*RECORD_INPUTS, *kernel.OUTPUTS)), self._duty_i[k],
-             self._flow_i[k], plant.index("output", wired[f"{n}.load_flow"]) if f"{n}.load_flow" in wired else -1,
+             self._flow_i[k], plant.index("output", wired[f"{n}.{LOAD_FLOW}"]) if f"{n}.{LOAD_FLOW}" in wired else -1,
              self._supply_i[k], tuple(plant.index("output", f"{n}.{r}") for r in kernel.OUTPUTS))
             for k, n in enumerate(names)]
         self._plant_signal_i = [(name, plant.index("output", name)) for name in

@@ -48,6 +48,13 @@ __all__ = [
     "OUTPUTS",
     "STATES",
     "STATE_OUTPUTS",
+    "U_DUTY",
+    "U_LOAD_FLOW",
+    "U_LOAD_VOLUME",
+    "U_SUPPLY_PRESSURE",
+    "Y_CURRENT",
+    "Y_PRESSURE",
+    "Y_SPOOL_POSITION",
     "Layout",
     "chamber_rate",
     "coil_current",
@@ -80,6 +87,11 @@ STATES = {
 }
 INPUTS = ("duty_cycle", "load_flow", "supply_pressure", "load_volume")
 OUTPUTS = ("pressure", "current", "spool_position")
+#: Where each input sits in u and each output in y (the order of INPUTS, OUTPUTS): the kernels'
+#: indices, constants to numba (a name costs nothing in the compiled step). The options' inputs
+#: and outputs follow, at the indices `pack` puts into p (IU_AMBIENT, IY_COIL_T, ...).
+U_DUTY, U_LOAD_FLOW, U_SUPPLY_PRESSURE, U_LOAD_VOLUME = range(len(INPUTS))
+Y_PRESSURE, Y_CURRENT, Y_SPOOL_POSITION = range(len(OUTPUTS))
 #: Outputs that depend on the state alone (no direct feedthrough): the ones a composition may
 #: route into another system's input. The current is algebraic in the coil voltage (Eq. 2).
 STATE_OUTPUTS = ("pressure", "spool_position")
@@ -400,7 +412,7 @@ def rhs(t, x, u, p, f, w, dx):
     the impact).
     """
     lam, xs, v, pl = x[0], x[1], x[2], x[3]
-    duty, q_l, p_s = u[0], u[1], u[2]
+    duty, q_l, p_s = u[U_DUTY], u[U_LOAD_FLOW], u[U_SUPPLY_PRESSURE]
     v_s = coil_voltage(duty, t, p)
     x_mm = xs * MM_PER_M
     c1, c2, c3, k1, k2, k3, k4 = sol.coefficients_at(x_mm + p[CORE_OFFSET_MM], f[T_F1], f[T_F2], f[T_F3],
@@ -412,7 +424,7 @@ def rhs(t, x, u, p, f, w, dx):
     # Eq. 14 without the chamber and damping terms, which differ per variant.
     force = sol.force_from_coefficients(i, k1, k2, k3, k4) - p[A_C] * pl - p[K_SPRING] * xs - (f_p - f_t) - p[F0]
     dx[0] = sol.flux_linkage_derivative(v_s, i, p[R_COIL])                               # Eq. 3
-    c_load = p[BETA] / u[3]                 # Eq. 15: beta / V, V the load port's volume (an input)
+    c_load = p[BETA] / u[U_LOAD_VOLUME]                 # Eq. 15: beta / V, V the load port's volume (an input)
     if p[LEAK] != 0.0:
         # Internal leakage fault: a laminar path load -> tank, q = G (p - p_t), drawn like a load flow.
         q_l = q_l + p[LEAK] * (pl - p[P_TANK])
@@ -454,7 +466,7 @@ def rhs_options(t, x, u, p, f, w, dx):
     the impact). The options (R33-R35) each act only when switched on in `p`.
     """
     lam, xs, v, pl = x[0], x[1], x[2], x[3]
-    duty, q_l, p_s = u[0], u[1], u[2]
+    duty, q_l, p_s = u[U_DUTY], u[U_LOAD_FLOW], u[U_SUPPLY_PRESSURE]
     v_s = coil_voltage(duty, t, p)
     x_mm = xs * MM_PER_M
     xc_mm = x_mm if p[SEPARATION] == 0.0 else x[int(p[IX_CORE])] * MM_PER_M    # the core (R35)
@@ -483,7 +495,7 @@ def rhs_options(t, x, u, p, f, w, dx):
         # R33: the coil's lumped heat balance, C_th dT/dt = i^2 R(T) - (T - T_ambient) / R_th.
         it = int(p[IX_COIL_T])
         dx[it] = (i * i * r_coil - (x[it] - u[int(p[IU_AMBIENT])]) / p[R_TH]) / p[C_TH]
-    c_load = beta / u[3]                    # Eq. 15: beta / V, V the load port's volume (an input)
+    c_load = beta / u[U_LOAD_VOLUME]              # Eq. 15: beta / V, V the load port's volume (an input)
     if p[LEAK] != 0.0:
         # Internal leakage fault: a laminar path load -> tank, q = G (p - p_t), drawn like a load flow.
         q_l = q_l + p[LEAK] * (pl - p[P_TANK])
@@ -563,17 +575,17 @@ def chamber_rate(p):
 
 @jit(inline=True)
 def state_output(t, x, p, f, y):
-    """The outputs that depend on the state alone: pressure y[0] and spool position y[2]."""
-    y[0] = x[3]
-    y[2] = x[1]
+    """The outputs that depend on the state alone: pressure and spool position."""
+    y[Y_PRESSURE] = x[3]
+    y[Y_SPOOL_POSITION] = x[1]
 
 
 @jit(inline=True)
 def state_output_options(t, x, p, f, y):
-    """The outputs that depend on the state alone: pressure y[0], spool position y[2] and the
-    options' (coil temperature and resistance, core position)."""
-    y[0] = x[3]
-    y[2] = x[1]
+    """The outputs that depend on the state alone: pressure, spool position and the options'
+    (coil temperature and resistance, core position)."""
+    y[Y_PRESSURE] = x[3]
+    y[Y_SPOOL_POSITION] = x[1]
     _option_outputs(x, p, y)
 
 
@@ -591,19 +603,19 @@ def _option_outputs(x, p, y):
 def output(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
-    y[0] = x[3]
-    y[1] = coil_current(x[0], x[1], coil_voltage(u[0], t, p), w[0], p, f)
-    y[2] = x[1]
+    y[Y_PRESSURE] = x[3]
+    y[Y_CURRENT] = coil_current(x[0], x[1], coil_voltage(u[U_DUTY], t, p), w[0], p, f)
+    y[Y_SPOOL_POSITION] = x[1]
 
 
 @jit(inline=True)
 def output_options(t, x, u, p, f, w, y):
     """All outputs at time t with the inputs in force from t on: the coil current is algebraic
     in the coil voltage (Eqs. 1-2), so it jumps with the duty (reading R27)."""
-    y[0] = x[3]
-    y[1] = coil_current_in(x[0], core_position(x, p), coil_voltage(u[0], t, p), coil_resistance(x, p), w[0],
-                           p, f)
-    y[2] = x[1]
+    y[Y_PRESSURE] = x[3]
+    y[Y_CURRENT] = coil_current_in(x[0], core_position(x, p), coil_voltage(u[U_DUTY], t, p), coil_resistance(x, p),
+                                   w[0], p, f)
+    y[Y_SPOOL_POSITION] = x[1]
     _option_outputs(x, p, y)
 
 

@@ -98,7 +98,7 @@ class ValveModel:
         self.layout = kernel.layout(params, kind)
         n = len(self.layout.states)
         self._x, self._w, self._dx = np.zeros(n), np.zeros(1), np.zeros(n)
-        self._u = np.array((0.0, 0.0, 0.0, 0.0, *kernel.option_inputs(params)))
+        self._u = np.array((*[0.0] * len(kernel.INPUTS), *kernel.option_inputs(params)))
 
     # --- building blocks ---------------------------------------------------------------------
 
@@ -165,8 +165,8 @@ class ValveModel:
         for one state given as a tuple, as the analysis and the stiff reference use it."""
         x, u, w, dx = self._x, self._u, self._w, self._dx
         x[:] = state
-        u[0], u[1], u[2] = duty, load_flow, supply_pressure
-        u[3] = self.params.circuit.load_volume          # a single valve: the configured load volume
+        u[kernel.U_DUTY], u[kernel.U_LOAD_FLOW], u[kernel.U_SUPPLY_PRESSURE] = duty, load_flow, supply_pressure
+        u[kernel.U_LOAD_VOLUME] = self.params.circuit.load_volume      # a single valve: the configured load volume
         w[0] = i_guess
         self._rhs(t, x, u, self.p, self.f, w, dx)
         return tuple(float(v) for v in dx), float(w[0])

@@ -45,6 +45,7 @@ import numpy as np
 
 from pcv_sim.device.inputs import WatchdogState
 from pcv_sim.errors import CommandError, PcvSimError
+from pcv_sim.io.topics import DUTY_CYCLE
 from pcv_sim.rig.profiles import Profile
 from pcv_sim.rig.rig import InputHook, Rig
 
@@ -160,7 +161,7 @@ def lockstep_periods(rig: Rig, controller: Controller | None, duration: float, *
     stretch = rig.planned_stretch()
     planned_until = rig.planned_until
     watchdogs = [rig.watchdogs[v] for v in valves]
-    duty_name = [f"{v}.duty_cycle" for v in valves]
+    duty_name = [f"{v}.{DUTY_CYCLE}" for v in valves]
     valve_names = set(valves)
     #: valve -> (lowest, highest duty, input index, position) of the valves whose duty is written
     #: straight into the model: what set_duty checks and writes

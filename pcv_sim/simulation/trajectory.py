@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -17,15 +17,14 @@ class Trajectory:
     pressure: np.ndarray        # Pa
     spool_position: np.ndarray  # m
 
+    @staticmethod
+    def signals() -> tuple[str, ...]:
+        """The signals' names (the fields after the time), in order."""
+        return tuple(f.name for f in fields(Trajectory))[1:]
+
     def at(self, t: float) -> dict[str, float]:
         """Signals linearly interpolated at time t."""
-        return {
-            name: float(np.interp(t, self.t, getattr(self, name)))
-            for name in ("duty", "current", "pressure", "spool_position")
-        }
+        return {name: float(np.interp(t, self.t, getattr(self, name))) for name in self.signals()}
 
     def resample(self, t: np.ndarray) -> Trajectory:
-        return Trajectory(
-            t,
-            *(np.interp(t, self.t, getattr(self, n)) for n in ("duty", "current", "pressure", "spool_position")),
-        )
+        return Trajectory(t, *(np.interp(t, self.t, getattr(self, n)) for n in self.signals()))

@@ -22,7 +22,7 @@ R_TH, C_TH = 1.0, 1.0        # K/W, J/K: a coil with a 1 s thermal time constant
 @pytest.fixture(scope="module")
 def probe_rig(tmp_path_factory, options_rig_writer):
     """The shipped rig plus a valve `probe` on its own load volume with both temperature inputs
-    (test/conftest.py `write_options_rig`); no watchdog (the runs command a duty once and hold it)."""
+    (test/kernel_warmup.py `write_options_rig`); no watchdog (the runs command a duty once and hold it)."""
     d = tmp_path_factory.mktemp("rig")
     path = options_rig_writer(d, R_TH, C_TH)
     return path, load_rig(path), load_params(d / "probe.yaml")
