@@ -37,7 +37,7 @@ from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Gap, Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
-from pcv_sim.units import MM_PER_M, PA_PER_BAR
+from pcv_sim.units import MM_PER_M, NS_PER_S, PA_PER_BAR
 
 __all__ = [
     "DISPLAY",
@@ -52,7 +52,6 @@ __all__ = [
     "replay",
 ]
 
-_NS = 1_000_000_000
 #: s after a gap during which samples are not compared: the model and the device re-synchronise
 #: (to within 0.05 bar after a 55 ms skip, measured: module docstring).
 RESYNC_S: Final = 0.3
@@ -261,7 +260,7 @@ def detect_steps(
     d = timeline.duty
     changes = [k for k in range(1, len(t)) if d[k] != d[k - 1]]
     groups: list[list[int]] = []
-    hold_ns = round(min_hold * _NS)
+    hold_ns = round(min_hold * NS_PER_S)
     for k in changes:
         if groups:
             last = groups[-1]
@@ -279,7 +278,7 @@ def detect_steps(
         if abs(d_to - d_from) < min_amplitude or end <= start:
             small += 1
             continue
-        steps.append(Step(len(steps) + 1, start / _NS, int(t[g[-1]]) / _NS, end / _NS, d_from, d_to, len(g)))
+        steps.append(Step(len(steps) + 1, start / NS_PER_S, int(t[g[-1]]) / NS_PER_S, end / NS_PER_S, d_from, d_to, len(g)))
     notes = []
     if small:
         notes.append(
@@ -306,7 +305,7 @@ def replay(
     if not (isinstance(resync, (int, float)) and math.isfinite(resync) and resync >= 0):
         msg = f"resync {resync!r} s: accepted is a finite number >= 0"
         raise ReplayError(msg)
-    skipped_ns = [(g.start_ns, g.end_ns + round(resync * _NS)) for g in recording.gaps]
+    skipped_ns = [(g.start_ns, g.end_ns + round(resync * NS_PER_S)) for g in recording.gaps]
     timeline, tl_notes = input_timeline(
         recording.inputs, 0.0, params.circuit.supply_pressure
     )
@@ -337,7 +336,7 @@ def replay(
         traces[role] = (s.t, s.value, model_values)
     steps, step_notes = detect_steps(timeline, end_ns, min_hold=min_hold)
     comparisons = []
-    skipped_s = [(a / _NS, b / _NS) for a, b in skipped_ns]
+    skipped_s = [(a / NS_PER_S, b / NS_PER_S) for a, b in skipped_ns]
     for st in steps:
         if any(a < st.t_end and st.t_start - min_hold < b for a, b in skipped_s):
             step_notes.append(
@@ -359,12 +358,12 @@ def replay(
             comparisons.append(StepComparison(st, meas, mod))
         else:
             step_notes.append(f"step {st.index} at {st.t_start:.3f} s has too few samples to analyse")
-    duty_t = timeline.t_ns.astype(np.float64) / _NS
+    duty_t = timeline.t_ns.astype(np.float64) / NS_PER_S
     return ReplayResult(
         bag=str(recording.path),
         model=model,
         solver=run.solver,
-        duration_s=end_ns / _NS,
+        duration_s=end_ns / NS_PER_S,
         topics=recording.topics,
         closed_cleanly=recording.closed_cleanly,
         signals=signals,

@@ -21,6 +21,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pcv_sim.errors import BagError
+from pcv_sim.units import NS_PER_S
 
 __all__ = [
     "DECODABLE_TYPES",
@@ -42,7 +43,6 @@ FLUID_PRESSURE: Final = "sensor_msgs/msg/FluidPressure"
 #: Message types :func:`pcv_sim.io.bag.read_bag` decodes into arrays.
 DECODABLE_TYPES: Final = (FLOAT64, FLUID_PRESSURE)
 
-NS_PER_S: Final = 1_000_000_000
 #: Per channel: (channel id, log times, offsets of its records in bytes serialised together).
 ChannelRecords: TypeAlias = list[tuple[int, npt.NDArray[np.uint64], npt.NDArray[np.uint64]]]
 MESSAGE_OVERHEAD: Final = 9 + 22  # MCAP record opcode+length, then the message fields
