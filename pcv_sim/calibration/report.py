@@ -14,15 +14,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
-from pcv_sim.analysis.metrics import StepMetrics, step_metrics
+from pcv_sim.analysis.metrics import StepMetrics
 from pcv_sim.calibration.fit import CalibrationError, CalibrationResult
 from pcv_sim.markup import html_table, markdown_table, png_source, relative_link
 from pcv_sim.params import params_from_mapping
 from pcv_sim.plotting import png, pyplot
-from pcv_sim.replay.compare import DISPLAY, Step
+from pcv_sim.replay.compare import DISPLAY, Step, compare_step
 
 __all__ = ["StepFit", "fitted_yaml", "plot_fit", "render_html", "render_markdown", "render_text", "step_fits", "step_rows"]
 
@@ -149,13 +148,10 @@ def step_fits(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[Ste
             if (bag, role) not in r.traces:
                 continue
             t, meas, before, after = r.traces[(bag, role)]
-            inside = (t >= st.t_start) & (t <= st.t_end)
-            if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
-                continue
-            band = DISPLAY[role].band_min
-            m = step_metrics(t, meas, st.t_start, st.t_end, band_min=band)
-            b, a = (step_metrics(t, y, st.t_start, st.t_end, band_min=max(band, m.band)) for y in (before, after))
-            out.append(StepFit(st, role, m, b, a))
+            compared = compare_step(st, role, t, meas, (before, after))
+            if compared is not None:
+                m, (b, a) = compared
+                out.append(StepFit(st, role, m, b, a))
     return out
 
 

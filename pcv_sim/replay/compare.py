@@ -48,6 +48,7 @@ __all__ = [
     "StepComparison",
     "ThresholdFailure",
     "check_thresholds",
+    "compare_step",
     "detect_steps",
     "replay",
 ]
@@ -252,6 +253,19 @@ class ReplayResult:
         }
 
 
+def compare_step(step: Step, role: str, t: npt.NDArray[np.float64], measured: npt.NDArray[np.float64],
+                 models: tuple[npt.NDArray[np.float64], ...]) -> tuple[StepMetrics, tuple[StepMetrics, ...]] | None:
+    """The step metrics of `role`'s measured response over `step`'s window and of each response
+    in `models`, every model judged in the measured band (widened by the sensor's noise), so that
+    one gate holds for both; None when the window has fewer than 3 samples or none before the step."""
+    inside = (t >= step.t_start) & (t <= step.t_end)
+    if np.count_nonzero(inside) < 3 or not np.any(t < step.t_start):
+        return None
+    band = DISPLAY[role].band_min
+    m = step_metrics(t, measured, step.t_start, step.t_end, band_min=band)
+    return m, tuple(step_metrics(t, y, step.t_start, step.t_end, band_min=max(band, m.band)) for y in models)
+
+
 def detect_steps(
     timeline: InputTimeline, end_ns: int, *, min_hold: float = 0.02, min_amplitude: float = 0.005
 ) -> tuple[list[Step], list[str]]:
@@ -347,13 +361,9 @@ def replay(
         meas: dict[str, StepMetrics] = {}
         mod: dict[str, StepMetrics] = {}
         for role, (t, y_meas, y_mod) in traces.items():
-            inside = (t >= st.t_start) & (t <= st.t_end)
-            if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
-                continue
-            band = DISPLAY[role].band_min
-            meas[role] = step_metrics(t, y_meas, st.t_start, st.t_end, band_min=band)
-            # The model is judged in the measured band (widened by the sensor's noise): same gate.
-            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=max(band, meas[role].band))
+            compared = compare_step(st, role, t, y_meas, (y_mod,))
+            if compared is not None:
+                meas[role], (mod[role],) = compared
         if meas:
             comparisons.append(StepComparison(st, meas, mod))
         else:
