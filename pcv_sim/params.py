@@ -48,6 +48,8 @@ __all__ = [
     "SolenoidParams",
     "SpoolParams",
     "ValveParams",
+    "WatchdogParams",
+    "accepted_words",
     "any_value",
     "at_least",
     "between",
@@ -78,6 +80,7 @@ __all__ = [
     "section_from_mapping",
     "setting",
     "speed_factor",
+    "watchdog_parameter",
     "yaml_load_unique",
 ]
 
@@ -113,6 +116,10 @@ def non_negative(v: float) -> str | None:
     return None if v >= 0 else "a finite number >= 0"
 
 
+positive.accepted = "> 0"           # type: ignore[attr-defined]  # for the tables of keys
+non_negative.accepted = ">= 0"      # type: ignore[attr-defined]  # for the tables of keys
+
+
 def any_value(_v: Any) -> str | None:
     """No check beyond the kind's (a finite number, a string, a bool...)."""
     return None
@@ -124,6 +131,10 @@ def fraction(v: float) -> str | None:
 
 def duty_fraction(v: float) -> str | None:
     return None if 0.0 <= v <= 1.0 else "a duty fraction 0..1"
+
+
+fraction.lo = duty_fraction.lo = 0.0     # type: ignore[attr-defined]  # the range, for the tables of keys
+fraction.hi = duty_fraction.hi = 1.0     # type: ignore[attr-defined]
 
 
 def int_range(lo: int, hi: int, accepted: str | None = None) -> Check:
@@ -250,6 +261,24 @@ def setting(default: Any, unit: str, description: str, check: Check = _any_finit
     """A node setting: `parameter` with its default first (every setting has one)."""
     return parameter(unit, description, check, kind=kind, default=default, name=name, read_only=read_only,
                      convert=convert)
+
+
+@dataclass(frozen=True)
+class WatchdogParams:
+    """The duty watchdog every device has (the emulator's valve, each valve of a rig), declared once:
+    a node's settings and the rig YAML's `rig:` take these fields (`watchdog_parameter`)."""
+
+    watchdog_timeout: float = parameter(
+        "s", "model time without a valid duty command (after the first) -> safe_duty; 0 = off. 2 s is above the "
+        "1 s period of `ros2 topic pub`'s default rate", between(0.0, 60.0, "a duration"), default=2.0)
+    safe_duty: float = parameter("-", "duty fraction when the watchdog fires, and before the first command of a "
+                                 "valve without an initial duty (the emulator's)", duty_fraction, default=0.0)
+
+
+def watchdog_parameter(key: str) -> Any:
+    """A field declared as `WatchdogParams`' `key`: the same type, unit, range, default and doc."""
+    f = {g.name: g for g in dataclasses.fields(WatchdogParams)}[key]
+    return field(default=f.default, metadata=f.metadata)
 
 
 # --- sections ---------------------------------------------------------------------------------
@@ -721,9 +750,17 @@ def read(cls: type, data: Mapping[str, Any], key: str, prefix: str = "", *, chec
     return check_value(_join(prefix, key), f.metadata, data[key], check=check, of=of)
 
 
+def accepted_words(meta: Mapping[str, Any]) -> str:
+    """What a declaration accepts, in a table's cell or a parameter's description ("0 .. 1",
+    ">= 0", "product | zip", "true, false"; '' when its check has no words for it)."""
+    return _range_words(meta["check"]) or _KIND_WORDS.get(meta["kind"], "")
+
+
 def _range_words(check: Check) -> str:
     """What a check accepts, in a table's cell ("0 .. 1", ">= 0", "product | zip"; '' for none)."""
     lo, hi = getattr(check, "lo", None), getattr(check, "hi", None)
+    if isinstance(lo, int) and isinstance(hi, int):          # an integer range, to its last digit
+        return f"{lo} .. {hi}"
     if lo is not None and hi is not None:
         return f"{lo:g} .. {hi:g}"
     return str(getattr(check, "accepted", ""))
@@ -775,7 +812,7 @@ def key_cells(cls: type) -> list[tuple[str, str, str, str, str]]:
         else:
             default = f"`{str(f.default).lower() if isinstance(f.default, bool) else f.default or repr(f.default)}`"
         doc = _accepted({**meta, "unit": "-"}).replace("|", "\\|")
-        accepted = _range_words(meta["check"]) or _KIND_WORDS.get(meta["kind"], "")
+        accepted = accepted_words(meta)
         cells.append((key, unit, accepted, default, doc))
     return cells
 

@@ -66,6 +66,12 @@ class PositionController:
         self.left_duty = self.right_duty = self.base   # the PI's duties of the last period
         self.fault = 0.0
 
+    @staticmethod
+    def check_params(values: Mapping[str, Any]) -> PositionControllerParams:
+        """Keyword values (a scenario's `controller_params`, which its loader checks with this) as the
+        constructor takes them; ParameterError naming the key."""
+        return controller_params(values)
+
     def retune(self, params: PositionControllerParams) -> None:
         """The gains and settings in force from the next period on; the state (integral, trims,
         held measurements, the coil monitor's timers) carries over."""

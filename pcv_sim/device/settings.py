@@ -24,6 +24,7 @@ from pcv_sim.device.bag_layout import RECORDABLE, check_signals
 from pcv_sim.errors import BagError, ParameterError
 from pcv_sim.params import (
     ValveParams,
+    accepted_words,
     any_value,
     check_value,
     int_range,
@@ -33,8 +34,8 @@ from pcv_sim.params import (
     params_to_mapping,
     positive,
     setting,
+    watchdog_parameter,
 )
-from pcv_sim.params import duty_fraction as _duty_fraction
 from pcv_sim.params import fraction as _fraction
 from pcv_sim.params import speed_factor as real_time_factor
 from pcv_sim.simulation.clock import steps_per
@@ -84,6 +85,9 @@ def bag_name_check(v: str) -> str | None:
     if v and (v in (".", "..") or not all(c.isalnum() or c in "_-." for c in v)):
         return "'' (a timestamped name) or a plain directory name of letters, digits, '_', '-', '.'"
     return None
+
+
+bag_name_check.accepted = "'' or a plain directory name"     # type: ignore[attr-defined]  # a descriptor's words
 
 
 _seed = int_range(0, 2**32 - 1, "an integer 0 .. 2^32 - 1")
@@ -190,11 +194,8 @@ class NodeSettings(CommonSettings):
     publish_rate: float = setting(
         1000.0, "Hz", "rate of pressure/current/spool_position samples (in model time); its period must be a "
         "whole multiple of the model step", positive)
-    watchdog_timeout: float = setting(
-        2.0, "s", "no valid duty command for this long (model time) -> safe_duty; 0 = off. Above the 1 s "
-        "period of `ros2 topic pub`'s default rate", non_negative)
-    safe_duty: float = setting(
-        0.0, "-", "duty fraction applied before the first command and when the watchdog fires", _duty_fraction)
+    watchdog_timeout: float = watchdog_parameter("watchdog_timeout")
+    safe_duty: float = watchdog_parameter("safe_duty")
     valve_config: str = setting(
         "", "-", "valve model YAML; '' = the shipped config/valve.yaml", any_value, "str", read_only=True)
     record_signals: tuple[str, ...] = setting(
@@ -247,6 +248,13 @@ class NodeParameter:
     @property
     def is_float(self) -> bool:
         return bool(self.meta["kind"] == "float")
+
+    @property
+    def described(self) -> str:
+        """Its doc and the range it accepts, from its declaration ("...; accepted 0 .. 60"), as a
+        node's parameter descriptor and --help say it."""
+        accepted = accepted_words(self.meta).replace("\\|", "|")      # a table's escaped bar
+        return f"{self.description}; accepted {accepted}" if accepted else self.description
 
 
 def parameters_of(settings: type) -> tuple[NodeParameter, ...]:

@@ -19,7 +19,7 @@ from pcv_sim.device.inputs import Watchdog, WatchdogState
 from pcv_sim.device.limits import PhysicalLimits
 from pcv_sim.device.spec import RECORD_INPUTS
 from pcv_sim.io.topics import DUTY_CYCLE, LOAD_FLOW, OPTION_INTERFACE, OUTPUT_ROLES, SUPPLY_PRESSURE
-from pcv_sim.params import ValveParams
+from pcv_sim.params import ValveParams, WatchdogParams
 
 __all__ = ["OPTION_SIGNALS", "SIGNALS", "VALVE", "Recorder", "Sample", "ValveDevice", "WatchdogState"]
 
@@ -54,7 +54,8 @@ class ValveDevice(Device):
     lone_valve = True           # its names are the roles alone: `duty_cycle`, `pressure` (its topics')
 
     def __init__(
-        self, params: ValveParams, *, safe_duty: float = 0.0, watchdog_timeout: float = 0.5,
+        self, params: ValveParams, *, safe_duty: float = WatchdogParams.safe_duty,
+        watchdog_timeout: float = WatchdogParams.watchdog_timeout,
         sample_every: int = 10, recorder: Recorder | None = None, record_every: int = 1, seed: int = 0,
     ) -> None:
         # The inputs come at any rate for as long as the node runs: refusals are counted, not kept.

@@ -20,7 +20,7 @@ from pcv_sim.device.settings import MODEL_PREFIX, NodeSettings, SettingsSchema, 
 from pcv_sim.device.settings import SCHEMA as EMULATOR_SCHEMA
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import CommandError, ParameterError
-from pcv_sim.params import ValveParams, check_value, load_params
+from pcv_sim.params import ValveParams, accepted_words, check_value, load_params
 from pcv_sim.rig import Rig, load_rig
 from pcv_sim.rig.params import RigParams, TimingParams
 from pcv_sim.rig.settings import SCHEMA as RIG_SCHEMA
@@ -144,8 +144,8 @@ def _rig_parameters(node: Any, settings: RigNodeSettings) -> RigParams:
     changes = {}
     for key in RIG_RUNTIME:
         f, value = _TIMING[key], getattr(rig.timing, key)
-        got = node.declare(f"{RIG_PREFIX}{key}", value, f"{f.metadata['description']} [{f.metadata['unit']}] (default: the rig "
-                           f"YAML's rig.{key})", is_float=True)
+        got = node.declare(f"{RIG_PREFIX}{key}", value, f"{f.metadata['description']}; accepted {accepted_words(f.metadata)} "
+                           f"[{f.metadata['unit']}] (default: the rig YAML's rig.{key})", is_float=True)
         if got != value:
             changes[f"{RIG_PREFIX}{key}"] = got
     return _rig_with(rig, changes) if changes else rig

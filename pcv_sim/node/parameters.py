@@ -6,8 +6,9 @@ parameter(s): []"); a numeric text for a float parameter (`ros2 param set` sends
 the number; use_sim_time cannot change while the node runs, nor go with simulated time.
 
 A change at run time is checked on the worker thread with the rules at start (`_validate_parameters`),
-what it needs prepared there (`_prepare`), and applied by the loop between wakes (`_apply`:
-`pcv_sim.node.services` answers the request only then).
+what it needs prepared there (`_prepare`), and applied by the loop between wakes (`_put_in_force`:
+`pcv_sim.node.services` answers the request only then): `check_change` and `queue_change`, the
+shape every node's run-time change has (the steering controller's gains too).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ class NodeParameters(Node):
         self._declared: set[str] = set()
         self._float_names: set[str] = set()
         self._pending: tuple[Any, Any] | None = None                # (settings, device parameters) of the running job
-        self._staged: tuple[Any, Any, Any] | None = None            # checked, about to be queued for the loop
+        self._staged: Any = None                                    # checked, about to be queued for the loop
         self._deferred_callbacks += (self._on_set_parameters, self._on_set_parameters_atomically)
 
     def declare(self, name: str, default: Any, description: str, *, read_only: bool = False,
@@ -98,12 +99,18 @@ class NodeParameters(Node):
         raise NotImplementedError
 
     def _validate_parameters(self, parameters: list[Any]) -> SetParametersResult:
-        """on-set callback (worker thread): the whole change checked with the rules at start (settings
-        by the schema, the device's parameters by `_prepare`), what it needs prepared and staged; the
-        loop applies it (`_pump`). use_sim_time cannot change; rclpy refuses the read-only ones."""
+        """on-set callback (worker thread): the whole change checked with the rules at start and staged
+        (`_checked_change`); the loop applies it (`_pump`). use_sim_time cannot change; rclpy refuses
+        the read-only ones."""
         refused = self.sim_time_change_refused(parameters)
         if refused is not None:
             return refused
+        return self.check_change(parameters, self._checked_change)
+
+    def _checked_change(self, parameters: list[Any]) -> tuple[Any, Any, Any]:
+        """The settings (by the schema) and the device's parameters (by `_prepare`) with the change,
+        cross-checked, and what the device needs prepared for them; a change the model cannot run
+        with is refused saying so. The base holds the changes queued before and not yet applied."""
         settings_changes = {p.name: p.value for p in parameters if p.name in self.schema.by_name}
         device_changes = {p.name: p.value for p in parameters
                           if p.name not in self.schema.by_name and p.name in self._declared}
@@ -112,13 +119,11 @@ class NodeParameters(Node):
             settings = self.schema.with_changes(base_settings, settings_changes)
             params, prepared = self._prepare(base_params, device_changes)
             settings.check(params)
-        except (ParameterError, ValueError) as err:
-            return SetParametersResult(successful=False, reason=str(err))
+        except ValueError:                  # ParameterError among them: its own words
+            raise
         except Exception as err:
-            return SetParametersResult(successful=False,
-                                       reason=f"the model cannot run with these parameters: {type(err).__name__}: {err}")
-        self._staged = (settings, params, prepared)
-        return SetParametersResult(successful=True)
+            raise ParameterError(f"the model cannot run with these parameters: {type(err).__name__}: {err}") from err
+        return settings, params, prepared
 
     @property
     def device_params(self) -> Any:
@@ -131,24 +136,53 @@ class NodeParameters(Node):
         return params, None
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
-        """post-set callback (worker thread): queue what `_validate_parameters` staged for the loop."""
-        if self._staged is None:
-            return
-        settings, params, prepared = self._staged
-        self._staged = None
-        self._pending = (settings, params)
-        changed = ", ".join(f"{p.name} = {p.value!r}" for p in parameters)
-        self._ready.append(lambda: self._apply(settings, prepared, changed))
+        """post-set callback (worker thread): what `_validate_parameters` staged, queued for the loop;
+        the base of the next change until the loop has applied it."""
+        staged = self.queue_change(parameters, self._put_in_force)
+        if staged is not None:
+            self._pending = staged[:2]
 
-    def _apply(self, settings: Any, prepared: Any, changed: str) -> None:
-        """On the loop, between wakes: the new settings (and what the device prepared) in force from the
-        next step."""
+    def _put_in_force(self, staged: tuple[Any, Any, Any]) -> Callable[[], None] | None:
+        """On the loop, between wakes: the new settings in force from the next step; what the device
+        prepared is installed after the "parameters changed" line (`_install` logs its own)."""
+        settings, _, prepared = staged
         self.settings = settings
         self._apply_settings(settings)
         self._retime(settings)
-        self.get_logger().info(f"parameters changed: {changed}")
-        if prepared is not None:
-            self._install(prepared)
+        return None if prepared is None else lambda: self._install(prepared)
+
+    # --- a change at run time: checked on the service worker, put in force by the loop --------------
+
+    def check_change(self, parameters: list[Any], check: Callable[[list[Any]], Any]) -> SetParametersResult:
+        """An on-set callback's body (the service worker): `check(parameters)` checks the change with
+        the rules at start; what it returns is staged for `queue_change` (None: nothing to put in
+        force), what it raises (ParameterError, ValueError) refuses the request with its text."""
+        try:
+            staged = check(parameters)
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        if staged is not None:
+            self._staged = staged
+        return SetParametersResult(successful=True)
+
+    def queue_change(self, parameters: list[Any], put_in_force: Callable[[Any], Callable[[], None] | None]) -> Any:
+        """A post-set callback's body (the service worker): what `check_change` staged, queued for the
+        loop, which between two periods puts it in force (`put_in_force(staged)`), logs "parameters
+        changed: <name> = <value>, ..." and then runs what `put_in_force` returned, if anything (a
+        step that logs its own line after). The staged value, or None when nothing was staged."""
+        staged, self._staged = self._staged, None
+        if staged is None:
+            return None
+        changed = ", ".join(f"{p.name} = {p.value!r}" for p in parameters)
+
+        def apply() -> None:
+            then = put_in_force(staged)
+            self.get_logger().info(f"parameters changed: {changed}")
+            if then is not None:
+                then()
+
+        self._ready.append(apply)
+        return staged
 
     def _apply_settings(self, settings: Any) -> None:
         """The settings the device holds (watchdog, safe duty...) into it (none here)."""
@@ -158,9 +192,10 @@ class NodeParameters(Node):
         raise NotImplementedError
 
     def declare_settings(self, specs: Iterable[Any], check: Callable[[str, Any], Any]) -> dict[str, Any]:
-        """Declare each setting from its one declaration (`pcv_sim.params.setting`); its value checked
-        by `check(name, value)` as soon as it is declared (ParameterError naming it)."""
-        return {spec.name: check(spec.name, self.declare(spec.name, spec.default, f"{spec.description} [{spec.unit}]",
+        """Declare each setting from its one declaration (`pcv_sim.params.setting`), described by its
+        doc, the range it accepts and its unit; its value checked by `check(name, value)` as soon as
+        it is declared (ParameterError naming it)."""
+        return {spec.name: check(spec.name, self.declare(spec.name, spec.default, f"{spec.described} [{spec.unit}]",
                                                           read_only=spec.read_only, is_float=spec.is_float))
                 for spec in specs}
 

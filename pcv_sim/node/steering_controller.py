@@ -56,7 +56,7 @@ from typing import Any
 from pcv_sim.control.params import PositionControllerParams
 from pcv_sim.device.settings import NodeParameter, parameters_of
 from pcv_sim.node.process import Stop, main_process, parameter_help, run_node
-from pcv_sim.params import any_value, key_cells, setting
+from pcv_sim.params import any_value, setting
 
 __all__ = ["DECLARING", "NODE_NAME", "STATUS_NAME", "VALVES", "ControllerNodeSettings", "PeriodCheck", "main",
            "node_parameters"]
@@ -119,14 +119,9 @@ DECLARING = (PositionControllerParams, ControllerNodeSettings)
 
 
 def node_parameters() -> tuple[NodeParameter, ...]:
-    """The node's parameters as it declares them: each described by its doc, the range it accepts and
-    its unit (`pcv_sim.device.settings.NodeParameter`, as the device nodes' settings)."""
-    out: list[NodeParameter] = []
-    for cls in DECLARING:
-        accepted = {key: words for key, _, words, _, _ in key_cells(cls)}
-        out += [dataclasses.replace(p, description=f"{p.description}; accepted {accepted[p.name]}")
-                for p in parameters_of(cls)]
-    return tuple(out)
+    """The node's parameters as it declares them (`pcv_sim.device.settings.NodeParameter`, as the
+    device nodes' settings): the controller's, then the node's own."""
+    return tuple(p for cls in DECLARING for p in parameters_of(cls))
 
 
 def make_node(argv: list[str], **kwargs: Any) -> Any:
@@ -155,15 +150,15 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
         """PositionController between the rig's samples and its duty commands; `run(stop)`. Its
         parameters as the device nodes': declared from their declarations, refused with their
         messages at start and at run time (`pcv_sim.node.parameters`), a change of the gains checked
-        on the service worker and put in force by the loop between two periods
-        (`pcv_sim.node.services`, polled by the client's run)."""
+        on the service worker and put in force by the loop between two periods as theirs
+        (`NodeParameters.check_change`, `queue_change`; `pcv_sim.node.services`, polled by the
+        client's run)."""
 
         def __init__(self) -> None:
             super().__init__(NODE_NAME, **kwargs)
             self._init_services()
             self._init_parameters()
             self._init_qos_events()
-            self._staged_gains: PositionControllerParams | None = None
             try:
                 check_params_files(argv)
                 self._cli = command_line_overrides(argv, NODE_NAME)
@@ -200,38 +195,33 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             self.set_retaken()
             self.take_parameter_services(bool(self.get_parameter("use_sim_time").value), False)
             self.add_on_set_parameters_callback(self._check_change)
-            self.add_post_set_parameters_callback(self._stage_change)
+            self.add_post_set_parameters_callback(self._queue_change)
             return (PositionControllerParams(**{k: v for k, v in values.items() if k in gain_names}),
                     bool(values[CHANNEL_PARAMETER]))
 
         def _check_change(self, parameters: list[Any]) -> SetParametersResult:
             """on-set callback (the service worker): the gains with the change, checked as at start
-            (rclpy refuses the read-only ones); staged for `_stage_change`. The base is the node's
-            parameters, which hold the changes of the request so far (one request sets each of its
-            parameters on its own, all put in force after it)."""
+            (rclpy refuses the read-only ones), put in force by the loop between two periods
+            (`_pump`, `_retune`), the request answered only then."""
+            return self.check_change(parameters, self._gains_with)
+
+        def _gains_with(self, parameters: list[Any]) -> PositionControllerParams | None:
+            """The gains with the change (None: it changes none). The base is the node's parameters,
+            which hold the changes of the request so far (one request sets each of its parameters
+            on its own, all put in force after it)."""
             changes = {p.name: p.value for p in parameters if p.name in gain_names}
             if not changes:
-                return SetParametersResult(successful=True)
+                return None
             now = {name: self.get_parameter(name).value for name in gain_names}
-            try:
-                self._staged_gains = controller_params({**now, **changes}, where=NODE_NAME)
-            except ParameterError as err:
-                return SetParametersResult(successful=False, reason=str(err))
-            return SetParametersResult(successful=True)
+            return controller_params({**now, **changes}, where=NODE_NAME)
 
-        def _stage_change(self, parameters: list[Any]) -> None:
-            """post-set callback: what `_check_change` staged, put in force by the loop between two
-            periods (`_pump`), the request answered only then."""
-            gains, self._staged_gains = self._staged_gains, None
-            if gains is None:
-                return
-            changed = ", ".join(f"{p.name} = {p.value!r}" for p in parameters)
-            self._ready.append(lambda: self._retune(gains, changed))
+        def _queue_change(self, parameters: list[Any]) -> None:
+            """post-set callback: the staged gains queued for the loop."""
+            self.queue_change(parameters, self._retune)
 
-        def _retune(self, gains: PositionControllerParams, changed: str) -> None:
+        def _retune(self, gains: PositionControllerParams) -> None:
             self.gains = gains
             self.law.retune(gains)
-            self.get_logger().info(f"parameters changed: {changed}")
 
         def _drop_clock_subscription(self) -> None:
             """use_sim_time: the TimeSource's /clock subscription goes (no executor would take it); the
@@ -321,7 +311,8 @@ def _run(argv: list[str], stop: Stop) -> int:
                     "cylinder/joint_states, setpoint (std_msgs/Float64, m); out <valve>/duty_cycle, "
                     "controller/flags (diagnostic_msgs/DiagnosticArray stamped with the sample's model time).",
         epilog=lambda: parameter_help(
-            node_parameters(), "FILE", "period must be the rig's control period; the others but "
+            [dataclasses.replace(p, description=p.described) for p in node_parameters()], "FILE",
+            "period must be the rig's control period; the others but "
             f"{CHANNEL_PARAMETER} change between two periods (ros2 param set)",
             "use_sim_time follows the rig's model time"))
 

@@ -1,7 +1,9 @@
 """The rig's parameters (`config/rig.yaml`): its timing, its valves (each from its own valve YAML)
 and the steering cylinder, validated on load like the valve YAML.
 
-    rig:       time_step (s), control_period (s), watchdog_timeout (s, 0 = off), safe_duty (0..1)
+    rig:       time_step (s), control_period (s), watchdog_timeout (s, 0 = off; default 2),
+               safe_duty (0..1; default 0): the watchdog's, declared once for every device
+               (`pcv_sim.params.WatchdogParams`), so a rig and the emulator agree
     valves:    name -> {config: valve YAML (relative to the rig file; '' = the shipped one),
                         chamber: a | b | none, initial_duty: 0..1}
                exactly one valve per cylinder chamber; any number with `chamber: none` (a valve
@@ -36,6 +38,7 @@ from pcv_sim.params import (
     plausible_range,
     read_yaml,
     section_from_mapping,
+    watchdog_parameter,
 )
 from pcv_sim.plant.params import CylinderParams
 
@@ -54,9 +57,8 @@ class TimingParams:
     time_step: float = parameter("s", "the fixed integration step of the whole rig (valves + cylinder)",
                                  plausible_range(1e-6, 1e-3))
     control_period: float = parameter("s", "samples to the controller and its commands, every period", plausible_range(1e-4, 1.0))
-    watchdog_timeout: float = parameter("s", "model time without a valid duty command -> safe_duty; 0 = off",
-                                        plausible_range(0.0, 60.0))
-    safe_duty: float = parameter("-", "duty of a valve whose watchdog fired (fraction)", plausible_range(0.0, 1.0))
+    watchdog_timeout: float = watchdog_parameter("watchdog_timeout")       # every device's (and its default)
+    safe_duty: float = watchdog_parameter("safe_duty")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,7 +127,7 @@ def rig_from_mapping(data: Any, *, origin: str = "rig", base: Path | None = None
         missing = [s for s in sections if s not in data]
         if missing:
             raise ParameterError(f"missing section(s) {missing}")
-        timing = section_from_mapping(TimingParams, data["rig"], "rig")
+        timing = section_from_mapping(TimingParams, data["rig"], "rig", defaults=True)
         steps = timing.control_period / timing.time_step
         if abs(steps - round(steps)) > 1e-9 * steps:
             raise ParameterError(f"rig.control_period={timing.control_period} s: accepted is a whole number of "

@@ -9,7 +9,8 @@
     seed: 0                          # sensor noise
     controller: steering:PositionController   # `module:callable`; module.py beside this file or importable
     controller_params: {kp: 5.0}     # optional: a class is instantiated with them, a function called
-                                     # with them to make the controller; without, a function is the controller
+                                     # with them to make the controller; without, a function is the controller;
+                                     # checked on load when the callable has a check_params (PositionController)
     # or a ROS 2 controller node (pcv_sim.node.scenario_host): the runner hosts the rig node
     # (`ros2 run pcv_sim rig`) in lockstep in `namespace` and waits up to `wait` s for the node
     # to answer; `command`, if given, is started by the runner (in a ROS domain of its own, cwd
@@ -169,8 +170,8 @@ class ScenarioKeys:
     controller: Any = parameter("-", "`module:callable` (module.py beside the file, or importable), or a ROS node "
                                 "{ros: {namespace, command, wait}}", _controller, kind="any", default=None)
     controller_params: Mapping[str, Any] | None = parameter(
-        "-", "of keyword arguments: a class is instantiated, a function called with them", kind="mapping",
-        default=None)
+        "-", "of keyword arguments: a class is instantiated, a function called with them; checked on load by "
+        "the callable's check_params, if it has one", kind="mapping", default=None)
     setpoint: list[Any] | None = parameter(
         "-", "of segments {t, value | ramp | table | sine | chirp | file} of the position setpoint (m)", non_empty,
         kind="list", item=parameter("-", "{t, value | ramp | table | sine | chirp | file}", kind="mapping"),
@@ -560,6 +561,8 @@ def scenario_from_mapping(data: Any, *, path: Path | None = None, rig_params: Ri
                                 "(in its command: --ros-args -p name:=value)")
         if params is not None and ctrl is None:
             raise ScenarioError("controller_params: given without a controller")
+        if params is not None:                       # the callable the run will take (its base: the file's folder)
+            _check_controller_params(ctrl, params, path.parent if path else None)
         if valve_changes and ros is not None:
             raise ScenarioError("valves: the rig node of a ROS controller loads the rig YAML itself (its rig_config); "
                                 "accepted is a rig whose valve YAMLs hold these keys, named by `rig`")
@@ -590,9 +593,39 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario_from_mapping(read_yaml(path, "scenario", ScenarioError), path=Path(path))
 
 
+def _check_controller_params(spec: str, params: Mapping[str, Any], base: Path | None) -> None:
+    """On load: `controller_params` checked by the callable's own declarations when it has them (a
+    `check_params(values)` that raises ParameterError, as `PositionController`), with their message.
+    Its own: a subclass with other keywords does not inherit its base's check."""
+    obj = controller_callable(spec, base)
+    check = getattr(obj, "check_params", None) if "check_params" in getattr(obj, "__dict__", {}) else None
+    if callable(check):
+        try:
+            check(params)
+        except ParameterError as err:
+            raise ScenarioError(f"controller_params: {err}") from None
+
+
 def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path | None) -> Controller:
-    """The controller named `module:callable`: module.py beside the scenario (loaded from that
-    file, so two folders' `steering.py` never mix), else an importable module."""
+    """The controller named `module:callable` (`controller_callable`): a class instantiated, a
+    function called with `params` when given, to make it."""
+    obj = controller_callable(spec, base)
+    if inspect.isclass(obj) or params is not None:
+        try:
+            obj = obj(**dict(params or {}))
+        except TypeError as err:
+            raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
+        except ParameterError as err:                # refused by the controller's own declarations
+            raise ScenarioError(f"controller_params: {err}") from None
+    if not callable(obj):
+        raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
+    controller: Controller = obj
+    return controller
+
+
+def controller_callable(spec: str, base: Path | None) -> Any:
+    """The callable named `module:callable`: module.py beside the scenario (loaded from that file,
+    so two folders' `steering.py` never mix), else an importable module."""
     module_name, attr = spec.split(":")
     beside = base / f"{module_name.replace('.', '/')}.py" if base is not None else None
     try:
@@ -614,17 +647,7 @@ def resolve_controller(spec: str, params: Mapping[str, Any] | None, base: Path |
     obj = getattr(module, attr, None)
     if obj is None or not callable(obj):
         raise ScenarioError(f"controller: {module_name} has no callable {attr!r}")
-    if inspect.isclass(obj) or params is not None:
-        try:
-            obj = obj(**dict(params or {}))
-        except TypeError as err:
-            raise ScenarioError(f"controller_params: {spec} does not take them: {err}") from None
-        except ParameterError as err:                # refused by the controller's own declarations
-            raise ScenarioError(f"controller_params: {err}") from None
-    if not callable(obj):
-        raise ScenarioError(f"controller: {spec} made a {type(obj).__name__}, not a callable (t, measurements)")
-    controller: Controller = obj
-    return controller
+    return obj
 
 
 # --- running ---------------------------------------------------------------------------------------

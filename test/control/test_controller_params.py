@@ -2,6 +2,7 @@
 (pcv_sim.control.params.PositionControllerParams): the keyword constructor, a scenario's
 `controller_params` and a change between periods are checked by it, with its messages."""
 import dataclasses
+import re
 
 import pytest
 
@@ -64,6 +65,42 @@ def test_a_scenario_s_controller_params_are_checked_by_the_declarations():
     with pytest.raises(ScenarioError, match=r"^controller_params: PositionController: unknown key 'kpp' "
                                             r"\(did you mean 'kp'\?\)"):
         resolve_controller(spec, {"kpp": 1}, None)
+
+
+def test_a_scenario_s_controller_params_are_checked_on_load_naming_the_file(tmp_path):
+    """A scenario file's controller_params for a callable with declarations (check_params) are refused
+    when the file is loaded, not when the run builds the controller: the file, the key and the
+    declaration's message; a callable without them is checked when built, as before."""
+    import yaml
+
+    from pcv_sim.rig.scenario import load_scenario, scenario_from_mapping
+
+    scenario = {"duration": 0.01, "controller": "pcv_sim.control.steering:PositionController",
+                "controller_params": {"kp": 20.0, "current_loop": -1}}
+    path = tmp_path / "bad_gains.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    with pytest.raises(ScenarioError, match=rf"^{re.escape(str(path))}: controller_params: current_loop: got -1; "
+                                            r"accepted is a time constant in 0 \.\. 10 \(s\)$"):
+        load_scenario(path)
+    with pytest.raises(ScenarioError, match=r"^scenario: controller_params: PositionController: unknown key 'kpp' "
+                                            r"\(did you mean 'kp'\?\)"):
+        scenario_from_mapping({**scenario, "controller_params": {"kpp": 1.0}})
+    ok = scenario_from_mapping({**scenario, "controller_params": {"kp": 20.0, "current_loop": "20 ms"}})
+    assert ok.controller_params == {"kp": 20.0, "current_loop": "20 ms"}
+    assert resolve_controller(ok.controller, ok.controller_params, None).params == \
+        PositionControllerParams(kp=20.0, current_loop=0.02)
+    (tmp_path / "derived.py").write_text("from pcv_sim.control.steering import PositionController\n\n\n"
+                                         "class Derived(PositionController):\n"
+                                         "    def __init__(self, fail_at):\n        super().__init__()\n")
+    derived = scenario_from_mapping({**scenario, "controller": "derived:Derived", "controller_params": {"fail_at": 1}},
+                                    path=tmp_path / "s.yaml")       # its own keywords: not its base's check
+    assert resolve_controller(derived.controller, derived.controller_params, tmp_path).params == \
+        PositionControllerParams()
+    (tmp_path / "plain.py").write_text("def make(gain):\n    return lambda t, m: {'left': gain}\n")
+    loose = scenario_from_mapping({**scenario, "controller": "plain:make", "controller_params": {"gains": 1}},
+                                  path=tmp_path / "s.yaml")
+    with pytest.raises(ScenarioError, match=r"^controller_params: plain:make does not take them"):
+        resolve_controller(loose.controller, loose.controller_params, tmp_path)
 
 
 def test_retune_changes_the_gains_from_the_next_period_and_keeps_the_state():

@@ -248,7 +248,7 @@ def test_invalid_parameters_are_refused_at_runtime_with_the_reason(ros):
         'publish_rate': (3.0, 'not a whole multiple of the model step'),
         'model.simulation.time_step': (5e-5, 'fixed while the node runs'),
         'time_mode': ('simulated', 'read-only'),
-        'watchdog_timeout': (-0.5, 'watchdog_timeout: got -0.5; accepted is a finite number >= 0'),
+        'watchdog_timeout': (-0.5, 'watchdog_timeout: got -0.5; accepted is a duration in 0 .. 60 (s)'),
         'model.calibration.net_area': (1.0, 'calibration.net_area'),
         'model.nosuch.key': (1.0, 'unknown parameter(s) model.nosuch.key; accepted are'),
         'use_sim_time': (True, 'use_sim_time is fixed while the node runs'),

@@ -35,4 +35,15 @@ def test_an_override_rcl_dropped_for_its_type_is_applied_and_unknown_names_can_b
     assert c.wait_for_emulator(START), emu.output()
     diag = c.wait_for_diagnostics(timeout=10)
     assert diag['watchdog_timeout_s'] == '3', diag
+    # the descriptors say doc, accepted range and unit, from the declarations (as the controller node's)
+    from rcl_interfaces.srv import DescribeParameters
+
+    from pcv_sim.params import WatchdogParams, declarations
+
+    request = DescribeParameters.Request(names=['watchdog_timeout', 'time_mode', 'publish_rate'])
+    timeout, mode, rate = c.call(DescribeParameters, f'{c.device_name}/describe_parameters', request, 10).descriptors
+    doc = declarations(WatchdogParams)['watchdog_timeout'].metadata['description']
+    assert timeout.description == f'{doc}; accepted 0 .. 60 [s]'
+    assert mode.description.endswith('; accepted real | simulated [-]') and mode.read_only
+    assert rate.description.endswith('; accepted > 0 [Hz]')
     assert 'ignoring unknown parameter(s) (allow_unknown_parameters): other_nodes_key' in emu.output()

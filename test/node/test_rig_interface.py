@@ -303,6 +303,7 @@ def test_the_rigs_watchdog_and_safe_duty_are_parameters_at_start_and_at_run_time
     at start and act from the present step when set at run time, as the emulator's watchdog_timeout
     and safe_duty; before a first command each valve's watchdog is waiting (it cannot fire); a safe
     duty no valve takes and a rig key the rig is built on are refused, named."""
+    from rcl_interfaces.srv import DescribeParameters
     from std_msgs.msg import Float64
 
     from pcv_sim.node.client import EmulatorClient
@@ -318,8 +319,11 @@ def test_the_rigs_watchdog_and_safe_duty_are_parameters_at_start_and_at_run_time
     diag = _rig_status(client, lambda d: d.get(f'{ns}/rig: left', (0, '', {}))[2].get('watchdog') == 'waiting')
     assert diag is not None, rig.output()
     assert 'watchdog fired' not in rig.output()              # 0.2 s passed long ago: no command, no firing
+    request = DescribeParameters.Request(names=['rig.watchdog_timeout'])
+    (described,) = c.call(DescribeParameters, f'{c.device_name}/describe_parameters', request, START).descriptors
+    assert '; accepted 0 .. 60 [s] (default: the rig YAML' in described.description   # every device's declaration
     refused = c.set_parameters({'rig.safe_duty': 7.0, 'rig.time_step': 1e-5}, timeout=START)
-    assert not refused[0].successful and 'rig.safe_duty: got 7.0; accepted is' in refused[0].reason
+    assert not refused[0].successful and 'rig.safe_duty: got 7.0; accepted is a duty fraction 0..1' in refused[0].reason
     assert not refused[1].successful and 'unknown parameter(s) rig.time_step' in refused[1].reason
     ok = c.set_parameters({'rig.safe_duty': 0.25, 'rig.watchdog_timeout': 0.3}, timeout=START)
     assert all(r.successful for r in ok), [r.reason for r in ok]

@@ -11,6 +11,22 @@ from pcv_sim.rig.lockstep import lockstep_periods
 from pcv_sim.simulation.reference import VALVE_ATOL, integrate_reference
 
 BAR = 1e5
+#: s, the watchdog's timeout of this module's rig: short, so that the runs past it stay short (the
+#: shipped rig has every device's default, 2 s).
+WATCHDOG = 0.5
+
+
+@pytest.fixture(scope="module")
+def _watchdog_rig(rig_params):
+    return Rig(dataclasses.replace(rig_params, timing=dataclasses.replace(rig_params.timing, watchdog_timeout=WATCHDOG)))
+
+
+@pytest.fixture
+def rig(_watchdog_rig):
+    """The shipped rig with its watchdog at WATCHDOG, reset (as test/rig/conftest.py's)."""
+    _watchdog_rig.on_input = None
+    _watchdog_rig.reset()
+    return _watchdog_rig
 
 
 def step_controller(t, m):
@@ -271,7 +287,8 @@ def test_the_planned_stretch_gives_sample_planneds_numbers_also_after_a_restart(
         dev.submit("left.duty_cycle", 0.7, at_step=1)
         dev.advance_to(1)
     run(rig.planned_stretch(), other, 0, 30)
-    heavier = load_rig(valve_changes={"left": {("spool", "mass"): 0.05}})
+    heavier = dataclasses.replace(load_rig(valve_changes={"left": {("spool", "mass"): 0.05}}),
+                                  timing=rig.params.timing)           # this module's watchdog (a restart keeps it)
     original = rig.params
     rig.install(rig.prepare(heavier))
     try:
