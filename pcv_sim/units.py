@@ -18,12 +18,13 @@ from typing import Any
 
 from pcv_sim.errors import ParameterError
 
-__all__ = ["KINDS", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "si_kind", "to_fit_mm", "unit_kind",
-           "value_kind"]
+__all__ = ["KINDS", "NS_PER_S", "Kind", "UnitError", "bar", "display", "fmt", "lpm", "quantity", "si_kind", "to_fit_mm",
+           "unit_kind", "value_kind"]
 
 MM_PER_M = 1.0e3        # the paper's fits (Eqs. 5-13, 21-25, 27, 31-32) take the position in mm
 PA_PER_BAR = 1.0e5
 M3S_PER_LPM = 1.0e-3 / 60.0
+NS_PER_S = 1_000_000_000   # stamps and bag times are integer ns
 
 
 def to_fit_mm(x_m: float) -> float:

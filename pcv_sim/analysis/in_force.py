@@ -12,7 +12,6 @@ points. ``net_area``: ``calibration.net_area`` set, the spring preload f_0 as pr
 
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
@@ -24,7 +23,6 @@ __all__ = [
     "PAPER_DAMPING",
     "TABLE1_SPRING_PRELOAD",
     "InForce",
-    "damping_option",
     "in_force",
     "with_damping",
 ]
@@ -78,19 +76,6 @@ def in_force(params: ValveParams, model: str = "simplified") -> InForce:
     has_area, has_offset = params.calibration.net_area is not None, not math.isclose(offset, 0.0, abs_tol=1e-12)
     kind: Any = ("both" if has_offset else "net_area") if has_area else ("force_offset" if has_offset else "as printed")
     return InForce(model, choice, damping, kind, params.net_area, offset)
-
-
-def damping_option(text: str) -> float | str:
-    """argparse type: ``equivalent``, ``paper`` or a damping in Ns/m (> 0)."""
-    if text in DAMPING_CHOICES:
-        return text
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: accepted are equivalent, paper or a number in Ns/m") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"{text}: a damping must be a finite number > 0 (Ns/m)")
-    return v
 
 
 def with_damping(params: ValveParams, choice: float | str | None) -> ValveParams:

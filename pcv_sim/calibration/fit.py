@@ -49,9 +49,9 @@ from pcv_sim.io.topics import CURRENT, OUTPUT_ROLES, PRESSURE, ROLE_UNITS, SPOOL
 from pcv_sim.params import ValveParams, replace_param
 from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.errors import ReplayError
-from pcv_sim.replay.recording import Recording
+from pcv_sim.replay.recording import Recording, Series
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
-from pcv_sim.units import PA_PER_BAR
+from pcv_sim.units import NS_PER_S, PA_PER_BAR
 
 __all__ = [
     "CORRELATION_LIMIT",
@@ -67,7 +67,6 @@ __all__ = [
     "noise_level",
 ]
 
-_NS = 1_000_000_000
 CORRELATION_LIMIT = 0.95
 #: Default sensor-delay bounds (s): a sensor cannot answer before the valve does, by more than a sample.
 LAG_BOUNDS = (-0.002, 0.05)
@@ -328,10 +327,10 @@ class CalibrationResult:
 
 @dataclass(frozen=True)
 class _Data:
+    """A measured signal of bag number `bag` to fit, weighed by its noise `sigma` (SI)."""
+
     bag: int
-    role: str
-    t_ns: npt.NDArray[np.int64]
-    value: npt.NDArray[np.float64]
+    series: Series
     sigma: float
 
 
@@ -391,17 +390,17 @@ def calibrate(
                 s = rec.measured[role]
                 span = float(np.ptp(s.value))
                 sigma = max(noise_level(s.value), 1e-3 * span, 1e-12)
-                data.append(_Data(b, role, s.t_ns, s.value, sigma))
+                data.append(_Data(b, s, sigma))
     if not data:
         raise CalibrationError(f"the recordings hold none of the signals to fit ({', '.join(wanted)})")
     # The model at every sample, and on a grid of grid_step around each input change: y(t - lag)
     # is interpolated from these, so a lag between two samples of the current's jump at a duty
     # step (R27) is not smeared; elsewhere the response is smooth at the sample spacing.
-    step_ns = round(grid_step * _NS)
+    step_ns = round(grid_step * NS_PER_S)
     around = np.arange(-5, 16, dtype=np.int64) * step_ns
     sample_ns = []
     for b, rec in enumerate(recordings):
-        times = [d.t_ns for d in data if d.bag == b]
+        times = [d.series.t_ns for d in data if d.bag == b]
         if not times:
             sample_ns.append(np.zeros(0, np.int64))
             continue
@@ -411,7 +410,7 @@ def calibrate(
         dense = (jumps[:, None] + around[None, :]).ravel()
         dense = dense[(dense >= 0) & (dense <= end)]
         sample_ns.append(np.unique(np.concatenate([*times, dense])))
-    all_roles = sorted({d.role for d in data}, key=OUTPUT_ROLES.index)
+    all_roles = sorted({d.series.role for d in data}, key=OUTPUT_ROLES.index)
     lag_roles = all_roles if lag_bounds is not None else []
     tc_roles = all_roles if time_constant_bounds is not None else []
     n_theta, n_lag, n_tc = len(fit), len(lag_roles), len(tc_roles)
@@ -460,13 +459,13 @@ def calibrate(
             counts["solver"] = run.solver   # what ran (auto is the stepper for either model)
         return outs
 
-    grids = [ns.astype(np.float64) / _NS for ns in sample_ns]
+    grids = [ns.astype(np.float64) / NS_PER_S for ns in sample_ns]
 
     def sensed(runs: list[dict[str, npt.NDArray[np.float64]]], d: _Data, lag: float,
                tc: float) -> npt.NDArray[np.float64]:
         """The model as the sensor reports it at the measured times (before the offset)."""
-        y = first_order(grids[d.bag], runs[d.bag][d.role], tc)
-        return np.interp(d.t_ns / _NS - lag, grids[d.bag], y)
+        y = first_order(grids[d.bag], runs[d.bag][d.series.role], tc)
+        return np.interp(d.series.t_ns / NS_PER_S - lag, grids[d.bag], y)
 
     def parts(z: npt.NDArray[np.float64]) -> tuple[dict[str, float], dict[str, float], list[float]]:
         lags = {r: float(z[n_theta + k]) * 1e-3 for k, r in enumerate(lag_roles)}
@@ -476,8 +475,8 @@ def calibrate(
 
     def residuals(z: npt.NDArray[np.float64], runs: list[dict[str, npt.NDArray[np.float64]]]) -> npt.NDArray[np.float64]:
         lags, tcs, offs = parts(z)
-        return np.concatenate([(sensed(runs, d, lags.get(d.role, 0.0), tcs.get(d.role, 0.0)) + offs[k] - d.value)
-                               / d.sigma for k, d in enumerate(data)])
+        return np.concatenate([(sensed(runs, d, lags.get(d.series.role, 0.0), tcs.get(d.series.role, 0.0)) + offs[k]
+                                - d.series.value) / d.sigma for k, d in enumerate(data)])
 
     cache: dict[str, Any] = {}
 
@@ -511,11 +510,11 @@ def calibrate(
             col = np.zeros_like(r0)
             pos = 0
             for d in data:
-                n = len(d.t_ns)
-                if d.role == role:
+                n = len(d.series.t_ns)
+                if d.series.role == role:
                     grid = grids[d.bag]
-                    slope = np.gradient(first_order(grid, base_runs[d.bag][d.role], tcs.get(role, 0.0)), grid)
-                    col[pos:pos + n] = -np.interp(d.t_ns / _NS - lags[role], grid, slope) * 1e-3 / d.sigma
+                    slope = np.gradient(first_order(grid, base_runs[d.bag][d.series.role], tcs.get(role, 0.0)), grid)
+                    col[pos:pos + n] = -np.interp(d.series.t_ns / NS_PER_S - lags[role], grid, slope) * 1e-3 / d.sigma
                 pos += n
             cols.append(col)
         for role in tc_roles:
@@ -523,8 +522,8 @@ def calibrate(
             pos = 0
             h_ms = 1e-2   # forward step of the time constant, ms
             for d in data:
-                n = len(d.t_ns)
-                if d.role == role:
+                n = len(d.series.t_ns)
+                if d.series.role == role:
                     lag, tc = lags.get(role, 0.0), tcs[role]
                     col[pos:pos + n] = (sensed(base_runs, d, lag, tc + h_ms * 1e-3)
                                         - sensed(base_runs, d, lag, tc)) / h_ms / d.sigma
@@ -534,9 +533,9 @@ def calibrate(
             pos = 0
             for d in data:
                 col = np.zeros_like(r0)
-                col[pos:pos + len(d.t_ns)] = 1.0
+                col[pos:pos + len(d.series.t_ns)] = 1.0
                 cols.append(col)
-                pos += len(d.t_ns)
+                pos += len(d.series.t_ns)
         return np.column_stack(cols)
 
     r_start = fun(z0)
@@ -552,7 +551,7 @@ def calibrate(
                               lambda zk: residuals(zk, simulate(valve(zk))), z, r)
     m, n = J.shape
     s2 = float(r @ r) / max(m - n, 1)
-    rho = _autocorrelation(r, [len(d.t_ns) for d in data])
+    rho = _autocorrelation(r, [len(d.series.t_ns) for d in data])
     inflation = (1.0 + rho) / (1.0 - rho) if rho > 0 else 1.0
     cov_z = s2 * inflation * np.linalg.pinv(J.T @ J)
     sd_z = np.sqrt(np.clip(np.diag(cov_z), 0.0, None))
@@ -567,14 +566,14 @@ def calibrate(
                             _Z95 * float(sd[n_theta + n_lag + k]), "s", tb[0], tb[1])
                    for k, role in enumerate(tc_roles))
     units = ROLE_UNITS
-    off_est = tuple(Estimate(f"offset.{d.role}[{d.bag}]", float(z[n_theta + n_sensor + k]) * d.sigma, 0.0,
-                             _Z95 * float(sd[n_theta + n_sensor + k]), units.get(d.role, "SI"))
+    off_est = tuple(Estimate(f"offset.{d.series.role}[{d.bag}]", float(z[n_theta + n_sensor + k]) * d.sigma, 0.0,
+                             _Z95 * float(sd[n_theta + n_sensor + k]), units.get(d.series.role, "SI"))
                     for k, d in enumerate(data)) if fit_offsets else ()
     with np.errstate(invalid="ignore", divide="ignore"):
         corr_all = np.nan_to_num(cov_z / np.outer(sd_z, sd_z), nan=0.0)
     corr = corr_all[:n_theta, :n_theta]
     nuisance_names = ([f"the sensor delay of {r}" for r in lag_roles] + [f"the sensor time constant of {r}" for r in tc_roles]
-                      + [f"the {d.role} offset of bag {d.bag}" for d in data][:n_off])
+                      + [f"the {d.series.role} offset of bag {d.bag}" for d in data][:n_off])
 
     runs_before = simulate(params)
     signals = []
@@ -582,10 +581,11 @@ def calibrate(
     lags, tcs, offs = parts(z)
     for k, d in enumerate(data):
         before = sensed(runs_before, d, 0.0, 0.0)
-        after = sensed(runs, d, lags.get(d.role, 0.0), tcs.get(d.role, 0.0)) + offs[k]
-        fb, fa = _fit(d.value, before), _fit(d.value, after)
-        signals.append(SignalFit(str(recordings[d.bag].path), d.role, len(d.t_ns), d.sigma, fb[0], fa[0], fb[1], fa[1]))
-        traces[(d.bag, d.role)] = (d.t_ns / _NS, d.value, before, after)
+        after = sensed(runs, d, lags.get(d.series.role, 0.0), tcs.get(d.series.role, 0.0)) + offs[k]
+        fb, fa = _fit(d.series.value, before), _fit(d.series.value, after)
+        signals.append(SignalFit(str(recordings[d.bag].path), d.series.role, len(d.series.t_ns), d.sigma,
+                                 fb[0], fa[0], fb[1], fa[1]))
+        traces[(d.bag, d.series.role)] = (d.series.t_ns / NS_PER_S, d.series.value, before, after)
 
     warnings = _warnings(estimates, corr, lag_est)
     for k, ratio in rough:
@@ -609,8 +609,8 @@ def calibrate(
         scale, unit = DISPLAY[sf.role].scale, DISPLAY[sf.role].unit
         if sf.rmse_after > NOISE_RATIO_LIMIT * sf.noise_sigma:
             unexplained.append(sf.role)
-            spread = float(np.linalg.norm(d.value - d.value.mean()))
-            floor = 100.0 * (1.0 - sf.noise_sigma * math.sqrt(len(d.value)) / spread) if spread > 0 else math.nan
+            spread = float(np.linalg.norm(d.series.value - d.series.value.mean()))
+            floor = 100.0 * (1.0 - sf.noise_sigma * math.sqrt(len(d.series.value)) / spread) if spread > 0 else math.nan
             warnings.append(
                 f"the model does not explain the {sf.role} of {sf.bag}: after the fit its RMSE is "
                 f"{sf.rmse_after * scale:.3g} {unit}, {sf.rmse_after / sf.noise_sigma:.1f}x the recording's noise "
@@ -618,14 +618,14 @@ def calibrate(
                 f"{sf.fit_after_percent:.2f} % where the noise allows {floor:.2f} %: a parameter that differs is "
                 f"not in --fit (see the suggestions) or the values found are biased by it")
     for e, d in zip(off_est, data):
-        limit = PLAUSIBLE_OFFSET.get(d.role, math.inf)
+        limit = PLAUSIBLE_OFFSET.get(d.series.role, math.inf)
         if abs(e.value) > limit:
-            scale, unit = DISPLAY[d.role].scale, DISPLAY[d.role].unit
-            span = float(np.ptp(d.value))
+            scale, unit = DISPLAY[d.series.role].scale, DISPLAY[d.series.role].unit
+            span = float(np.ptp(d.series.value))
             warnings.append(
-                f"the {d.role} offset of {recordings[d.bag].path} is {e.value * scale:+.3g} {unit} "
+                f"the {d.series.role} offset of {recordings[d.bag].path} is {e.value * scale:+.3g} {unit} "
                 f"({abs(e.value) / span * 100 if span > 0 else math.nan:.1f} % of the signal's span), more than a "
-                f"{d.role} sensor's zero error (~{limit * scale:g} {unit}): it likely absorbs a model error; "
+                f"{d.series.role} sensor's zero error (~{limit * scale:g} {unit}): it likely absorbs a model error; "
                 f"if the sensor was zeroed, --no-offset keeps it out")
     for role in all_roles:
         total = lags.get(role, 0.0) + tcs.get(role, 0.0)

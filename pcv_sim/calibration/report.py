@@ -6,9 +6,7 @@ and the replays before and after (:class:`~pcv_sim.replay.compare.ReplayResult`)
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -16,13 +14,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
-from pcv_sim.analysis.metrics import StepMetrics, step_metrics
+from pcv_sim.analysis.metrics import StepMetrics
 from pcv_sim.calibration.fit import CalibrationError, CalibrationResult
+from pcv_sim.markup import html_table, markdown_table, png_source, relative_link
 from pcv_sim.params import params_from_mapping
-from pcv_sim.replay.compare import DISPLAY, Step
+from pcv_sim.plotting import png, pyplot
+from pcv_sim.replay.compare import DISPLAY, Step, compare_step
 
 __all__ = ["StepFit", "fitted_yaml", "plot_fit", "render_html", "render_markdown", "render_text", "step_fits", "step_rows"]
 
@@ -149,13 +148,10 @@ def step_fits(r: CalibrationResult, bag: int, steps: Sequence[Step]) -> list[Ste
             if (bag, role) not in r.traces:
                 continue
             t, meas, before, after = r.traces[(bag, role)]
-            inside = (t >= st.t_start) & (t <= st.t_end)
-            if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
-                continue
-            band = DISPLAY[role].band_min
-            m = step_metrics(t, meas, st.t_start, st.t_end, band_min=band)
-            b, a = (step_metrics(t, y, st.t_start, st.t_end, band_min=max(band, m.band)) for y in (before, after))
-            out.append(StepFit(st, role, m, b, a))
+            compared = compare_step(st, role, t, meas, (before, after))
+            if compared is not None:
+                m, (b, a) = compared
+                out.append(StepFit(st, role, m, b, a))
     return out
 
 
@@ -209,12 +205,6 @@ def render_text(r: CalibrationResult) -> str:
     return "\n".join(lines)
 
 
-def _md_table(head: list[str], rows: list[list[str]]) -> str:
-    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    out += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
-    return "\n".join(out)
-
-
 def _intro(r: CalibrationResult, damping: str) -> list[str]:
     return [
         f"Model: {r.model} ({r.solver}); {damping}.",
@@ -233,25 +223,15 @@ def render_markdown(r: CalibrationResult, steps: Sequence[tuple[str, list[list[s
     out = ["# Calibration", ""] + [f"- {x}" for x in _intro(r, damping)] + [""]
     if r.warnings:
         out += ["## Warnings", ""] + [f"- {w}" for w in r.warnings] + [""]
-    out += ["## Parameters", "", _md_table(_PARAM_HEAD, _param_rows(r)), ""]
-    out += ["## Correlations", "", _md_table(["", *[e.name for e in r.parameters]], _corr_rows(r)), ""]
-    out += ["## Sensor lag and offset (nuisance)", "", _md_table(_NUIS_HEAD, _nuisance_rows(r)), ""]
-    out += ["## Fit per signal", "", _md_table(_SIG_HEAD, _signal_rows(r)), ""]
+    out += ["## Parameters", "", markdown_table(_PARAM_HEAD, _param_rows(r)), ""]
+    out += ["## Correlations", "", markdown_table(["", *[e.name for e in r.parameters]], _corr_rows(r)), ""]
+    out += ["## Sensor lag and offset (nuisance)", "", markdown_table(_NUIS_HEAD, _nuisance_rows(r)), ""]
+    out += ["## Fit per signal", "", markdown_table(_SIG_HEAD, _signal_rows(r)), ""]
     for bag, rows in steps:
-        out += [f"## Steps: {bag}", "", _md_table(_STEP_HEAD, rows) if rows else "No step could be analysed.", ""]
+        out += [f"## Steps: {bag}", "", markdown_table(_STEP_HEAD, rows) if rows else "No step could be analysed.", ""]
     for name, path in plots.items():
-        try:
-            rel = path.resolve().relative_to(base.resolve()).as_posix()
-        except ValueError:
-            rel = path.resolve().as_posix()
-        out += [f"![{name}]({rel})", ""]
+        out += [f"![{name}]({relative_link(path, base)})", ""]
     return "\n".join(out)
-
-
-def _html_table(head: list[str], rows: list[list[str]]) -> str:
-    h = "".join(f"<th>{html.escape(c)}</th>" for c in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def render_html(r: CalibrationResult, steps: Sequence[tuple[str, list[list[str]]]], pngs: Mapping[str, bytes],
@@ -263,25 +243,21 @@ def render_html(r: CalibrationResult, steps: Sequence[tuple[str, list[list[str]]
              "<h1>Calibration</h1><ul>" + "".join(f"<li>{e(x)}</li>" for x in _intro(r, damping)) + "</ul>"]
     if r.warnings:
         parts.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{e(w)}</li>" for w in r.warnings) + "</ul>")
-    parts += ["<h2>Parameters</h2>", _html_table(_PARAM_HEAD, _param_rows(r)),
-              "<h2>Correlations</h2>", _html_table(["", *[x.name for x in r.parameters]], _corr_rows(r)),
-              "<h2>Sensor lag and offset (nuisance)</h2>", _html_table(_NUIS_HEAD, _nuisance_rows(r)),
-              "<h2>Fit per signal</h2>", _html_table(_SIG_HEAD, _signal_rows(r))]
+    parts += ["<h2>Parameters</h2>", html_table(_PARAM_HEAD, _param_rows(r)),
+              "<h2>Correlations</h2>", html_table(["", *[x.name for x in r.parameters]], _corr_rows(r)),
+              "<h2>Sensor lag and offset (nuisance)</h2>", html_table(_NUIS_HEAD, _nuisance_rows(r)),
+              "<h2>Fit per signal</h2>", html_table(_SIG_HEAD, _signal_rows(r))]
     for bag, rows in steps:
-        parts += [f"<h2>Steps: {e(bag)}</h2>", _html_table(_STEP_HEAD, rows) if rows else "<p>No step analysed.</p>"]
-    for name, png in pngs.items():
-        parts.append(f"<h3>{e(name)}</h3><img alt='{e(name)}' src='data:image/png;base64,"
-                     f"{base64.b64encode(png).decode('ascii')}'>")
+        parts += [f"<h2>Steps: {e(bag)}</h2>", html_table(_STEP_HEAD, rows) if rows else "<p>No step analysed.</p>"]
+    for name, image in pngs.items():
+        parts.append(f"<h3>{e(name)}</h3><img alt='{e(name)}' src='{png_source(image)}'>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
 
 def plot_fit(r: CalibrationResult, bags: Sequence[str]) -> dict[str, bytes]:
     """PNG per bag and signal: measured, model before and after (with lag and offset), errors."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out: dict[str, bytes] = {}
     for (b, role), (t, meas, before, after) in r.traces.items():
@@ -300,10 +276,7 @@ def plot_fit(r: CalibrationResult, bags: Sequence[str]) -> dict[str, bytes]:
         ax_err.set_xlabel("time since first duty command [s]")
         ax_err.grid(True, alpha=0.3)
         ax_err.legend(loc="best", fontsize=8)
-        buf = io.BytesIO()
         fig.tight_layout()
-        fig.savefig(buf, format="png", dpi=90)
-        plt.close(fig)
-        out[f"{Path(bags[b]).name}_{role}"] = buf.getvalue()
+        out[f"{Path(bags[b]).name}_{role}"] = png(fig, dpi=90)
     return out
 

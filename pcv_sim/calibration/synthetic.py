@@ -19,13 +19,12 @@ from pcv_sim.calibration.fit import first_order
 from pcv_sim.params import ValveParams
 from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.replay.simulate import InputTimeline, run_model
-from pcv_sim.units import M3S_PER_LPM
+from pcv_sim.units import M3S_PER_LPM, NS_PER_S
 
 __all__ = ["RIG_HEADER", "write_rig_csv"]
 
 RIG_HEADER = "time[s],duty[%],pressure[bar],current[A],position[mm]"
 _DISPLAY = {role: d.scale for role, d in DISPLAY.items()}   # SI -> bar, A, mm
-_NS = 1_000_000_000
 
 
 def write_rig_csv(
@@ -57,25 +56,25 @@ def write_rig_csv(
     offset = dict(offset or {})
     rng = np.random.default_rng(seed)
     n = round(len(duties) * hold_s * rate_hz)
-    period_ns = round(_NS / rate_hz)
+    period_ns = round(NS_PER_S / rate_hz)
     t_ns = np.arange(n, dtype=np.int64) * period_ns
-    hold_ns = round(hold_s * _NS)
+    hold_ns = round(hold_s * NS_PER_S)
     change_ns = np.arange(len(duties), dtype=np.int64) * hold_ns
     flows = np.zeros(len(duties)) if load_flows_lpm is None else np.asarray(load_flows_lpm, float) * M3S_PER_LPM
     tl = InputTimeline(change_ns, np.asarray(duties, float), flows,
                        np.full(len(duties), params.circuit.supply_pressure))
     # The model at every sample time and at every lagged one (before 0 it rests).
     tcs = dict(time_constant_s or {})
-    lag_ns = {r: round(lag_s.get(r, 0.0) * _NS) for r in _DISPLAY}
+    lag_ns = {r: round(lag_s.get(r, 0.0) * NS_PER_S) for r in _DISPLAY}
     times = [np.clip(t_ns - lag_ns[r], 0, None) for r in _DISPLAY]
     if tcs:  # the filter integrates the model exactly only between close samples: a 0.1 ms grid
         times.append(np.arange(0, int(t_ns[-1]) + 1, 100_000, dtype=np.int64))
     want = np.unique(np.concatenate(times))
     run = run_model(params, model, tl, want)
     segment = np.searchsorted(change_ns, t_ns, side="right") - 1
-    cols = [t_ns / _NS + time_origin_s, np.asarray(duties, float)[segment] * 100.0]
+    cols = [t_ns / NS_PER_S + time_origin_s, np.asarray(duties, float)[segment] * 100.0]
     for role, scale in _DISPLAY.items():
-        sensed = first_order(want / _NS, run.outputs[role], tcs.get(role, 0.0))   # 0.1 ms grid when filtered
+        sensed = first_order(want / NS_PER_S, run.outputs[role], tcs.get(role, 0.0))   # 0.1 ms grid when filtered
         y = sensed[np.searchsorted(want, np.clip(t_ns - lag_ns[role], 0, None))]
         y = y + offset.get(role, 0.0) + rng.normal(0.0, noise.get(role, 0.0), n)
         cols.append(y * scale)

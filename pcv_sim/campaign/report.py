@@ -6,9 +6,7 @@ running those variants again (alone, fresh: the same values as in the table)."""
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -18,6 +16,8 @@ import numpy as np
 
 from pcv_sim.campaign.runner import ERROR, PASSED, Worker
 from pcv_sim.campaign.spec import Campaign
+from pcv_sim.markup import png_source
+from pcv_sim.plotting import png, pyplot
 from pcv_sim.units import display, fmt
 
 __all__ = ["write_report"]
@@ -26,12 +26,7 @@ _MAX_PARAMETERS = 6
 
 
 def _png(fig: Any) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return f"<img alt='plot' src='data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}'>"
+    return f"<img alt='plot' src='{png_source(png(fig, dpi=80, bbox_inches='tight'))}'>"
 
 
 def _numeric(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> list[str]:
@@ -41,10 +36,7 @@ def _numeric(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> list[
 
 def _plots(campaign: Campaign, rows: Sequence[Mapping[str, Any]], varied: Sequence[str], names: Sequence[str],
            kinds: Mapping[str, str]) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out: list[str] = []
     numeric = [c for c in _numeric(rows, varied)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
+from pcv_sim.analysis.in_force import in_force, with_damping
 from pcv_sim.calibration import CalibrationError, calibrate, fit_parameter
 from pcv_sim.calibration.fit import LAG_BOUNDS, TIME_CONSTANT_BOUNDS
 from pcv_sim.calibration.report import (
@@ -26,7 +26,7 @@ from pcv_sim.calibration.report import (
     step_fits,
     step_rows,
 )
-from pcv_sim.commands.common import emit_json, metric_limits, params_from
+from pcv_sim.commands.common import damping_option, emit_json, metric_limits, params_from
 from pcv_sim.io.topics import OUTPUT_ROLES, role_of
 from pcv_sim.params import DEFAULT_CONFIG, params_to_mapping
 from pcv_sim.replay import detect_steps, input_timeline, load_recording, parse_topic_map

@@ -11,6 +11,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
+from pcv_sim.analysis.in_force import DAMPING_CHOICES
 from pcv_sim.params import ValveParams, load_params
 
 T = TypeVar("T")
@@ -22,12 +23,23 @@ def add_output_options(parser: argparse.ArgumentParser, *, plot: bool = True) ->
         parser.add_argument("--plot", metavar="FILE.png", type=Path, help="also write a plot to FILE.png")
 
 
+def _number(text: str, not_a_number: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(not_a_number) from None
+
+
+def _positive(text: str, not_a_number: str, not_positive: str) -> float:
+    v = _number(text, not_a_number)
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(not_positive)
+    return v
+
+
 def fraction(text: str) -> float:
     """argparse type for a duty: a fraction 0..1; refuses percent with a hint."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number; a duty is a fraction 0..1") from None
+    v = _number(text, f"{text!r} is not a number; a duty is a fraction 0..1")
     if not math.isfinite(v) or not 0.0 <= v <= 1.0:
         hint = f" (did you mean {v / 100:g}? the duty is a fraction, not percent)" if 2.0 <= v <= 100.0 else ""
         raise argparse.ArgumentTypeError(f"{text} is outside 0..1{hint}")
@@ -35,13 +47,16 @@ def fraction(text: str) -> float:
 
 
 def positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
-    return v
+    """argparse type: a finite number > 0."""
+    return _positive(text, f"{text!r} is not a number", f"{text} must be a finite number > 0")
+
+
+def damping_option(text: str) -> float | str:
+    """argparse type: ``equivalent``, ``paper`` or a damping in Ns/m (> 0)."""
+    if text in DAMPING_CHOICES:
+        return text
+    return _positive(text, f"{text!r}: accepted are equivalent, paper or a number in Ns/m",
+                     f"{text}: a damping must be a finite number > 0 (Ns/m)")
 
 
 def metric_limits(items: list[str] | None, flag: str, error: type[Exception], example: str) -> dict[str, float]:

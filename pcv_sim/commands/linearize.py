@@ -13,10 +13,10 @@ import argparse
 import numpy as np
 
 from pcv_sim.analysis.calibrate import point_params
-from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
+from pcv_sim.analysis.in_force import in_force, with_damping
 from pcv_sim.analysis.linear import linearize
 from pcv_sim.analysis.paper import WORKING_POINT_DUTY, WORKING_POINTS
-from pcv_sim.commands.common import add_output_options, emit_json, params_from, save
+from pcv_sim.commands.common import add_output_options, damping_option, emit_json, params_from, save
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.plotting import pyplot
 from pcv_sim.units import MM_PER_M, bar

@@ -15,26 +15,26 @@ import sys
 
 import numpy as np
 
-from pcv_sim.analysis.in_force import damping_option, in_force, with_damping
+from pcv_sim.analysis.in_force import in_force, with_damping
 from pcv_sim.analysis.metrics import step_metrics
 from pcv_sim.analysis.static import EquilibriumError, zero_flow_equilibrium
-from pcv_sim.commands.common import add_output_options, emit_json, fraction, params_from, positive, save
+from pcv_sim.commands.common import add_output_options, damping_option, emit_json, fraction, params_from, positive, save
 from pcv_sim.device.valve import ValveDevice
 from pcv_sim.errors import PcvSimError, UsageError
 from pcv_sim.io.topics import CURRENT, DUTY_CYCLE, OUTPUT_ROLES, PRESSURE, ROLE_UNITS, SPOOL_POSITION
 from pcv_sim.model.valve import ValveModel
 from pcv_sim.params import ValveParams
 from pcv_sim.plotting import pyplot
+from pcv_sim.replay.compare import DISPLAY
 from pcv_sim.simulation.duty import DutyProfile
 from pcv_sim.simulation.reference import simulate_reference
 from pcv_sim.simulation.trajectory import Trajectory
-from pcv_sim.units import MM_PER_M, PA_PER_BAR
 
 NAME = "step"
 HELP = "simulate a duty step and report rise time, overshoot, settling time, steady state"
 
-SIGNALS = ((PRESSURE, "pressure [bar]", 1 / PA_PER_BAR, 0.5 * PA_PER_BAR), (CURRENT, "current [A]", 1.0, 0.005),
-           (SPOOL_POSITION, "spool position [mm]", MM_PER_M, 0.002e-3))
+#: (role, axis label, scale from SI, settling band in SI): the outputs as replay shows them
+SIGNALS = tuple((role, f"{d.label} [{d.unit}]", d.scale, d.band_min) for role, d in DISPLAY.items())
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -48,11 +48,3 @@ class CylinderParams:
         if not self.stroke_min <= self.initial_position <= self.stroke_max:
             raise ParameterError(f"initial_position={self.initial_position}: accepted is stroke_min <= "
                                  f"initial_position <= stroke_max ({self.stroke_min} .. {self.stroke_max} m)")
-
-    def volume_a(self, x: float) -> float:
-        """Chamber a plus its hose (m^3) at piston position x (m)."""
-        return self.hose_volume_a + self.dead_volume_a + self.area_a * (x - self.stroke_min)
-
-    def volume_b(self, x: float) -> float:
-        """Chamber b plus its hose (m^3) at piston position x (m)."""
-        return self.hose_volume_b + self.dead_volume_b + self.area_b * (self.stroke_max - x)

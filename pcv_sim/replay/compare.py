@@ -37,7 +37,7 @@ from pcv_sim.params import ValveParams
 from pcv_sim.replay.errors import ReplayError
 from pcv_sim.replay.recording import Gap, Recording
 from pcv_sim.replay.simulate import InputTimeline, Solver, input_timeline, run_model
-from pcv_sim.units import MM_PER_M, PA_PER_BAR
+from pcv_sim.units import MM_PER_M, NS_PER_S, PA_PER_BAR
 
 __all__ = [
     "DISPLAY",
@@ -48,11 +48,11 @@ __all__ = [
     "StepComparison",
     "ThresholdFailure",
     "check_thresholds",
+    "compare_step",
     "detect_steps",
     "replay",
 ]
 
-_NS = 1_000_000_000
 #: s after a gap during which samples are not compared: the model and the device re-synchronise
 #: (to within 0.05 bar after a 55 ms skip, measured: module docstring).
 RESYNC_S: Final = 0.3
@@ -253,6 +253,19 @@ class ReplayResult:
         }
 
 
+def compare_step(step: Step, role: str, t: npt.NDArray[np.float64], measured: npt.NDArray[np.float64],
+                 models: tuple[npt.NDArray[np.float64], ...]) -> tuple[StepMetrics, tuple[StepMetrics, ...]] | None:
+    """The step metrics of `role`'s measured response over `step`'s window and of each response
+    in `models`, every model judged in the measured band (widened by the sensor's noise), so that
+    one gate holds for both; None when the window has fewer than 3 samples or none before the step."""
+    inside = (t >= step.t_start) & (t <= step.t_end)
+    if np.count_nonzero(inside) < 3 or not np.any(t < step.t_start):
+        return None
+    band = DISPLAY[role].band_min
+    m = step_metrics(t, measured, step.t_start, step.t_end, band_min=band)
+    return m, tuple(step_metrics(t, y, step.t_start, step.t_end, band_min=max(band, m.band)) for y in models)
+
+
 def detect_steps(
     timeline: InputTimeline, end_ns: int, *, min_hold: float = 0.02, min_amplitude: float = 0.005
 ) -> tuple[list[Step], list[str]]:
@@ -261,7 +274,7 @@ def detect_steps(
     d = timeline.duty
     changes = [k for k in range(1, len(t)) if d[k] != d[k - 1]]
     groups: list[list[int]] = []
-    hold_ns = round(min_hold * _NS)
+    hold_ns = round(min_hold * NS_PER_S)
     for k in changes:
         if groups:
             last = groups[-1]
@@ -279,7 +292,7 @@ def detect_steps(
         if abs(d_to - d_from) < min_amplitude or end <= start:
             small += 1
             continue
-        steps.append(Step(len(steps) + 1, start / _NS, int(t[g[-1]]) / _NS, end / _NS, d_from, d_to, len(g)))
+        steps.append(Step(len(steps) + 1, start / NS_PER_S, int(t[g[-1]]) / NS_PER_S, end / NS_PER_S, d_from, d_to, len(g)))
     notes = []
     if small:
         notes.append(
@@ -306,7 +319,7 @@ def replay(
     if not (isinstance(resync, (int, float)) and math.isfinite(resync) and resync >= 0):
         msg = f"resync {resync!r} s: accepted is a finite number >= 0"
         raise ReplayError(msg)
-    skipped_ns = [(g.start_ns, g.end_ns + round(resync * _NS)) for g in recording.gaps]
+    skipped_ns = [(g.start_ns, g.end_ns + round(resync * NS_PER_S)) for g in recording.gaps]
     timeline, tl_notes = input_timeline(
         recording.inputs, 0.0, params.circuit.supply_pressure
     )
@@ -337,7 +350,7 @@ def replay(
         traces[role] = (s.t, s.value, model_values)
     steps, step_notes = detect_steps(timeline, end_ns, min_hold=min_hold)
     comparisons = []
-    skipped_s = [(a / _NS, b / _NS) for a, b in skipped_ns]
+    skipped_s = [(a / NS_PER_S, b / NS_PER_S) for a, b in skipped_ns]
     for st in steps:
         if any(a < st.t_end and st.t_start - min_hold < b for a, b in skipped_s):
             step_notes.append(
@@ -348,23 +361,19 @@ def replay(
         meas: dict[str, StepMetrics] = {}
         mod: dict[str, StepMetrics] = {}
         for role, (t, y_meas, y_mod) in traces.items():
-            inside = (t >= st.t_start) & (t <= st.t_end)
-            if np.count_nonzero(inside) < 3 or not np.any(t < st.t_start):
-                continue
-            band = DISPLAY[role].band_min
-            meas[role] = step_metrics(t, y_meas, st.t_start, st.t_end, band_min=band)
-            # The model is judged in the measured band (widened by the sensor's noise): same gate.
-            mod[role] = step_metrics(t, y_mod, st.t_start, st.t_end, band_min=max(band, meas[role].band))
+            compared = compare_step(st, role, t, y_meas, (y_mod,))
+            if compared is not None:
+                meas[role], (mod[role],) = compared
         if meas:
             comparisons.append(StepComparison(st, meas, mod))
         else:
             step_notes.append(f"step {st.index} at {st.t_start:.3f} s has too few samples to analyse")
-    duty_t = timeline.t_ns.astype(np.float64) / _NS
+    duty_t = timeline.t_ns.astype(np.float64) / NS_PER_S
     return ReplayResult(
         bag=str(recording.path),
         model=model,
         solver=run.solver,
-        duration_s=end_ns / _NS,
+        duration_s=end_ns / NS_PER_S,
         topics=recording.topics,
         closed_cleanly=recording.closed_cleanly,
         signals=signals,

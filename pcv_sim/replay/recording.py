@@ -44,11 +44,11 @@ from pcv_sim.io.topics import (
     role_of,
 )
 from pcv_sim.replay.errors import ReplayError
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["GAP_FACTOR", "Gap", "Recording", "Series", "device_namespaces", "find_gaps", "load_recording",
            "parse_topic_map"]
 
-_NS = 1_000_000_000
 _STAMP_OFFSET_NOTE_NS = 1_000_000  # report header stamps that differ from log times by > 1 ms
 #: A pause between two output samples longer than this many median sample periods is a gap. A
 #: 1 kHz recording has gaps from 5 ms on: far beyond the jitter of a logger, far below the
@@ -68,7 +68,7 @@ class Series:
     @property
     def t(self) -> npt.NDArray[np.float64]:
         """Times in s."""
-        return self.t_ns.astype(np.float64) / _NS
+        return self.t_ns.astype(np.float64) / NS_PER_S
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -86,16 +86,16 @@ class Gap:
 
     @property
     def start(self) -> float:
-        return self.start_ns / _NS
+        return self.start_ns / NS_PER_S
 
     @property
     def end(self) -> float:
-        return self.end_ns / _NS
+        return self.end_ns / NS_PER_S
 
     @property
     def duration(self) -> float:
         """s"""
-        return (self.end_ns - self.start_ns) / _NS
+        return (self.end_ns - self.start_ns) / NS_PER_S
 
 
 def find_gaps(measured: Mapping[str, Series], factor: float = GAP_FACTOR) -> tuple[Gap, ...]:

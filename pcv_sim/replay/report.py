@@ -5,14 +5,13 @@ Rendering only: every number comes from a :class:`~pcv_sim.replay.compare.Replay
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from pathlib import Path
-from typing import Any
 
 from pcv_sim.analysis.metrics import StepMetrics
+from pcv_sim.markup import html_table, markdown_table, png_source, relative_link
+from pcv_sim.plotting import png, pyplot
 from pcv_sim.replay.compare import DISPLAY, ReplayResult, ThresholdFailure
 
 __all__ = ["plot_signals", "render_html", "render_markdown", "render_text"]
@@ -125,12 +124,6 @@ def render_text(r: ReplayResult, failures: list[ThresholdFailure] | None = None)
     return "\n".join(lines)
 
 
-def _md_table(head: list[str], rows: list[list[str]]) -> str:
-    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    out += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
-    return "\n".join(out)
-
-
 def render_markdown(r: ReplayResult, plots: dict[str, Path], failures: list[ThresholdFailure],
                     base: Path) -> str:
     """Markdown; ``plots`` (role -> PNG) are linked relative to ``base`` (the report's folder)."""
@@ -146,34 +139,21 @@ def render_markdown(r: ReplayResult, plots: dict[str, Path], failures: list[Thre
                 f"The measured outputs pause {len(r.gaps)} time(s); samples from each gap until "
                 f"{r.resync_s * 1e3:g} ms after it are left out of the metrics (the model and the "
                 f"device re-synchronise), and steps touching them are not analysed.", "",
-                _md_table(_GAP_HEAD, _gap_rows(r)), ""]
-    out += ["## Whole run (model minus measured)", "", _md_table(_SUMMARY_HEAD, _summary_rows(r)), ""]
+                markdown_table(_GAP_HEAD, _gap_rows(r)), ""]
+    out += ["## Whole run (model minus measured)", "", markdown_table(_SUMMARY_HEAD, _summary_rows(r)), ""]
     for role in r.signals:
         d = DISPLAY[role]
         out += [f"## Steps: {d.label} [{d.unit}]", ""]
         rows = _step_rows(r, role)
-        out += [_md_table(_STEP_HEAD, rows) if rows else "No step could be analysed.", ""]
+        out += [markdown_table(_STEP_HEAD, rows) if rows else "No step could be analysed.", ""]
         if role in plots:
-            rel = _relative(plots[role], base)
+            rel = relative_link(plots[role], base)
             out += [f"![{d.label}: measured vs model]({rel})", ""]
     if "duty" in plots:
-        out += ["## Input", "", f"![duty command]({_relative(plots['duty'], base)})", ""]
+        out += ["## Input", "", f"![duty command]({relative_link(plots['duty'], base)})", ""]
     if r.notes:
         out += ["## Notes", ""] + [f"- {n}" for n in r.notes] + [""]
     return "\n".join(out)
-
-
-def _relative(p: Path, base: Path) -> str:
-    try:
-        return p.resolve().relative_to(base.resolve()).as_posix()
-    except ValueError:
-        return p.resolve().as_posix()
-
-
-def _html_table(head: list[str], rows: list[list[str]]) -> str:
-    h = "".join(f"<th>{html.escape(c)}</th>" for c in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[ThresholdFailure]) -> str:
@@ -202,18 +182,16 @@ def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[Threshol
                   f"<p>The measured outputs pause {len(r.gaps)} time(s); samples from each gap until "
                   f"{r.resync_s * 1e3:g} ms after it are left out of the metrics (the model and the device "
                   f"re-synchronise), and steps touching them are not analysed.</p>",
-                  _html_table(_GAP_HEAD, _gap_rows(r))]
-    parts += ["<h2>Whole run (model minus measured)</h2>", _html_table(_SUMMARY_HEAD, _summary_rows(r))]
+                  html_table(_GAP_HEAD, _gap_rows(r))]
+    parts += ["<h2>Whole run (model minus measured)</h2>", html_table(_SUMMARY_HEAD, _summary_rows(r))]
     for role in r.signals:
         d = DISPLAY[role]
         parts.append(f"<h2>Steps: {e(d.label)} [{e(d.unit)}]</h2>")
-        parts.append(_html_table(_STEP_HEAD, _step_rows(r, role)))
+        parts.append(html_table(_STEP_HEAD, _step_rows(r, role)))
         if role in pngs:
-            data = base64.b64encode(pngs[role]).decode("ascii")
-            parts.append(f"<img alt='{e(d.label)}' src='data:image/png;base64,{data}' style='max-width:100%'>")
+            parts.append(f"<img alt='{e(d.label)}' src='{png_source(pngs[role])}' style='max-width:100%'>")
     if "duty" in pngs:
-        data = base64.b64encode(pngs["duty"]).decode("ascii")
-        parts.append(f"<h2>Input</h2><img alt='duty' src='data:image/png;base64,{data}' style='max-width:100%'>")
+        parts.append(f"<h2>Input</h2><img alt='duty' src='{png_source(pngs['duty'])}' style='max-width:100%'>")
     if r.notes:
         parts.append("<h2>Notes</h2><ul>")
         parts += [f"<li>{e(n)}</li>" for n in r.notes]
@@ -224,10 +202,7 @@ def render_html(r: ReplayResult, pngs: dict[str, bytes], failures: list[Threshol
 
 def plot_signals(r: ReplayResult) -> dict[str, bytes]:
     """PNG bytes per output role (measured vs model, and the error below) and for the duty."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out: dict[str, bytes] = {}
     for role, (t, meas, mod) in r.traces.items():
@@ -253,7 +228,8 @@ def plot_signals(r: ReplayResult) -> dict[str, bytes]:
         ax_err.set_ylabel(f"error [{d.unit}]")
         ax_err.set_xlabel("time since first duty command [s]")
         ax_err.grid(True, alpha=0.3)
-        out[role] = _png(fig, plt)
+        fig.tight_layout()
+        out[role] = png(fig, dpi=100)
     t_d, duty = r.duty
     t_end = max(r.duration_s, float(t_d[-1]))
     fig, ax = plt.subplots(figsize=(10, 2.5))
@@ -261,13 +237,6 @@ def plot_signals(r: ReplayResult) -> dict[str, bytes]:
     ax.set_ylabel("duty [-]")
     ax.set_xlabel("time since first duty command [s]")
     ax.grid(True, alpha=0.3)
-    out["duty"] = _png(fig, plt)
-    return out
-
-
-def _png(fig: Any, plt: Any) -> bytes:
-    buf = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return buf.getvalue()
+    out["duty"] = png(fig, dpi=100)
+    return out

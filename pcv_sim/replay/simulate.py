@@ -46,11 +46,11 @@ from pcv_sim.replay.recording import Series
 from pcv_sim.simulation.reference import VALVE_ATOL, ReferenceError, integrate_reference
 from pcv_sim.simulation.rest import rest_state
 from pcv_sim.simulation.valve import check_load_flow, check_supply_pressure, valve_system
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["InputTimeline", "ModelRun", "Solver", "input_timeline", "run_model"]
 
 Solver = Literal["auto", "stepper", "fast", "radau"]
-_NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -188,14 +188,14 @@ def _run_radau(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt
     except EquilibriumError as exc:
         msg = f"no rest point for the first inputs (duty {tl.duty[0]:g}, load flow {tl.load_flow[0]:g} m^3/s): {exc}"
         raise ReplayError(msg) from exc
-    changes = tl.t_ns.astype(np.float64) / _NS
+    changes = tl.t_ns.astype(np.float64) / NS_PER_S
 
     def inputs(t: float) -> np.ndarray:
         k = max(int(np.searchsorted(changes, t + 1e-12, side="right")) - 1, 0)
         return np.array([tl.duty[k], tl.load_flow[k], tl.supply_pressure[k], params.circuit.load_volume],
                         dtype=np.float64)
 
-    times = sample_ns.astype(np.float64) / _NS
+    times = sample_ns.astype(np.float64) / NS_PER_S
     if times.size == 0 or times[0] > 0.0:
         times = np.concatenate([[0.0], times])
     try:
@@ -213,8 +213,8 @@ def _run_radau(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt
 
 
 def _run_stepper(params: ValveParams, kind: str, tl: InputTimeline, sample_ns: npt.NDArray[np.int64]) -> ModelRun:
-    dt_ns = round(params.simulation.time_step * _NS)
-    if abs(dt_ns / _NS - params.simulation.time_step) > 1e-15:
+    dt_ns = round(params.simulation.time_step * NS_PER_S)
+    if abs(dt_ns / NS_PER_S - params.simulation.time_step) > 1e-15:
         msg = f"simulation.time_step {params.simulation.time_step!r} s is not a whole number of ns"
         raise ReplayError(msg)
     try:

@@ -47,10 +47,10 @@ from pcv_sim.io.topics import (
     valve_topic,
 )
 from pcv_sim.rig.lockstep import RigRun
+from pcv_sim.units import KINDS, NS_PER_S, quantity
 
 __all__ = ["read_signals", "signal_unit", "write_bag", "write_csv"]
 
-_NS = 1_000_000_000
 #: The controller's flags (`controller.<flag>`) in a run's bag: `/controller/<flag>`.
 _FLAGS = "controller"
 
@@ -73,10 +73,10 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
     p = Path(path)
     rec = DeviceRecorder(p.parent, layout, name=p.name, offered_qos=False,
                          writing=WriterSettings(writer="inline", fsync=False))
-    rec.rows(np.round(run.times * _NS).astype(np.int64), np.column_stack(columns))
+    rec.rows(np.round(run.times * NS_PER_S).astype(np.int64), np.column_stack(columns))
     assert rec.events_topic is not None
     for t, text in sorted(run.log + [(t, f"rejected: {r}") for t, r in run.rejected]):
-        rec.text(rec.events_topic, round(t * _NS), text)
+        rec.text(rec.events_topic, round(t * NS_PER_S), text)
     st = rec.close()
     if st.error:
         raise BagError(f"{p}: {st.error}")
@@ -86,7 +86,6 @@ def write_bag(run: RigRun, path: str | Path, *, chambers: dict[str, str] | None 
 def signal_unit(signal: str) -> str:
     """The SI unit of a run's signal (its column header in a CSV)."""
     from pcv_sim.rig.rig import signal_kind
-    from pcv_sim.units import KINDS
 
     return KINDS[signal_kind(signal)].si
 
@@ -125,7 +124,6 @@ def read_signals(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     import re
 
     from pcv_sim.rig.rig import signal_kind
-    from pcv_sim.units import quantity
 
     p = Path(path)
     if p.is_dir() and not (p / "metadata.yaml").exists() and not list(p.glob("*.mcap")):

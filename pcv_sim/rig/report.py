@@ -13,9 +13,7 @@ seed, the config's hash, date). `render_index` is the page of a folder run.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -31,6 +29,7 @@ from pcv_sim.io.topics import (
     OIL_TEMPERATURE,
     SPOOL_POSITION,
 )
+from pcv_sim.markup import png_source
 from pcv_sim.rig.assertions import Outcome, outcome_kind, signal_kind
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.rig import TEMPERATURE_INPUTS
@@ -98,7 +97,7 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
              extra: Mapping[str, np.ndarray] | None = None, title: str = "") -> bytes:
     """A PNG of the run in engineering units with the assertions' limits, bands and violations and
     the numbered events drawn (see the module docstring)."""
-    from pcv_sim.plotting import pyplot
+    from pcv_sim.plotting import png, pyplot
 
     plt = pyplot()
     extra = {**_derived(run), **(extra or {})}
@@ -165,10 +164,7 @@ def plot_run(run: RigRun, *, outcomes: Sequence[Outcome] = (), events: Sequence[
     if title:
         fig.suptitle(title, y=1.0)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return buf.getvalue()
+    return png(fig, dpi=90, bbox_inches="tight")
 
 
 _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
@@ -240,11 +236,11 @@ def render_html(result: Any) -> str:
     parts.append("<h2>Events</h2><table><tr><th>#</th><th>time</th><th>source</th><th>event</th></tr>"
                  f"{ev_rows or '<tr><td colspan=4>none</td></tr>'}</table>")
     if run is not None:
-        png = base64.b64encode(plot_run(run, outcomes=result.outcomes, events=[(t, x) for t, _, x in events],
-                                        extra=getattr(result, "inputs", {}), title=result.name)).decode()
+        image = png_source(plot_run(run, outcomes=result.outcomes, events=[(t, x) for t, _, x in events],
+                                    extra=getattr(result, "inputs", {}), title=result.name))
         caption = "; ".join(f"{esc(o.name)}: {_drawn(o)}" for o in result.outcomes if _drawn(o))
         parts.append(f"<h2>Run</h2><figure><img alt='the run: signals, limits, bands, violations and events' "
-                     f"src='data:image/png;base64,{png}'><figcaption>Drawn: {caption or 'no limits'}; events as "
+                     f"src='{image}'><figcaption>Drawn: {caption or 'no limits'}; events as "
                      "numbered dotted lines; violations as red x.</figcaption></figure>")
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Final, cast
+from typing import Any, Final, TypeAlias, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -21,6 +21,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pcv_sim.errors import BagError
+from pcv_sim.units import NS_PER_S
 
 __all__ = [
     "DECODABLE_TYPES",
@@ -29,6 +30,7 @@ __all__ = [
     "FLUID_PRESSURE",
     "MESSAGE_OVERHEAD",
     "NS_PER_S",
+    "ChannelRecords",
     "float64_cdr",
     "fluid_pressure_cdr",
     "message_records",
@@ -41,7 +43,8 @@ FLUID_PRESSURE: Final = "sensor_msgs/msg/FluidPressure"
 #: Message types :func:`pcv_sim.io.bag.read_bag` decodes into arrays.
 DECODABLE_TYPES: Final = (FLOAT64, FLUID_PRESSURE)
 
-NS_PER_S: Final = 1_000_000_000
+#: Per channel: (channel id, log times, offsets of its records in bytes serialised together).
+ChannelRecords: TypeAlias = list[tuple[int, npt.NDArray[np.uint64], npt.NDArray[np.uint64]]]
 MESSAGE_OVERHEAD: Final = 9 + 22  # MCAP record opcode+length, then the message fields
 _INT32_MAX: Final = (1 << 31) - 1
 _CDR_LE: Final = b"\x00\x01\x00\x00"
@@ -160,7 +163,7 @@ def message_records(
     t: npt.NDArray[np.int64],
     columns: Sequence[tuple[int, str, int, npt.NDArray[np.float64]]],
     frame_id: str,
-) -> tuple[bytes, list[tuple[int, npt.NDArray[np.uint64], npt.NDArray[np.uint64]]]]:
+) -> tuple[bytes, ChannelRecords]:
     """MCAP message records for a batch, serialised together by numpy.
 
     ``columns`` holds, per topic, (channel id, message type, sequence number of the first

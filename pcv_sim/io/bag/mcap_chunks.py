@@ -27,6 +27,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Message, Schema
 from mcap.writer import Writer as McapWriter
 
+from pcv_sim.io.bag.cdr import ChannelRecords
+
 try:  # private module: may move in another release (then no bulk path)
     from mcap._chunk_builder import ChunkBuilder as _McapChunkBuilder
 except ImportError:  # pragma: no cover - depends on the installed mcap
@@ -126,14 +128,7 @@ class ChunkBuilder:
         self.num_messages += 1
         message.write(self.record_writer)
 
-    def add_records(
-        self,
-        data: bytes,
-        entries: list[tuple[int, npt.NDArray[np.uint64], npt.NDArray[np.uint64]]],
-        t_min: int,
-        t_max: int,
-        n: int,
-    ) -> None:
+    def add_records(self, data: bytes, entries: ChannelRecords, t_min: int, t_max: int, n: int) -> None:
         """Append ``n`` message records serialised together; ``entries`` holds, per channel,
         log times and record offsets relative to the start of ``data``."""
         base = self.record_writer.count
@@ -158,14 +153,8 @@ class BulkChunks:
         self._builder = builder
         self._stats = stats
 
-    def add_records(
-        self,
-        data: bytes,
-        entries: list[tuple[int, npt.NDArray[np.uint64], npt.NDArray[np.uint64]]],
-        t_min: int,
-        t_max: int,
-        per_channel: Mapping[int, int],
-    ) -> None:
+    def add_records(self, data: bytes, entries: ChannelRecords, t_min: int, t_max: int,
+                    per_channel: Mapping[int, int]) -> None:
         """Append message records to the current chunk; ``per_channel``: messages per channel.
         The Writer's statistics are updated as its ``add_message`` would."""
         n = sum(per_channel.values())

@@ -25,7 +25,8 @@ import operator
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Final, Literal, NoReturn, cast
@@ -383,16 +384,8 @@ class BagWriter:
         """Finish the chunk, write(2) it, maybe fsync, maybe split. Caller holds the lock."""
         if self._mcap is None or self._file is None:
             return
-        try:
+        with self._on_disk("write", self._file):
             self._mcap.flush()  # type: ignore[no-untyped-call]  # finishes chunk, flushes file
-            if self._fsync:
-                os.fsync(self._file.fileno())
-        except OSError as exc:
-            self._error = exc
-            msg = f"cannot write bag file {self._file.name!r}: {exc.strerror}"
-            raise BagError(msg) from exc
-        self._pending_since = None
-        self._pending_bytes = 0
         if self._split is not None and self._file.tell() >= self._split:
             try:
                 self._finish_file()
@@ -473,16 +466,24 @@ class BagWriter:
             return
         mcap, self._mcap = self._mcap, None
         text = dump_yaml(self._metadata()["rosbag2_bagfile_information"]).strip()
-        try:
+        with self._on_disk("finish", self._file):
             mcap.flush()  # type: ignore[no-untyped-call]
             mcap.add_metadata("rosbag2", {"serialized_metadata": text})
             mcap.finish()  # type: ignore[no-untyped-call]
             self._file.flush()
+
+    @contextmanager
+    def _on_disk(self, doing: str, file: io.BufferedWriter) -> Iterator[None]:
+        """Around what hands `file`'s data to the OS ("write" a chunk, "finish" the file): then an
+        fsync if asked, and nothing is pending; an OSError on the way makes the bag unusable and is
+        raised as a BagError that names the file. Lock held."""
+        try:
+            yield
             if self._fsync:
-                os.fsync(self._file.fileno())
+                os.fsync(file.fileno())
         except OSError as exc:
             self._error = exc
-            msg = f"cannot finish bag file {self._file.name!r}: {exc.strerror}"
+            msg = f"cannot {doing} bag file {file.name!r}: {exc.strerror}"
             raise BagError(msg) from exc
         self._pending_since = None
         self._pending_bytes = 0
