@@ -107,6 +107,7 @@ from pcv_sim.device.spec import (
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import DUTY_CYCLE, FAULTS, OIL_TEMPERATURE, SUPPLY_PRESSURE
 from pcv_sim.model import kernel
+from pcv_sim.params import WatchdogParams, check_field, declarations
 from pcv_sim.simulation.duty import check_duty
 from pcv_sim.simulation.valve import (
     check_oil_step,
@@ -118,6 +119,8 @@ __all__ = [
     "ModelFault", "PlantSpec", "Prepared", "Recorder", "Sample", "ValveSpec",
 ]
 
+
+_WATCHDOG_TIMEOUT = declarations(WatchdogParams)["watchdog_timeout"]
 
 class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
     """Valves and an optional plant at one fixed step, with everything around the model (see the
@@ -378,10 +381,9 @@ class Device(Restarts, FedInputs, FaultInjection, Outputs, Composition):
 
     def set_watchdog_timeout(self, timeout: float) -> None:
         """Seconds of model time without a valid duty command before the safe duty; 0 = off.
-        ValueError for anything else (nothing changes)."""
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) \
-                or not (math.isfinite(timeout) and timeout >= 0.0):
-            raise ValueError(f"watchdog_timeout {timeout!r} s: accepted is a finite number >= 0 (0 = off)")
+        ParameterError (a ValueError) from the one declaration, `WatchdogParams`, for anything
+        else (nothing changes)."""
+        timeout = check_field("watchdog_timeout", _WATCHDOG_TIMEOUT, timeout)
         for name, watchdog in self.watchdogs.items():
             if watchdog.set_timeout(round(timeout / self.dt)):
                 self.duties[name] = self.commands[name]

@@ -35,6 +35,7 @@ from pcv_sim.errors import BagError
 from pcv_sim.io.bag import FLOAT64, cdr
 from pcv_sim.io.recorder import WRITER_DEFAULTS, QueuedBag, WriterSettings, bag_name
 from pcv_sim.io.topics import CYLINDER, EVENTS, FAULTS, JOINT_NAME, JOINT_STATE
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["RECORDABLE", "BagLayout", "DeviceRecorder", "Topic", "check_signals"]
 
@@ -351,7 +352,7 @@ class DeviceRecorder(QueuedBag):
         template, at_stamp, at_values = self._joint_template()
         pack = _JOINT_PACK.pack_into
         for k in range(len(t)):
-            sec, nsec = divmod(int(t[k]), 1_000_000_000)
+            sec, nsec = divmod(int(t[k]), NS_PER_S)
             p, v, e = y[k, jp], y[k, jv], y[k, je]
             if math.isfinite(p) and math.isfinite(v) and math.isfinite(e):
                 buf = bytearray(template)          # the template filled in: ~1 µs instead of ~50 µs

@@ -34,6 +34,7 @@ from pcv_sim.node.polling import linger_for_rosout
 from pcv_sim.node.qos_events import QosEvents
 from pcv_sim.node.recording import NodeRecording
 from pcv_sim.node.services import ServicePolling
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["NodeBase", "StopFlag"]
 
@@ -78,7 +79,7 @@ class NodeBase(NodeParameters, NodeInputs, ServicePolling, QosEvents, TimeModeLo
         msg = DiagnosticArray()
         model_clock = self.simulated or self.external_clock
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
-            self.device.stamp_ns() if model_clock else time.time_ns(), 1_000_000_000)
+            self.device.stamp_ns() if model_clock else time.time_ns(), NS_PER_S)
         for st in self._statuses(now, self.recorder.status() if self.recorder is not None else None):
             d = DiagnosticStatus(level=bytes([st.level]), name=st.name, message=st.message, hardware_id=st.hardware_id)
             d.values = [KeyValue(key=k, value=v) for k, v in st.values.items()]

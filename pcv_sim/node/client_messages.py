@@ -19,6 +19,7 @@ from pcv_sim.io import topics
 from pcv_sim.node.client_lockstep import PartialPeriod
 from pcv_sim.node.inputs import drain
 from pcv_sim.node.lockstep_channel import decode, measurement
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["ClientMessages", "PressureSample", "diagnostic_level", "sample_qos", "stamp_ns"]
 
@@ -30,7 +31,7 @@ def sample_qos(depth: int = 10000) -> QoSProfile:
 
 def stamp_ns(msg: Any) -> int:
     """A stamped message's header.stamp in ns (the sample's model time)."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
 
 
 def diagnostic_level(status: Any) -> int:

@@ -31,6 +31,7 @@ from collections.abc import Sequence
 
 from pcv_sim.errors import CommandError
 from pcv_sim.io.topics import LOCKSTEP_COMMAND, LOCKSTEP_SAMPLE
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["COMMAND_TOPIC", "DUTY_SUFFIX", "FLAG_PREFIX", "SAMPLE_TOPIC", "NamedVector", "decode", "measurement",
            "split_command"]
@@ -81,7 +82,7 @@ class NamedVector:
     def encode(self, stamp_ns: int, values: Sequence[float]) -> bytes:
         """The message for `values` (one per name, in order) stamped `stamp_ns` (ns, >= 0)."""
         buf = self._buf
-        _STAMP.pack_into(buf, _BODY, *divmod(stamp_ns, 1_000_000_000))
+        _STAMP.pack_into(buf, _BODY, *divmod(stamp_ns, NS_PER_S))
         self._values.pack_into(buf, self._values_at, *values)
         return bytes(buf)
 
@@ -120,7 +121,7 @@ class _Reader:
         if count != len(names):
             raise CommandError(f"lockstep message: {len(names)} names and {count} positions; accepted is one "
                                "position per name")
-        return sec * 1_000_000_000 + nsec, names, values
+        return sec * NS_PER_S + nsec, names, values
 
 
 def _names(buf: bytes, at: int) -> tuple[tuple[str, ...], int]:

@@ -32,6 +32,7 @@ from pcv_sim.simulation.clock import (
     SimulatedSchedule,
     WakeRecord,
 )
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["CLOCK_DISCOVERY", "LOCKSTEP_FULL_POLL", "LOCKSTEP_RESEND", "StopFlag", "TimeModeLoops"]
 
@@ -208,13 +209,13 @@ class TimeModeLoops(Node):
     def _publish_clock(self) -> None:
         """/clock at the present model step (simulated time: the one clock of the domain)."""
         msg = self._msg_clock
-        msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), 1_000_000_000)
+        msg.clock.sec, msg.clock.nanosec = divmod(self.device.stamp_ns(), NS_PER_S)
         assert self._pub_clock is not None              # created in simulated time, the only caller
         self._pub_clock.publish(msg)
 
     def _on_clock(self, msg: Clock, _info: Any = None) -> None:
         """use_sim_time: the latest external /clock."""
-        self._external.take(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+        self._external.take(msg.clock.sec * NS_PER_S + msg.clock.nanosec)
 
     def _run_real_time(self, stop: StopFlag) -> None:
         """Real time: wake on a fixed grid of the monotonic clock (`wake_period`), take the inputs, run the

@@ -17,6 +17,7 @@ from std_msgs.msg import Float64, Header
 
 from pcv_sim.io.bag import FLOAT64, FLUID_PRESSURE
 from pcv_sim.io.topics import JOINT_NAME, JOINT_STATE, OutputTopic
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["SamplePublisher"]
 
@@ -63,7 +64,7 @@ class SamplePublisher:
                 msg.header.frame_id = frame_id
 
     def publish(self, stamp_ns: int, y: Sequence[float]) -> None:
-        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        sec, nsec = divmod(stamp_ns, NS_PER_S)
         isfinite = math.isfinite
         for kind, pub, msg, idx in self._plan:
             if kind == _FLOAT:

@@ -47,6 +47,7 @@ from pcv_sim.errors import PcvSimError
 from pcv_sim.io.topics import CONTROLLER_FLAGS, JOINT_STATES, SETPOINT, cylinder_topic
 from pcv_sim.rig.lockstep import RigRun
 from pcv_sim.rig.scenario import RosController, Scenario, ScenarioResult, scenario_result, schedule_timeline
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["FLAGS_TOPIC", "SETPOINT_TOPIC", "run_ros_scenario"]
 
@@ -138,7 +139,7 @@ class _Host:
 
     def on_flags(self, msg: Any, _info: Any = None) -> None:
         """controller/flags (a controller on the per-valve topics)."""
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
         values = {}
         for st in msg.status:
             for kv in st.values:

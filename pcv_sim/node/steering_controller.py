@@ -57,6 +57,7 @@ from pcv_sim.control.params import PositionControllerParams
 from pcv_sim.device.settings import NodeParameter, parameters_of
 from pcv_sim.node.process import Stop, main_process, parameter_help, run_node
 from pcv_sim.params import any_value, setting
+from pcv_sim.units import NS_PER_S
 
 __all__ = ["DECLARING", "NODE_NAME", "STATUS_NAME", "VALVES", "ControllerNodeSettings", "PeriodCheck", "main",
            "node_parameters"]
@@ -239,7 +240,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             if ts._clock_sub is not None:      # use_sim_time switched on at run time
                 self._drop_clock_subscription()
             clock = self._clock_msg.clock
-            clock.sec, clock.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+            clock.sec, clock.nanosec = divmod(round(t * 1e9), NS_PER_S)
             ts.clock_callback(self._clock_msg)
 
         def _on_setpoint(self, msg: Any, _info: Any) -> None:
@@ -274,7 +275,7 @@ def make_node(argv: list[str], **kwargs: Any) -> Any:
             if not self._pub_flags.get_subscription_count():
                 return                         # nobody reads them (a scenario runner has them in the command)
             msg, st = self._msg_flags, self._msg_flags.status[0]
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, NS_PER_S)
             fault = flags.get("fault_detected", 0.0) != 0.0
             st.level = DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK
             st.message = "coil fault detected" if fault else "ok"

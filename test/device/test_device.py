@@ -119,8 +119,10 @@ def test_watchdog_settings_change_at_run_time_on_every_device(dev):
     assert dev.safe_duty == dev.duties[valve] == dev.duty_held(valve) == 0.1
     dev.set_watchdog_timeout(0.0)               # off: the controller's command is back at once
     assert dev.duties[valve] == 0.6 and dev.watchdogs[valve].state == WatchdogState.OFF
-    with pytest.raises(ValueError, match="accepted is a finite number >= 0"):
-        dev.set_watchdog_timeout(-1.0)
+    for bad in (-1.0, 61.0, float("nan"), True):     # the one declaration's range (every device's, every node's)
+        with pytest.raises(ValueError, match=r"watchdog_timeout: got .*; accepted is a"):
+            dev.set_watchdog_timeout(bad)
+    assert dev.watchdogs[valve].state == WatchdogState.OFF      # a refusal changes nothing
     with pytest.raises(CommandError):
         dev.set_safe_duty(1.5)
     assert dev.safe_duty == 0.1
